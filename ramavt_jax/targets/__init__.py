@@ -1,0 +1,229 @@
+"""Target catalogue: MJCF models of space objects loaded into fixed-size JAX arrays.
+
+A target is a rigid body made of MuJoCo primitives (sphere, capsule, ellipsoid, cylinder, box). MuJoCo parses the
+file and computes masses, inertias and geom frames; we express every geom in the target's *principal inertia frame*
+(origin at the centre of mass, axes along the principal axes), so the attitude dynamics can use a diagonal inertia
+and the renderer only needs the pose of that frame.
+
+Targets of different sizes batch together because every array is padded to the same number of geoms
+(`geom_mask` marks the real ones).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+from pathlib import Path
+from typing import Sequence
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from flax import struct
+
+# MuJoCo's own geom type codes (mujoco.mjtGeom); kept as plain ints so this module imports without mujoco.
+SPHERE, CAPSULE, ELLIPSOID, CYLINDER, BOX = 2, 3, 4, 5, 6
+SUPPORTED_GEOM_TYPES = {SPHERE: "sphere", CAPSULE: "capsule", ELLIPSOID: "ellipsoid", CYLINDER: "cylinder", BOX: "box"}
+
+MODEL_DIR = Path(__file__).parent / "models"
+
+# name -> class; the order defines the catalogue index.
+CATALOGUE: dict[str, str] = {
+    **{f"Asteroid-v{i}": "asteroid" for i in range(6)},
+    **{f"Capsule-v{i}": "capsule" for i in range(3)},
+    **{f"Rocket-v{i}": "rocket" for i in range(3)},
+    **{f"Satellite-v{i}": "satellite" for i in range(3)},
+    **{f"Station-v{i}": "station" for i in range(3)},
+}
+# Held-out split as in the original benchmark: asteroids v4, v5 and the v2 of every other class.
+TEST_TARGETS: tuple[str, ...] = ("Asteroid-v4", "Asteroid-v5", "Capsule-v2", "Rocket-v2", "Satellite-v2", "Station-v2")
+TRAIN_TARGETS: tuple[str, ...] = tuple(n for n in CATALOGUE if n not in TEST_TARGETS)
+ALL_TARGETS: tuple[str, ...] = tuple(CATALOGUE)
+
+
+class TargetError(ValueError):
+    """A target name, file or model that cannot be used."""
+
+
+@struct.dataclass
+class TargetModel:
+    """One target (or a batch, with leading axes) as padded primitive arrays, in its principal inertia frame.
+
+    Shapes for a single target with G padded geoms:
+      geom_type   [G] int32     MuJoCo geom type code (2 sphere, 3 capsule, 4 ellipsoid, 5 cylinder, 6 box)
+      geom_size   [G, 3] f32    MuJoCo size convention (radius / half-lengths / half-extents)
+      geom_pos    [G, 3] f32    geom centre in the body frame
+      geom_mat    [G, 3, 3] f32 body_from_geom rotation (columns are the geom axes in the body frame)
+      geom_rgb    [G, 3] f32    albedo in [0, 1]
+      geom_rbound [G] f32       radius of a sphere about geom_pos that encloses the geom
+      geom_mask   [G] bool      True for real geoms, False for padding
+      bound_radius [] f32       radius of a sphere about the centre of mass that encloses the whole target
+      inertia     [3] f32       principal moments of inertia (kg m^2), matching the body axes
+      mass        [] f32        total mass (kg)
+    """
+
+    geom_type: jax.Array
+    geom_size: jax.Array
+    geom_pos: jax.Array
+    geom_mat: jax.Array
+    geom_rgb: jax.Array
+    geom_rbound: jax.Array
+    geom_mask: jax.Array
+    bound_radius: jax.Array
+    inertia: jax.Array
+    mass: jax.Array
+
+    @property
+    def num_geoms(self) -> int:
+        return self.geom_type.shape[-1]
+
+
+@dataclasses.dataclass(frozen=True)
+class TargetInfo:
+    """Host-side description of a loaded target (for listings and reports)."""
+
+    name: str
+    path: str
+    num_geoms: int
+    bound_radius: float
+    mass: float
+    inertia: tuple[float, float, float]
+    geom_types: tuple[str, ...]
+
+
+def resolve(name_or_path: str | os.PathLike) -> Path:
+    """Catalogue name (e.g. ``"Satellite-v1"``) or a path to an MJCF file -> path of the file."""
+    text = str(name_or_path)
+    if text in CATALOGUE:
+        return MODEL_DIR / f"{text}.xml"
+    if text.lower().endswith(".xml") or os.sep in text:
+        path = Path(text).expanduser()
+        if not path.is_file():
+            raise TargetError(f"target file {path} does not exist")
+        return path
+    close = [n for n in CATALOGUE if n.lower().startswith(text.lower().split("-")[0])]
+    hint = f" Did you mean one of {close}?" if close else ""
+    raise TargetError(f"unknown target {text!r}: not in the catalogue ({', '.join(CATALOGUE)}) and not an .xml file.{hint}")
+
+
+def _load_mj_model(path: Path):
+    import mujoco
+
+    try:
+        return mujoco.MjModel.from_xml_path(str(path))
+    except Exception as exc:  # mujoco raises ValueError with the parser message
+        raise TargetError(f"cannot parse MJCF file {path}: {exc}") from exc
+
+
+def load_numpy(name_or_path: str | os.PathLike, pad_to: int | None = None) -> tuple[dict[str, np.ndarray], TargetInfo]:
+    """Parse one target with MuJoCo; return padded numpy arrays (TargetModel fields) and a TargetInfo.
+
+    All geoms of the model belong to the target (bodies without joints are welded together; a free joint is fine).
+    Raises TargetError for unknown names, malformed files, unsupported geom types or a massless model.
+    """
+    import mujoco
+
+    path = resolve(name_or_path)
+    model = _load_mj_model(path)
+    data = mujoco.MjData(model)
+    mujoco.mj_forward(model, data)  # world poses at qpos0
+
+    if model.ngeom == 0:
+        raise TargetError(f"{path}: the model has no geoms")
+    bad = sorted({int(t) for t in model.geom_type if int(t) not in SUPPORTED_GEOM_TYPES})
+    if bad:
+        names = [mujoco.mjtGeom(t).name.replace("mjGEOM_", "").lower() for t in bad]
+        raise TargetError(
+            f"{path}: unsupported geom type(s) {names}; supported are {sorted(SUPPORTED_GEOM_TYPES.values())}"
+        )
+
+    # Composite mass properties of all bodies, about the common centre of mass.
+    masses = np.asarray(model.body_mass, dtype=np.float64)
+    total_mass = float(masses.sum())
+    if not total_mass > 0.0:
+        raise TargetError(f"{path}: the model has zero mass; put the geoms in a <body> (not <worldbody> directly)")
+    com = (masses[:, None] * data.xipos).sum(0) / total_mass
+    inertia_world = np.zeros((3, 3))
+    for b in range(model.nbody):
+        if masses[b] <= 0:
+            continue
+        rot = data.ximat[b].reshape(3, 3)
+        inertia_world += rot @ np.diag(model.body_inertia[b]) @ rot.T
+        d = data.xipos[b] - com
+        inertia_world += masses[b] * (d @ d * np.eye(3) - np.outer(d, d))
+    moments, axes = np.linalg.eigh(inertia_world)
+    if np.linalg.det(axes) < 0:  # keep a right-handed body frame
+        axes[:, 2] *= -1.0
+    world_from_body = axes  # columns are the principal axes in world coordinates
+
+    geom_pos = (data.geom_xpos - com) @ world_from_body  # [G, 3] body coordinates
+    geom_mat = np.einsum("ji,gjk->gik", world_from_body, data.geom_xmat.reshape(-1, 3, 3))  # body_from_geom
+    rgba = np.array(model.geom_rgba, dtype=np.float64)
+    has_mat = model.geom_matid >= 0
+    if has_mat.any():
+        rgba[has_mat] = model.mat_rgba[model.geom_matid[has_mat]]
+    rbound = np.array(model.geom_rbound, dtype=np.float64)
+    bound_radius = float(np.max(np.linalg.norm(geom_pos, axis=1) + rbound))
+
+    n = model.ngeom
+    pad = n if pad_to is None else pad_to
+    if pad < n:
+        raise TargetError(f"{path}: has {n} geoms, more than the padding size {pad}")
+
+    def padded(a: np.ndarray, fill: float = 0.0) -> np.ndarray:
+        out = np.full((pad,) + a.shape[1:], fill, dtype=a.dtype)
+        out[:n] = a
+        return out
+
+    eye = np.broadcast_to(np.eye(3), (pad, 3, 3)).copy()
+    eye[:n] = geom_mat
+    arrays = dict(
+        geom_type=padded(np.asarray(model.geom_type, np.int32)),
+        geom_size=padded(np.asarray(model.geom_size, np.float32)),
+        geom_pos=padded(geom_pos.astype(np.float32)),
+        geom_mat=eye.astype(np.float32),
+        geom_rgb=padded(rgba[:, :3].astype(np.float32)),
+        geom_rbound=padded(rbound.astype(np.float32)),
+        geom_mask=padded(np.ones(n, bool)),
+        bound_radius=np.float32(bound_radius),
+        inertia=moments.astype(np.float32),
+        mass=np.float32(total_mass),
+    )
+    type_names = tuple(SUPPORTED_GEOM_TYPES[int(t)] for t in model.geom_type)
+    name = str(name_or_path) if str(name_or_path) in CATALOGUE else path.stem
+    info = TargetInfo(name, str(path), n, bound_radius, total_mass, tuple(float(m) for m in moments), type_names)
+    return arrays, info
+
+
+def load(name_or_path: str | os.PathLike, pad_to: int | None = None) -> TargetModel:
+    """Load one target (catalogue name or MJCF path) as a TargetModel with arrays of shape [G, ...]."""
+    arrays, _ = load_numpy(name_or_path, pad_to)
+    return TargetModel(**{k: jnp.asarray(v) for k, v in arrays.items()})
+
+
+def load_many(names_or_paths: Sequence[str | os.PathLike], pad_to: int | None = None) -> tuple[TargetModel, list[TargetInfo]]:
+    """Load several targets padded to a common geom count; arrays get a leading axis [N, G, ...]."""
+    if len(names_or_paths) == 0:
+        raise TargetError("no targets given")
+    loaded = [load_numpy(t) for t in names_or_paths]
+    width = max(info.num_geoms for _, info in loaded)
+    if pad_to is not None:
+        if pad_to < width:
+            raise TargetError(f"pad_to={pad_to} is smaller than the largest target ({width} geoms)")
+        width = pad_to
+    stacked = [load_numpy(t, width)[0] for t in names_or_paths]
+    batch = {k: jnp.asarray(np.stack([s[k] for s in stacked])) for k in stacked[0]}
+    return TargetModel(**batch), [info for _, info in loaded]
+
+
+def select(catalogue: TargetModel, index: jax.Array) -> TargetModel:
+    """Pick target `index` from a stacked [N, ...] TargetModel (jit-able; index may be traced)."""
+    return jax.tree.map(lambda a: a[index], catalogue)
+
+
+def split(name: str) -> tuple[str, ...]:
+    """'train', 'test' or 'all' -> catalogue names."""
+    table = {"train": TRAIN_TARGETS, "test": TEST_TARGETS, "all": ALL_TARGETS}
+    if name not in table:
+        raise TargetError(f"unknown split {name!r}; choose one of {sorted(table)}")
+    return table[name]
