@@ -375,14 +375,14 @@ def asteroid(name: str, seed: int, n: int, axes, lobes: int, density: float, com
     rng = np.random.default_rng(seed)
     axes = np.asarray(axes, float)
     t = Target(name, comment)
-    base = np.array([0.45, 0.40, 0.35]) + rng.uniform(-0.04, 0.04, 3)
+    base = np.array([0.56, 0.49, 0.41]) * rng.uniform(0.85, 1.1)  # grey-brown regolith
 
     def colour():
-        return np.clip(base * rng.uniform(0.8, 1.2) + rng.uniform(-0.03, 0.03, 3), 0, 1)
+        return np.clip(base * rng.uniform(0.8, 1.15) + rng.uniform(-0.02, 0.02, 3), 0, 1)
 
     if lobes == 1:
         centres = [np.zeros(3)]
-        lobe_axes = [0.75 * axes]
+        lobe_axes = [0.62 * axes]
     else:
         off = np.array([0.45 * axes[0], 0, 0])
         centres = [off, -off * 0.9]
@@ -394,12 +394,12 @@ def asteroid(name: str, seed: int, n: int, axes, lobes: int, density: float, com
         k = rng.integers(len(centres))
         d = rng.normal(size=3)
         d /= np.linalg.norm(d)
-        pos = centres[k] + d * lobe_axes[k] * rng.uniform(0.55, 0.85)
-        r = rng.uniform(0.25, 0.5) * lobe_axes[k].mean()
+        pos = centres[k] + d * lobe_axes[k] * rng.uniform(0.75, 1.0)
+        r = rng.uniform(0.3, 0.6) * lobe_axes[k].mean()
         if rng.uniform() < 0.3:
             t.sphere(f"boulder_{j}", pos, r * 0.8, colour(), density)
         else:
-            half = r * rng.uniform(0.5, 1.0, 3)
+            half = r * rng.uniform(0.45, 1.0, 3)
             t.ellipsoid(f"boulder_{j}", pos, half, colour(), density, euler=rng.uniform(-180, 180, 3).round(1))
     return t
 
@@ -407,11 +407,11 @@ def asteroid(name: str, seed: int, n: int, axes, lobes: int, density: float, com
 def asteroids() -> list[Target]:
     return [
         asteroid("Asteroid-v0", 100, 7, [1.0, 0.85, 0.75], 1, 2000.0, "2 m roundish rubble pile (7 primitives)"),
-        asteroid("Asteroid-v1", 101, 9, [2.0, 1.0, 0.85], 1, 2200.0, "4 m elongated rock (9 primitives)"),
+        asteroid("Asteroid-v1", 101, 9, [2.0, 1.0, 0.85], 1, 2200.0, "3 m elongated rock (9 primitives)"),
         asteroid("Asteroid-v2", 102, 5, [0.7, 0.6, 0.45], 1, 1800.0, "1.4 m flattened boulder (5 primitives)"),
         asteroid("Asteroid-v3", 103, 11, [1.6, 0.9, 0.8], 2, 2000.0, "3.2 m contact binary (11 primitives)"),
         asteroid("Asteroid-v4", 104, 8, [1.3, 0.75, 0.55], 1, 2300.0, "2.6 m flat elongated shard (8 primitives)"),
-        asteroid("Asteroid-v5", 105, 12, [2.2, 1.2, 1.0], 2, 1900.0, "4.4 m bilobed rubble pile (12 primitives)"),
+        asteroid("Asteroid-v5", 105, 12, [2.2, 1.2, 1.0], 2, 1900.0, "4.5 m bilobed rubble pile (12 primitives)"),
     ]
 
 
