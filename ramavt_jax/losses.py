@@ -1,0 +1,220 @@
+"""Value-learning losses for the recurrent DQN (R2D2-style), as pure functions.
+
+Conventions (shared with :mod:`ramavt_jax.replay`):
+
+* Time index ``t`` names *transition* t: from observation ``t`` to observation ``t + 1``, taken with
+  ``actions[t]``, yielding ``rewards[t]``.  ``terminated[t]`` and ``truncated[t]`` describe that transition.
+* Q-value arrays hold one entry per *observation*: a window of ``T`` transitions has ``T + 1`` observations, so
+  ``q[:, t]`` is Q(obs t, .) and ``q[:, t + 1]`` is Q(obs t+1, .).  Internally ``_tm1`` names values at obs t
+  (the state the action was taken in) and ``_t`` values at obs t+1 (the bootstrap state), as in rlax.
+* ``terminated[t]``: obs t+1 is terminal -> no bootstrap (discount 0).
+* ``truncated[t]``: the time limit cut the episode at obs t+1 -> bootstrap from Q(obs t+1) with discount gamma.
+  This is only correct if obs t+1 is the real final observation of the episode, which the trainer's
+  *next-step autoreset* guarantees (see :mod:`ramavt_jax.replay`).
+* ``mask[t]`` (0/1) removes transitions from the loss: burn-in, padding, and the artificial transition that
+  crosses from an episode's final observation into the first observation of the next episode.  Such a crossing
+  transition always follows a terminated or truncated one under next-step autoreset, so n-step accumulation
+  (which stops at ``terminated | truncated``) never reaches it.
+
+Batching: the sequence functions are written for one sequence and vmapped over the batch (rlax style);
+:func:`sequence_td_loss` takes ``[B, ...]`` arrays.
+"""
+
+from __future__ import annotations
+
+import chex
+import jax
+import jax.numpy as jnp
+from flax import struct
+
+__all__ = [
+    "signed_hyperbolic",
+    "signed_parabolic",
+    "n_step_targets",
+    "TDConfig",
+    "sequence_td_loss",
+]
+
+
+def signed_hyperbolic(x: jax.Array, eps: float = 1e-3) -> jax.Array:
+    """R2D2 value rescaling h(x) = sign(x) (sqrt(|x| + 1) - 1) + eps x.  Any shape, elementwise."""
+    return jnp.sign(x) * (jnp.sqrt(jnp.abs(x) + 1.0) - 1.0) + eps * x
+
+
+def signed_parabolic(x: jax.Array, eps: float = 1e-3) -> jax.Array:
+    """Inverse of :func:`signed_hyperbolic`: h^-1(x) = sign(x) (((sqrt(1 + 4 eps (|x| + 1 + eps)) - 1) / 2 eps)^2 - 1).
+
+    Any shape, elementwise.  ``signed_parabolic(signed_hyperbolic(x)) == x`` up to float rounding.
+    """
+    # (sqrt(1 + u) - 1) / (2 eps) with u = 4 eps (eps + 1 + |x|), written as u / (2 eps (sqrt(1 + u) + 1)) to avoid
+    # the float32 cancellation of sqrt(1 + u) - 1 for small eps (rlax's form loses ~1e-4 relative accuracy).
+    w = eps + 1.0 + jnp.abs(x)
+    z = 2.0 * w / (jnp.sqrt(1.0 + 4.0 * eps * w) + 1.0)
+    return jnp.sign(x) * (jnp.square(z) - 1.0)
+
+
+def n_step_targets(
+    rewards: jax.Array,  # [T]
+    discounts: jax.Array,  # [T]
+    q_boot: jax.Array,  # [T]
+    n: int,
+    stop: jax.Array | None = None,  # [T] bool
+) -> jax.Array:  # [T]
+    """n-step bootstrapped returns over one window of ``T`` transitions.
+
+    For transition t let ``e = min(t + n - 1, T - 1, first k >= t with stop[k])`` be the last transition
+    accumulated.  Then::
+
+        G[t] = sum_{j=t..e} (prod_{i=t..j-1} discounts[i]) rewards[j]
+               + (prod_{i=t..e} discounts[i]) q_boot[e]
+
+    Args:
+      rewards: ``[T]`` reward of transition t.
+      discounts: ``[T]`` discount of transition t, already ``gamma * (1 - terminated[t])``.
+      q_boot: ``[T]`` value estimate of obs t+1 (the state *after* transition t), used for bootstrapping.
+      n: static number of steps (>= 1).  Near the window end the return is truncated at the last transition
+        and bootstraps from ``q_boot[T - 1]``.
+      stop: optional ``[T]`` bool, the episode ended at transition t (``terminated | truncated``): accumulation
+        stops there and bootstraps from ``q_boot[t]`` (times ``discounts[t]``, which is 0 if terminated).  Without
+        it a terminal still stops the return (its discount is 0) but a truncation would not.
+
+    Returns:
+      ``[T]`` targets (no gradient is stopped here; the caller decides).
+    """
+    chex.assert_rank([rewards, discounts, q_boot], 1)
+    chex.assert_equal_shape([rewards, discounts, q_boot])
+    if n < 1:
+        raise ValueError(f"n must be >= 1, got {n}")
+    T = rewards.shape[0]
+    is_last = jnp.arange(T) == T - 1
+    end = is_last if stop is None else (is_last | stop.astype(bool))
+    # Backward recursion, one static iteration per extra step:
+    #   G1[t] = r[t] + d[t] q_boot[t]
+    #   Gk[t] = r[t] + d[t] * (q_boot[t] if end[t] else G(k-1)[t + 1])
+    returns = rewards + discounts * q_boot
+    for _ in range(n - 1):
+        next_returns = jnp.concatenate([returns[1:], returns[-1:]])  # G(k-1)[t+1]; last entry unused
+        returns = rewards + discounts * jnp.where(end, q_boot, next_returns)
+    return returns
+
+
+@struct.dataclass
+class TDConfig:
+    """Configuration of :func:`sequence_td_loss` (all fields static, so it can be a jit argument).
+
+    Attributes:
+      gamma: discount per step.
+      n_step: number of steps of the bootstrapped return (1 = one-step Q-learning).
+      double_q: choose the bootstrap action with the online network, evaluate it with the target network.
+        Otherwise bootstrap from ``max_a q_target``.
+      value_rescale: R2D2 invertible value rescaling: target = h(n-step return of h^-1(q)); the networks then
+        predict rescaled values.
+      rescale_eps: the eps of h.
+      huber_delta: ``None`` for the squared loss ``0.5 td^2`` ("MSE"); otherwise the Huber loss with this delta
+        (``0.5 td^2`` for ``|td| <= delta``, ``delta (|td| - delta / 2)`` beyond), so both agree for small errors.
+    """
+
+    gamma: float = struct.field(pytree_node=False, default=0.99)
+    n_step: int = struct.field(pytree_node=False, default=1)
+    double_q: bool = struct.field(pytree_node=False, default=True)
+    value_rescale: bool = struct.field(pytree_node=False, default=False)
+    rescale_eps: float = struct.field(pytree_node=False, default=1e-3)
+    huber_delta: float | None = struct.field(pytree_node=False, default=None)
+
+    def __post_init__(self):
+        if not 0.0 <= self.gamma <= 1.0:
+            raise ValueError(f"TDConfig.gamma must be in [0, 1], got {self.gamma}")
+        if int(self.n_step) != self.n_step or self.n_step < 1:
+            raise ValueError(f"TDConfig.n_step must be an integer >= 1, got {self.n_step}")
+        if self.huber_delta is not None and not self.huber_delta > 0:
+            raise ValueError(f"TDConfig.huber_delta must be None (squared loss) or > 0, got {self.huber_delta}")
+        if not self.rescale_eps > 0:
+            raise ValueError(f"TDConfig.rescale_eps must be > 0, got {self.rescale_eps}")
+
+
+def _elementwise_loss(td: jax.Array, huber_delta: float | None) -> jax.Array:
+    if huber_delta is None:
+        return 0.5 * jnp.square(td)
+    abs_td = jnp.abs(td)
+    quadratic = jnp.minimum(abs_td, huber_delta)
+    return 0.5 * jnp.square(quadratic) + huber_delta * (abs_td - quadratic)
+
+
+def _sequence_targets(
+    q_online_t: jax.Array,  # [T, A]  online Q at obs t+1 (for double-Q action selection)
+    q_target_t: jax.Array,  # [T, A]  target Q at obs t+1
+    r_t: jax.Array,  # [T]
+    terminated: jax.Array,  # [T]
+    truncated: jax.Array,  # [T]
+    cfg: TDConfig,
+) -> jax.Array:  # [T]
+    """Targets for one sequence (vmapped over the batch by :func:`sequence_td_loss`)."""
+    if cfg.double_q:
+        a_t = jnp.argmax(q_online_t, axis=-1)
+        v_t = jnp.take_along_axis(q_target_t, a_t[:, None], axis=-1)[:, 0]
+    else:
+        v_t = jnp.max(q_target_t, axis=-1)
+    if cfg.value_rescale:
+        v_t = signed_parabolic(v_t, cfg.rescale_eps)
+    discount_t = cfg.gamma * (1.0 - terminated.astype(v_t.dtype))
+    stop = terminated.astype(bool) | truncated.astype(bool)
+    target = n_step_targets(r_t.astype(v_t.dtype), discount_t, v_t, cfg.n_step, stop=stop)
+    if cfg.value_rescale:
+        target = signed_hyperbolic(target, cfg.rescale_eps)
+    return target
+
+
+def sequence_td_loss(
+    q_online: jax.Array,  # [B, T+1, A]
+    q_target: jax.Array,  # [B, T+1, A]
+    actions: jax.Array,  # [B, T] int
+    rewards: jax.Array,  # [B, T]
+    terminated: jax.Array,  # [B, T] bool
+    truncated: jax.Array,  # [B, T] bool
+    mask: jax.Array,  # [B, T] bool or 0/1
+    cfg: TDConfig,
+) -> tuple[jax.Array, dict[str, jax.Array]]:
+    """Masked (double-)Q n-step TD loss over a batch of sequences.
+
+    Args:
+      q_online: ``[B, T+1, A]`` online-network Q-values for observations 0..T of each window.  Gradients flow
+        through ``q_online[:, t, actions[:, t]]`` only (the action selection at t+1 is not differentiated).
+      q_target: ``[B, T+1, A]`` target-network Q-values for the same observations (gradient stopped).
+        ``q_target[:, 0]`` is not used.
+      actions: ``[B, T]`` action of transition t (obs t -> obs t+1).
+      rewards: ``[B, T]`` reward of transition t.
+      terminated: ``[B, T]`` obs t+1 is terminal: no bootstrap.
+      truncated: ``[B, T]`` the time limit ended the episode at obs t+1 (its real final observation):
+        bootstrap from obs t+1; n-step accumulation stops there.
+      mask: ``[B, T]`` 1 where transition t contributes to the loss (0 for burn-in, padding and episode-crossing
+        transitions).  Masked transitions still serve as later steps of other transitions' n-step returns only
+        if no episode end lies in between, which next-step autoreset guarantees for crossings.
+      cfg: :class:`TDConfig`.
+
+    Returns:
+      ``(loss, aux)``: ``loss`` is the mean of the elementwise loss over unmasked transitions (0 if none);
+      ``aux`` holds ``td_error``, ``q_taken`` and ``target``, each ``[B, T]`` (``td_error = target - q_taken``,
+      unmasked values, for logging and priorities).
+    """
+    chex.assert_rank([q_online, q_target], 3)
+    chex.assert_rank([actions, rewards, terminated, truncated, mask], 2)
+    chex.assert_equal_shape([q_online, q_target])
+    chex.assert_equal_shape([actions, rewards, terminated, truncated, mask])
+    B, T = actions.shape
+    chex.assert_shape(q_online, (B, T + 1, None))
+
+    q_tm1 = q_online[:, :-1]  # [B, T, A]
+    q_taken = jnp.take_along_axis(q_tm1, actions[..., None].astype(jnp.int32), axis=-1)[..., 0]  # [B, T]
+
+    q_online_t = jax.lax.stop_gradient(q_online[:, 1:])  # [B, T, A]
+    q_target_t = jax.lax.stop_gradient(q_target[:, 1:])  # [B, T, A]
+    target = jax.vmap(_sequence_targets, in_axes=(0, 0, 0, 0, 0, None))(
+        q_online_t, q_target_t, rewards, terminated, truncated, cfg
+    )
+    target = jax.lax.stop_gradient(target)
+
+    td_error = target - q_taken
+    mask_f = mask.astype(q_taken.dtype)
+    per_step = _elementwise_loss(td_error, cfg.huber_delta) * mask_f
+    loss = per_step.sum() / jnp.maximum(mask_f.sum(), 1.0)
+    return loss, {"td_error": td_error, "q_taken": q_taken, "target": target}
