@@ -95,7 +95,10 @@ def resolve(name_or_path: str | os.PathLike) -> Path:
     """Catalogue name (e.g. ``"Satellite-v1"``) or a path to an MJCF file -> path of the file."""
     text = str(name_or_path)
     if text in CATALOGUE:
-        return MODEL_DIR / f"{text}.xml"
+        path = MODEL_DIR / f"{text}.xml"
+        if not path.is_file():
+            raise TargetError(f"catalogue file {path} for target {text!r} is missing from the installation")
+        return path
     if text.lower().endswith(".xml") or os.sep in text:
         path = Path(text).expanduser()
         if not path.is_file():
@@ -142,6 +145,12 @@ def load_numpy(name_or_path: str | os.PathLike, pad_to: int | None = None) -> tu
     total_mass = float(masses.sum())
     if not total_mass > 0.0:
         raise TargetError(f"{path}: the model has zero mass; put the geoms in a <body> (not <worldbody> directly)")
+    in_world = [mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_GEOM, g) or f"#{g}" for g in range(model.ngeom)
+                if model.geom_bodyid[g] == 0]
+    if in_world:
+        raise TargetError(
+            f"{path}: geom(s) {in_world} are placed directly in <worldbody>; put every geom of the target in a <body>"
+        )
     com = (masses[:, None] * data.xipos).sum(0) / total_mass
     inertia_world = np.zeros((3, 3))
     for b in range(model.nbody):
@@ -227,3 +236,16 @@ def split(name: str) -> tuple[str, ...]:
     if name not in table:
         raise TargetError(f"unknown split {name!r}; choose one of {sorted(table)}")
     return table[name]
+
+
+def catalogue_table(names: Sequence[str | os.PathLike] | None = None) -> list[dict]:
+    """One row per target (default: the catalogue) for ``ramavt targets``: name, class, split, num_geoms,
+    bound_radius (m), mass (kg). A user's MJCF path gets class and split ``"custom"``."""
+    rows = []
+    for target in ALL_TARGETS if names is None else names:
+        _, info = load_numpy(target)
+        key = str(target)
+        split_name = "test" if key in TEST_TARGETS else "train" if key in TRAIN_TARGETS else "custom"
+        rows.append({"name": info.name, "class": CATALOGUE.get(key, "custom"), "split": split_name,
+                     "num_geoms": info.num_geoms, "bound_radius": info.bound_radius, "mass": info.mass})
+    return rows
