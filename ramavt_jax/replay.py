@@ -1,0 +1,381 @@
+"""Sequence replay with stored recurrent state (R2D2), a thin wrapper around flashbax's trajectory buffer.
+
+Storage layout
+--------------
+The buffer is ``num_envs`` rows of a circular time axis of ``capacity_steps // num_envs`` steps.  Each added
+chunk ``[num_envs, T_chunk, ...]`` continues every row in time; sampling returns windows of
+``sequence_length`` consecutive steps of one row (one env), never mixing envs and never crossing the write head.
+
+Time-step convention (next-step autoreset)
+------------------------------------------
+The trainer steps the envs with *next-step autoreset*: a step taken from a finished state resets the env instead
+of moving it, so every episode's final observation is a real, stored observation.  Stored step t holds
+
+* ``obs``: observation t (quantised for storage, see :class:`ReplayConfig.obs_dtype`);
+* ``action``, ``reward``, ``terminated``, ``truncated``: the transition from obs t to obs t+1;
+* ``is_first``: obs t is the first observation of an episode.  The network resets its carry there, and the
+  transition t-1 -> t (final obs of the previous episode -> reset) is not a real transition and must be masked
+  (:func:`sequence_masks` does this);
+* ``recurrent_state``: the actor's recurrent state *before* consuming obs t (leaves ``[layers, units]`` per
+  env).  At an ``is_first`` step this may be the previous episode's carry; it does not matter because the
+  network resets the carry where ``reset`` (= ``is_first``) is set.
+
+So for an episode obs_0 .. obs_K: transitions 0..K-1 are real, transition K-1 has ``terminated`` or
+``truncated`` set, step K stores the final obs_K (its action/reward describe the reset and are masked), and the
+next step has ``is_first``.  A sampled window of L steps gives the learner L observations and L-1 transitions.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Any, Callable
+
+import chex
+import flashbax as fbx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from flax import struct
+
+__all__ = [
+    "ReplayConfig",
+    "Transition",
+    "SequenceReplay",
+    "make_replay",
+    "memory_bytes",
+    "sequence_masks",
+    "state_to_storage",
+    "state_from_storage",
+    "start_state",
+    "chunk_to_storage",
+    "quantise_obs",
+    "dequantise_obs",
+]
+
+_OBS_DTYPES = {"uint8": jnp.uint8, "float16": jnp.float16, "float32": jnp.float32}
+_STATE_DTYPES = {"float32": jnp.float32, "bfloat16": jnp.bfloat16, "float16": jnp.float16}
+
+
+@dataclasses.dataclass(frozen=True)
+class ReplayConfig:
+    """Sequence replay settings.  Sizes are in env steps, summed over all envs.
+
+    Attributes:
+      capacity_steps: env steps kept (total over envs; must be divisible by ``num_envs``).  This is the memory
+        budget, *not* the total number of training timesteps.
+      sequence_length: steps per sampled window = burn-in + trained transitions + 1 (the bootstrap observation).
+      period: stride between admissible window starts (1 = any start; ``sequence_length - 1`` = windows share
+        only their end points).  The grid is anchored at the oldest stored step.
+      batch_size: windows per sample.
+      obs_dtype: storage dtype of observations: ``'uint8'`` (float [0, 1] quantised to 1/255, error <= 1/510),
+        ``'float16'`` or ``'float32'``.  Samples are always float32.
+      state_dtype: storage dtype of the recurrent state (``'float32'``, ``'bfloat16'``, ``'float16'``); samples
+        are cast back to the example's dtype.
+      min_fill_steps: env steps (total over envs) stored before :meth:`SequenceReplay.can_sample` is true; at
+        least ``sequence_length`` per env is always required.
+    """
+
+    capacity_steps: int = 50_000
+    sequence_length: int = 13
+    period: int = 1
+    batch_size: int = 64
+    obs_dtype: str = "uint8"
+    state_dtype: str = "float32"
+    min_fill_steps: int = 0
+
+    @classmethod
+    def from_lengths(cls, burn_in: int, train_len: int, **kwargs: Any) -> "ReplayConfig":
+        """``sequence_length = burn_in + train_len + 1``; other fields as keywords."""
+        return cls(sequence_length=burn_in + train_len + 1, **kwargs)
+
+    def __post_init__(self):
+        for name in ("capacity_steps", "sequence_length", "period", "batch_size", "min_fill_steps"):
+            value = getattr(self, name)
+            if not isinstance(value, (int, np.integer)) or isinstance(value, bool):
+                raise ValueError(f"ReplayConfig.{name} must be an int, got {value!r}")
+        if self.capacity_steps <= 0:
+            raise ValueError(f"ReplayConfig.capacity_steps must be > 0, got {self.capacity_steps}")
+        if self.sequence_length < 2:
+            raise ValueError(
+                f"ReplayConfig.sequence_length must be >= 2 (burn-in + trained steps + 1 bootstrap observation), "
+                f"got {self.sequence_length}"
+            )
+        if not 1 <= self.period <= self.sequence_length:
+            raise ValueError(
+                f"ReplayConfig.period must be in [1, sequence_length={self.sequence_length}] (a larger stride "
+                f"leaves steps that are never sampled), got {self.period}"
+            )
+        if self.batch_size < 1:
+            raise ValueError(f"ReplayConfig.batch_size must be >= 1, got {self.batch_size}")
+        if self.obs_dtype not in _OBS_DTYPES:
+            raise ValueError(f"ReplayConfig.obs_dtype must be one of {sorted(_OBS_DTYPES)}, got {self.obs_dtype!r}")
+        if self.state_dtype not in _STATE_DTYPES:
+            raise ValueError(
+                f"ReplayConfig.state_dtype must be one of {sorted(_STATE_DTYPES)}, got {self.state_dtype!r}"
+            )
+        if not 0 <= self.min_fill_steps <= self.capacity_steps:
+            raise ValueError(
+                f"ReplayConfig.min_fill_steps must be in [0, capacity_steps={self.capacity_steps}], "
+                f"got {self.min_fill_steps}"
+            )
+
+    def steps_per_env(self, num_envs: int) -> int:
+        """Length of each env's circular time axis (validates the config against ``num_envs``)."""
+        self.validate(num_envs)
+        return self.capacity_steps // num_envs
+
+    def validate(self, num_envs: int) -> None:
+        """Checks that depend on the number of envs; raises ``ValueError`` with a readable message."""
+        if not isinstance(num_envs, (int, np.integer)) or num_envs < 1:
+            raise ValueError(f"num_envs must be a positive int, got {num_envs!r}")
+        if self.capacity_steps % num_envs:
+            lo = (self.capacity_steps // num_envs) * num_envs
+            raise ValueError(
+                f"ReplayConfig.capacity_steps={self.capacity_steps} must be divisible by num_envs={num_envs} "
+                f"(each env gets its own row of capacity_steps // num_envs steps); try {lo} or {lo + num_envs}"
+            )
+        per_env = self.capacity_steps // num_envs
+        if per_env < self.sequence_length:
+            raise ValueError(
+                f"ReplayConfig.capacity_steps={self.capacity_steps} gives {per_env} steps per env with "
+                f"num_envs={num_envs}, fewer than sequence_length={self.sequence_length}; need capacity_steps >= "
+                f"{self.sequence_length * num_envs}"
+            )
+
+
+@struct.dataclass
+class Transition:
+    """One stored time step (shapes per env, without the batch/time prefix).
+
+    In :meth:`SequenceReplay.add` every leaf carries a ``[num_envs, T_chunk]`` prefix, in
+    :meth:`SequenceReplay.sample` a ``[batch_size, sequence_length]`` prefix.
+
+    Attributes:
+      obs: ``[H, W, C]`` observation t, float in [0, 1] (stored quantised).
+      action: ``[]`` int32 action taken at obs t.
+      reward: ``[]`` float32 reward of the transition obs t -> obs t+1.
+      terminated: ``[]`` bool, obs t+1 is terminal (no bootstrap).
+      truncated: ``[]`` bool, the time limit ended the episode at obs t+1 (bootstrap from it).
+      is_first: ``[]`` bool, obs t is an episode's first observation (carry reset; transition t-1 masked).
+      recurrent_state: pytree (e.g. the network's LSTM state) with leaves ``[layers, units]``: the actor's state
+        *before* consuming obs t.
+    """
+
+    obs: jax.Array
+    action: jax.Array
+    reward: jax.Array
+    terminated: jax.Array
+    truncated: jax.Array
+    is_first: jax.Array
+    recurrent_state: Any
+
+
+# --------------------------------------------------------------------------------------------------------------
+# Observation quantisation and state layout helpers
+# --------------------------------------------------------------------------------------------------------------
+
+
+def quantise_obs(obs: jax.Array, dtype: str) -> jax.Array:
+    """Float [0, 1] -> storage dtype.  uint8 rounds to the nearest 1/255; uint8 input is taken as already quantised."""
+    target = _OBS_DTYPES[dtype]
+    if dtype == "uint8":
+        if obs.dtype == jnp.uint8:
+            return obs
+        return jnp.round(jnp.clip(obs, 0.0, 1.0) * 255.0).astype(jnp.uint8)
+    if obs.dtype == jnp.uint8:
+        return (obs.astype(jnp.float32) / 255.0).astype(target)
+    return obs.astype(target)
+
+
+def dequantise_obs(obs: jax.Array) -> jax.Array:
+    """Storage dtype -> float32 in [0, 1]."""
+    if obs.dtype == jnp.uint8:
+        return obs.astype(jnp.float32) * (1.0 / 255.0)
+    return obs.astype(jnp.float32)
+
+
+def state_to_storage(state: Any) -> Any:
+    """Network layout ``[layers, B, units]`` -> storage layout ``[B, layers, units]`` (per leaf)."""
+    return jax.tree.map(lambda x: jnp.moveaxis(x, 1, 0), state)
+
+
+def state_from_storage(state: Any) -> Any:
+    """Storage layout ``[B, layers, units]`` -> network layout ``[layers, B, units]`` (per leaf)."""
+    return jax.tree.map(lambda x: jnp.moveaxis(x, 0, 1), state)
+
+
+def start_state(batch: Transition) -> Any:
+    """The stored state at the first step of each sampled window, in network layout ``[layers, B, units]``."""
+    return state_from_storage(jax.tree.map(lambda x: x[:, 0], batch.recurrent_state))
+
+
+def chunk_to_storage(chunk: Transition) -> Transition:
+    """Time-major chunk from an acting ``lax.scan`` -> the batch-major layout :meth:`SequenceReplay.add` takes.
+
+    Input leaves are ``[T_chunk, num_envs, ...]``, except the recurrent state, which is stacked network states
+    ``[T_chunk, layers, num_envs, units]``.  Output leaves are ``[num_envs, T_chunk, ...]`` and the state
+    ``[num_envs, T_chunk, layers, units]``.
+    """
+    swap = lambda x: jnp.swapaxes(x, 0, 1)  # noqa: E731
+    data = chunk.replace(recurrent_state=None)
+    data = jax.tree.map(swap, data)
+    state = jax.tree.map(lambda x: jnp.moveaxis(x, 2, 0), chunk.recurrent_state)
+    return data.replace(recurrent_state=state)
+
+
+# --------------------------------------------------------------------------------------------------------------
+# Masks for the learner
+# --------------------------------------------------------------------------------------------------------------
+
+
+def sequence_masks(is_first: jax.Array, burn_in: int) -> dict[str, jax.Array]:
+    """Per-window reset flags and loss mask.
+
+    Args:
+      is_first: ``[B, L]`` bool from a sampled window.
+      burn_in: static number of leading transitions used only to warm up the carry (no loss).
+
+    Returns:
+      ``reset``: ``[B, L]`` bool for the network (carry zeroed before consuming obs t where set) = ``is_first``.
+      ``loss_mask``: ``[B, L-1]`` bool, transition t (obs t -> obs t+1) trains iff ``t >= burn_in`` and obs t+1
+      is not an episode's first observation (that transition crosses into the next episode).
+    """
+    chex.assert_rank(is_first, 2)
+    L = is_first.shape[1]
+    if not 0 <= burn_in < L - 1:
+        raise ValueError(f"burn_in must be in [0, L - 1 = {L - 1}) so that some transition trains, got {burn_in}")
+    is_first = is_first.astype(bool)
+    after_burn_in = jnp.arange(L - 1) >= burn_in  # [L-1]
+    loss_mask = after_burn_in[None, :] & ~is_first[:, 1:]
+    return {"reset": is_first, "loss_mask": loss_mask}
+
+
+# --------------------------------------------------------------------------------------------------------------
+# The buffer
+# --------------------------------------------------------------------------------------------------------------
+
+
+def _storage_example(example: Transition, config: ReplayConfig) -> Transition:
+    """One stored step (no prefix) with the storage dtypes, as zeros."""
+    state_dtype = _STATE_DTYPES[config.state_dtype]
+    return Transition(
+        obs=jnp.zeros(example.obs.shape, _OBS_DTYPES[config.obs_dtype]),
+        action=jnp.zeros((), jnp.int32),
+        reward=jnp.zeros((), jnp.float32),
+        terminated=jnp.zeros((), bool),
+        truncated=jnp.zeros((), bool),
+        is_first=jnp.zeros((), bool),
+        recurrent_state=jax.tree.map(lambda x: jnp.zeros(x.shape, state_dtype), example.recurrent_state),
+    )
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class SequenceReplay:
+    """Pure functions over a flashbax ``TrajectoryBufferState`` (jit/scan friendly; donate the state when jitting
+    ``add`` outside a scan, or XLA copies the whole buffer).
+
+    Attributes:
+      config: the :class:`ReplayConfig`.
+      num_envs: rows of the buffer (the ``add`` batch size).
+      steps_per_env: length of each row's circular time axis.
+      example: one step (no prefix) as given to :func:`make_replay`; its state dtypes are restored on sample.
+      buffer: the underlying ``flashbax`` trajectory buffer.
+    """
+
+    config: ReplayConfig
+    num_envs: int
+    steps_per_env: int
+    example: Transition
+    buffer: Any
+
+    def init(self, example: Transition | None = None):
+        """Empty buffer state.  ``example``: one step without prefix (defaults to the one given to make_replay)."""
+        example = self.example if example is None else example
+        return self.buffer.init(_storage_example(example, self.config))
+
+    def add(self, state, batch: Transition):
+        """Append a chunk with leaves ``[num_envs, T_chunk, ...]`` (obs float [0, 1]) to every env's row."""
+        num_envs, t_chunk = batch.obs.shape[:2]
+        if num_envs != self.num_envs:
+            raise ValueError(f"add: batch has {num_envs} envs on axis 0, the buffer was made for {self.num_envs}")
+        if t_chunk > self.steps_per_env:
+            raise ValueError(
+                f"add: chunk of {t_chunk} steps is longer than the buffer's {self.steps_per_env} steps per env"
+            )
+        stored = state.experience
+        obs = quantise_obs(batch.obs, self.config.obs_dtype)
+        rest = jax.tree.map(lambda x, s: x.astype(s.dtype), batch.replace(obs=None), stored.replace(obs=None))
+        return self.buffer.add(state, rest.replace(obs=obs))
+
+    def sample(self, state, key: jax.Array) -> Transition:
+        """``batch_size`` windows of ``sequence_length`` consecutive steps of one env each: leaves
+        ``[batch_size, sequence_length, ...]``, obs float32 in [0, 1].  Only valid when :meth:`can_sample`:
+        flashbax silently returns empty (zero) data from an under-filled buffer."""
+        batch = self.buffer.sample(state, key).experience
+        state_out = jax.tree.map(lambda x, e: x.astype(e.dtype), batch.recurrent_state, self.example.recurrent_state)
+        return batch.replace(obs=dequantise_obs(batch.obs), recurrent_state=state_out)
+
+    def can_sample(self, state) -> jax.Array:
+        """``[]`` bool: every env row holds at least ``max(sequence_length, ceil(min_fill_steps / num_envs))`` steps."""
+        return self.buffer.can_sample(state)
+
+    def size(self, state) -> jax.Array:
+        """``[]`` int32: env steps currently stored, summed over envs."""
+        per_env = jnp.where(state.is_full, self.steps_per_env, state.current_index)
+        return (per_env * self.num_envs).astype(jnp.int32)
+
+
+def make_replay(config: ReplayConfig, num_envs: int, example_transition: Transition) -> SequenceReplay:
+    """Build the sequence replay.
+
+    Args:
+      config: :class:`ReplayConfig` (validated against ``num_envs``).
+      num_envs: number of parallel envs = rows of the buffer = leading axis of every added chunk.
+      example_transition: one step without batch/time prefix: ``obs [H, W, C]`` (float or uint8), scalars, and
+        ``recurrent_state`` leaves ``[layers, units]``.  Only shapes and the state dtype are used.
+    """
+    per_env = config.steps_per_env(num_envs)
+    if len(example_transition.obs.shape) != 3:
+        raise ValueError(f"example_transition.obs must be one [H, W, C] observation, got shape "
+                         f"{tuple(example_transition.obs.shape)}")
+    min_len = max(config.sequence_length, math.ceil(config.min_fill_steps / num_envs))
+    buffer = fbx.make_trajectory_buffer(
+        add_batch_size=num_envs,
+        sample_batch_size=config.batch_size,
+        sample_sequence_length=config.sequence_length,
+        period=config.period,
+        min_length_time_axis=min_len,
+        max_length_time_axis=per_env,
+    )
+    return SequenceReplay(config=config, num_envs=num_envs, steps_per_env=per_env, example=example_transition,
+                          buffer=buffer)
+
+
+def memory_bytes(config: ReplayConfig, num_envs: int, obs_shape: tuple[int, ...], state_shape: Any) -> int:
+    """Exact bytes of the buffer state (computed from its abstract shapes, nothing allocated).
+
+    Args:
+      obs_shape: ``(H, W, C)`` of one observation.
+      state_shape: shape of the per-env recurrent state: one leaf shape ``(layers, units)``, a list/tuple of leaf
+        shapes (e.g. ``[(2, 512), (2, 512)]`` for LSTM c and h), or a pytree of arrays / ``ShapeDtypeStruct``
+        (per env, no batch axis).
+    """
+    if isinstance(state_shape, tuple) and all(isinstance(d, (int, np.integer)) for d in state_shape):
+        state = jnp.zeros(state_shape, jnp.float32)
+    elif isinstance(state_shape, (list, tuple)) and all(isinstance(s, (tuple, list)) for s in state_shape):
+        state = [jnp.zeros(tuple(s), jnp.float32) for s in state_shape]
+    else:
+        state = jax.tree.map(lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype), state_shape)
+    example = Transition(
+        obs=jax.ShapeDtypeStruct(tuple(obs_shape), jnp.float32),
+        action=jnp.zeros((), jnp.int32),
+        reward=jnp.zeros((), jnp.float32),
+        terminated=jnp.zeros((), bool),
+        truncated=jnp.zeros((), bool),
+        is_first=jnp.zeros((), bool),
+        recurrent_state=state,
+    )
+    replay = make_replay(config, num_envs, example)
+    abstract = jax.eval_shape(replay.init)
+    return int(sum(math.prod(x.shape) * np.dtype(x.dtype).itemsize for x in jax.tree.leaves(abstract)))

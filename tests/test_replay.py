@@ -1,0 +1,294 @@
+"""Sequence replay: contiguity, stored state, quantisation, wrap-around, masks, memory and validation."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from flax import struct
+
+from ramavt_jax.replay import (
+    ReplayConfig,
+    Transition,
+    chunk_to_storage,
+    make_replay,
+    memory_bytes,
+    sequence_masks,
+    start_state,
+)
+
+N_ENVS, H, W, C = 3, 4, 5, 4
+LAYERS, UNITS = 2, 3
+
+
+@struct.dataclass
+class FakeLSTMState:
+    h: jax.Array  # [layers, B, units] (network layout)
+    c: jax.Array
+
+
+def actor_state(env, g):
+    """State the fake actor has *before* consuming obs g of env (network layout without the batch axis)."""
+    env, g = np.asarray(env, np.float32), np.asarray(g, np.float32)
+    layer = np.arange(LAYERS, dtype=np.float32)[:, None]
+    unit = np.arange(UNITS, dtype=np.float32)[None, :]
+    h = env[..., None, None] * 1000.0 + g[..., None, None] + 0.25 * layer + 0.0625 * unit  # [..., layers, units]
+    return h, -h
+
+
+def noise(env, g):
+    """A deterministic float in [0, 1) per (env, step, pixel) to measure the quantisation error."""
+    idx = np.arange(H * W, dtype=np.float64).reshape(H, W)
+    return np.mod(np.sin(env * 12.9898 + g * 78.233 + idx * 3.7) * 43758.5453, 1.0)
+
+
+def episode_flags(env, g):
+    """Next-step autoreset episodes of length 4 + env transitions (5 + env stored steps, the last one the final
+    obs).  Episodes end alternately by termination and truncation."""
+    period = 5 + env
+    k = g % period
+    ep = g // period
+    is_first = k == 0
+    ends = k == period - 2  # transition into the final obs
+    terminated = ends & (ep % 2 == 0)
+    truncated = ends & (ep % 2 == 1)
+    return is_first, terminated, truncated
+
+
+def make_chunk(g0, t_chunk):
+    """Time-major chunk as an acting scan would stack it: leaves [T, N, ...], state [T, layers, N, units]."""
+    g = np.arange(g0, g0 + t_chunk)[:, None] * np.ones((1, N_ENVS), int)  # [T, N]
+    env = np.ones((t_chunk, 1), int) * np.arange(N_ENVS)[None, :]
+    obs = np.zeros((t_chunk, N_ENVS, H, W, C), np.float32)
+    obs[..., 0] = (env / 255.0)[..., None, None]
+    obs[..., 1] = ((g % 256) / 255.0)[..., None, None]
+    obs[..., 2] = ((g // 256) / 255.0)[..., None, None]
+    obs[..., 3] = noise(env[..., None, None], g[..., None, None])
+    is_first, terminated, truncated = episode_flags(env, g)
+    h, c = actor_state(env, g)  # [T, N, layers, units]
+    state = FakeLSTMState(h=jnp.asarray(np.moveaxis(h, 1, 2)), c=jnp.asarray(np.moveaxis(c, 1, 2)))
+    return Transition(
+        obs=jnp.asarray(obs),
+        action=jnp.asarray((g + env) % 11, jnp.int32),
+        reward=jnp.asarray(env * 1000.0 + g, jnp.float32),
+        terminated=jnp.asarray(terminated),
+        truncated=jnp.asarray(truncated),
+        is_first=jnp.asarray(is_first),
+        recurrent_state=state,
+    )
+
+
+EXAMPLE = Transition(
+    obs=jnp.zeros((H, W, C), jnp.float32),
+    action=jnp.zeros((), jnp.int32),
+    reward=jnp.zeros((), jnp.float32),
+    terminated=jnp.zeros((), bool),
+    truncated=jnp.zeros((), bool),
+    is_first=jnp.zeros((), bool),
+    recurrent_state=FakeLSTMState(h=jnp.zeros((LAYERS, UNITS)), c=jnp.zeros((LAYERS, UNITS))),
+)
+
+
+def fill(replay, state, num_chunks, t_chunk):
+    for i in range(num_chunks):  # eager: per-op compilation is shared between tests, faster than jit here
+        state = replay.add(state, chunk_to_storage(make_chunk(i * t_chunk, t_chunk)))
+    return state
+
+
+def decode(batch):
+    obs = np.asarray(batch.obs)
+    env = np.rint(obs[..., 0, 0, 0] * 255).astype(int)  # [B, L]
+    g = np.rint(obs[..., 0, 0, 1] * 255).astype(int) + 256 * np.rint(obs[..., 0, 0, 2] * 255).astype(int)
+    return env, g
+
+
+def sample_many(replay, state, n_keys=20):
+    keys = jax.random.split(jax.random.key(0), n_keys)
+    batches = [replay.sample(state, k) for k in keys]
+    return jax.tree.map(lambda *x: np.concatenate(x), *batches)
+
+
+@pytest.fixture(scope="module")
+def filled():
+    cfg = ReplayConfig(capacity_steps=N_ENVS * 400, sequence_length=9, period=1, batch_size=32)
+    replay = make_replay(cfg, N_ENVS, EXAMPLE)
+    state = fill(replay, replay.init(), num_chunks=6, t_chunk=20)  # 120 steps per env, no wrap
+    return replay, state, sample_many(replay, state)
+
+
+def test_sequences_contiguous_single_env(filled):
+    replay, state, batch = filled
+    env, g = decode(batch)
+    L = replay.config.sequence_length
+    assert env.shape == (20 * 32, L) and batch.obs.dtype == jnp.float32
+    assert (env == env[:, :1]).all(), "a window mixes envs"
+    np.testing.assert_array_equal(g, g[:, :1] + np.arange(L)[None, :])
+    assert g.min() >= 0 and g.max() <= 119
+    assert len(np.unique(env[:, 0])) == N_ENVS  # all envs get sampled
+    # every field belongs to the same (env, step)
+    np.testing.assert_array_equal(batch.reward, env * 1000.0 + g)
+    np.testing.assert_array_equal(batch.action, (g + env) % 11)
+    is_first, terminated, truncated = episode_flags(env, g)
+    np.testing.assert_array_equal(batch.is_first, is_first)
+    np.testing.assert_array_equal(batch.terminated, terminated)
+    np.testing.assert_array_equal(batch.truncated, truncated)
+    assert batch.terminated.any() and batch.truncated.any() and batch.is_first.any()
+
+
+def test_stored_state_matches_actor(filled):
+    _, _, batch = filled
+    env, g = decode(batch)
+    h, c = actor_state(env[:, 0], g[:, 0])  # [B, layers, units]
+    s0 = start_state(batch)  # network layout [layers, B, units]
+    np.testing.assert_array_equal(s0.h, np.moveaxis(h, 0, 1))
+    np.testing.assert_array_equal(s0.c, np.moveaxis(c, 0, 1))
+    assert s0.h.dtype == jnp.float32
+    h_all, _ = actor_state(env, g)  # every step of the window, storage layout [B, L, layers, units]
+    np.testing.assert_array_equal(batch.recurrent_state.h, h_all)
+
+
+def test_uint8_round_trip(filled):
+    _, _, batch = filled
+    env, g = decode(batch)
+    expected = noise(env[..., None, None], g[..., None, None])
+    err = np.abs(np.asarray(batch.obs[..., 3]) - expected)
+    assert err.max() <= 0.5 / 255 + 1e-6
+    assert err.max() > 0  # it really is quantised
+
+
+def test_capacity_wraps_oldest_dropped():
+    per_env = 20
+    cfg = ReplayConfig(capacity_steps=N_ENVS * per_env, sequence_length=5, period=1, batch_size=32)
+    replay = make_replay(cfg, N_ENVS, EXAMPLE)
+    state = replay.init()
+    assert not bool(replay.can_sample(state))
+    state = fill(replay, state, num_chunks=1, t_chunk=3)
+    assert not bool(replay.can_sample(state))  # 3 < sequence_length steps per env
+    state = fill(replay, replay.init(), num_chunks=7, t_chunk=8)  # 56 steps per env, keeps the last 20: 36..55
+    assert bool(replay.can_sample(state)) and bool(state.is_full) and int(state.current_index) == 56 % per_env
+    assert int(replay.size(state)) == N_ENVS * per_env
+    stored_env, stored_g = decode(state.experience.replace(obs=replay_obs(state)))
+    assert sorted(stored_g[0].tolist()) == list(range(36, 56))
+    batch = sample_many(replay, state, n_keys=40)
+    env, g = decode(batch)
+    np.testing.assert_array_equal(g, g[:, :1] + np.arange(5)[None, :])  # never crosses the write head
+    assert (env == env[:, :1]).all()
+    assert g.min() == 36 and g.max() == 55  # oldest dropped, newest present
+    assert set(g[:, 0].tolist()) == set(range(36, 52))  # every admissible start (period 1) is drawn
+    h, _ = actor_state(env[:, 0], g[:, 0])
+    np.testing.assert_array_equal(start_state(batch).h, np.moveaxis(h, 0, 1))
+
+
+def replay_obs(state):
+    return state.experience.obs.astype(jnp.float32) / 255.0
+
+
+def test_add_and_sample_inside_scan():
+    cfg = ReplayConfig(capacity_steps=N_ENVS * 32, sequence_length=6, period=2, batch_size=8)
+    replay = make_replay(cfg, N_ENVS, EXAMPLE)
+    chunks = [chunk_to_storage(make_chunk(i * 4, 4)) for i in range(10)]
+    stacked = jax.tree.map(lambda *x: jnp.stack(x), *chunks)
+
+    @jax.jit
+    def run(state, key):
+        def body(state, xs):
+            chunk, k = xs
+            state = replay.add(state, chunk)
+            batch = replay.sample(state, k)
+            return state, (replay.can_sample(state), decode_jnp(batch))
+
+        return jax.lax.scan(body, state, (stacked, jax.random.split(key, 10)))
+
+    state, (can, g) = run(replay.init(), jax.random.key(1))
+    assert not bool(can[0]) and bool(can[1]) and bool(can[-1])  # 4 < 6 steps, then 8 >= 6
+    g = np.asarray(g)[1:]
+    np.testing.assert_array_equal(g, g[..., :1] + np.arange(6))
+    last = g[-1]  # buffer holds 8 (40 - 32) .. 39; starts on the period-2 grid from the oldest step
+    assert last.min() >= 8 and last.max() <= 39 and ((last[:, 0] - 8) % 2 == 0).all()
+
+
+def decode_jnp(batch):
+    obs = batch.obs
+    return jnp.rint(obs[..., 0, 0, 1] * 255).astype(int) + 256 * jnp.rint(obs[..., 0, 0, 2] * 255).astype(int)
+
+
+@pytest.mark.parametrize("obs_dtype, state_dtype, tol", [("float16", "bfloat16", 1e-3), ("float32", "float32", 0.0)])
+def test_other_storage_dtypes(obs_dtype, state_dtype, tol):
+    cfg = ReplayConfig(capacity_steps=N_ENVS * 16, sequence_length=4, batch_size=32, obs_dtype=obs_dtype,
+                       state_dtype=state_dtype)
+    replay = make_replay(cfg, N_ENVS, EXAMPLE)
+    state = replay.init()
+    assert state.experience.obs.dtype == jnp.dtype(obs_dtype)
+    state = fill(replay, state, 2, 8)
+    batch = replay.sample(state, jax.random.key(0))
+    chunk = make_chunk(0, 16)
+    env = np.rint(np.asarray(batch.obs[..., 0, 0, 0]) * 255).astype(int)
+    g = np.rint(np.asarray(batch.obs[..., 0, 0, 1]) * 255).astype(int)
+    ref = np.asarray(chunk.obs)[g, env]
+    assert batch.obs.dtype == jnp.float32 and batch.recurrent_state.h.dtype == jnp.float32
+    assert np.abs(np.asarray(batch.obs) - ref).max() <= tol
+
+
+def test_memory_bytes():
+    # 50,000 steps of 64x64x4 uint8 RGBD: per step 16384 (obs) + 4 (int32 action) + 4 (f32 reward)
+    # + 3 (bool flags) + state; the flashbax index (int32) and is_full (bool) add 5 bytes.
+    cfg = ReplayConfig(capacity_steps=50_000, sequence_length=13)
+    no_state = memory_bytes(cfg, 50, (64, 64, 4), (0,))
+    assert no_state == 50_000 * (16384 + 4 + 4 + 3) + 5 == 819_750_005
+    # with the DESIGN network's 2-layer LSTM(512): c and h, [2, 512] float32 each = 8192 bytes per step
+    lstm = memory_bytes(cfg, 50, (64, 64, 4), [(2, 512), (2, 512)])
+    assert lstm == 50_000 * (16384 + 4 + 4 + 3 + 8192) + 5 == 1_229_350_005
+    # pytree form, bfloat16 state halves that part
+    tree = FakeLSTMState(h=jax.ShapeDtypeStruct((2, 512), jnp.float32), c=jax.ShapeDtypeStruct((2, 512), jnp.float32))
+    cfg16 = ReplayConfig(capacity_steps=50_000, sequence_length=13, state_dtype="bfloat16")
+    assert memory_bytes(cfg16, 50, (64, 64, 4), tree) == 50_000 * (16384 + 11 + 4096) + 5
+    # the PERF_NOTES small net (1-layer LSTM 128) at 32x32 depth
+    assert memory_bytes(cfg, 50, (32, 32, 1), [(1, 128), (1, 128)]) == 50_000 * (1024 + 11 + 1024) + 5
+
+
+def test_sequence_masks_around_episode_boundary():
+    is_first = jnp.array([
+        [False, False, False, True, False, False],  # a new episode starts at obs 3
+        [True, False, False, False, False, False],  # window starts on a first obs
+    ])
+    m = sequence_masks(is_first, burn_in=2)
+    np.testing.assert_array_equal(m["reset"], is_first)
+    # loss_mask[t]: t >= 2 and obs t+1 is not first. Row 0: transition 2 (obs 2 -> obs 3) crosses -> masked.
+    np.testing.assert_array_equal(m["loss_mask"], [[False, False, False, True, True],
+                                                   [False, False, True, True, True]])
+    m0 = sequence_masks(is_first, burn_in=0)
+    np.testing.assert_array_equal(m0["loss_mask"], [[True, True, False, True, True], [True] * 5])
+    with pytest.raises(ValueError, match="burn_in"):
+        sequence_masks(is_first, burn_in=5)
+
+
+@pytest.mark.parametrize("kwargs, num_envs, match", [
+    (dict(capacity_steps=50_000), 64, "divisible by num_envs"),
+    (dict(capacity_steps=60, sequence_length=31), 3, "fewer than sequence_length"),
+    (dict(sequence_length=1), 1, "sequence_length must be >= 2"),
+    (dict(period=0), 1, "period"),
+    (dict(sequence_length=10, period=11), 1, "period"),
+    (dict(batch_size=0), 1, "batch_size"),
+    (dict(obs_dtype="int8"), 1, "obs_dtype"),
+    (dict(state_dtype="float64"), 1, "state_dtype"),
+    (dict(capacity_steps=-5), 1, "capacity_steps"),
+    (dict(capacity_steps=100, min_fill_steps=200), 1, "min_fill_steps"),
+])
+def test_bad_config(kwargs, num_envs, match):
+    with pytest.raises(ValueError, match=match):
+        make_replay(ReplayConfig(**kwargs), num_envs, EXAMPLE)
+
+
+def test_bad_add():
+    replay = make_replay(ReplayConfig(capacity_steps=N_ENVS * 16, sequence_length=4), N_ENVS, EXAMPLE)
+    state = replay.init()
+    with pytest.raises(ValueError, match="envs"):
+        replay.add(state, jax.tree.map(lambda x: x[:2], chunk_to_storage(make_chunk(0, 4))))
+    with pytest.raises(ValueError, match="longer"):
+        replay.add(state, chunk_to_storage(make_chunk(0, 17)))
+
+
+def test_min_fill_steps():
+    cfg = ReplayConfig(capacity_steps=N_ENVS * 40, sequence_length=4, min_fill_steps=N_ENVS * 10)
+    replay = make_replay(cfg, N_ENVS, EXAMPLE)
+    assert not bool(replay.can_sample(fill(replay, replay.init(), 1, 8)))  # 8 < 10 per env
+    assert bool(replay.can_sample(fill(replay, replay.init(), 2, 8)))
