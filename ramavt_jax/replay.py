@@ -23,13 +23,28 @@ of moving it, so every episode's final observation is a real, stored observation
 So for an episode obs_0 .. obs_K: transitions 0..K-1 are real, transition K-1 has ``terminated`` or
 ``truncated`` set, step K stores the final obs_K (its action/reward describe the reset and are masked), and the
 next step has ``is_first``.  A sampled window of L steps gives the learner L observations and L-1 transitions.
+
+Learner wiring (R2D2: burn-in without gradient from the stored state, loss on the rest)::
+
+    batch = replay.sample(buffer_state, key)                      # leaves [B, L, ...]
+    m = sequence_masks(batch.is_first, burn_in)                   # reset [B, L], loss_mask [B, L-1]
+    s0 = start_state(batch)                                       # [layers, B, units]
+    # burn-in: obs[:, :burn_in] through online and target nets under stop_gradient -> carries s_on, s_tg
+    q_on, _ = net.apply(params, batch.obs[:, burn_in:], m["reset"][:, burn_in:], s_on)         # [B, L-burn_in, A]
+    q_tg, _ = net.apply(target_params, batch.obs[:, burn_in:], m["reset"][:, burn_in:], s_tg)
+    tr = lambda x: x[:, burn_in:-1]                               # transitions burn_in .. L-2
+    loss, aux = sequence_td_loss(q_on, q_tg, tr(batch.action), tr(batch.reward), tr(batch.terminated),
+                                 tr(batch.truncated), m["loss_mask"][:, burn_in:], td_config)
+
+Performance: jit ``add`` with the buffer state donated (``donate_argnums``) or keep it in a ``lax.scan`` carry;
+otherwise XLA copies the whole buffer on every add (measured ~100x slower on CPU).
 """
 
 from __future__ import annotations
 
 import dataclasses
 import math
-from typing import Any, Callable
+from typing import Any
 
 import chex
 import flashbax as fbx
