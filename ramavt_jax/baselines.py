@@ -1,0 +1,130 @@
+"""Reference policies: random, a true-state oracle (upper bound) and a classical depth-image tracker (PBVS-style).
+
+Every policy is a `Policy` of pure per-env functions (batch them with vmap):
+  init(key) -> policy_state
+  act(key, policy_state, obs [H, W, C], env_state, params) -> (action [] int32, policy_state)
+`env_state` is only read by the oracle; image-based policies ignore it.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any, Callable
+
+import jax
+import jax.numpy as jnp
+from flax import struct
+
+from ramavt_jax import env as env_lib
+
+ActFn = Callable[[jax.Array, Any, jax.Array, env_lib.EnvState, env_lib.EnvParams], tuple[jax.Array, Any]]
+
+
+@dataclasses.dataclass(frozen=True)
+class Policy:
+    name: str
+    init: Callable[[jax.Array], Any]
+    act: ActFn
+
+
+def quantise_velocity(desired_cam: jax.Array, speed: jax.Array) -> jax.Array:
+    """The action whose velocity command is nearest to `desired_cam` [3] (camera frame, m/s). Returns [] int32."""
+    commands = env_lib.ACTIONS * speed
+    return jnp.argmin(jnp.sum((commands - desired_cam) ** 2, axis=-1)).astype(jnp.int32)
+
+
+# ----------------------------------------------------------------------------------------- random
+def random_policy(num_actions: int = env_lib.NUM_ACTIONS) -> Policy:
+    def act(key, pstate, obs, env_state, params):
+        return jax.random.randint(key, (), 0, num_actions), pstate
+
+    return Policy("random", lambda key: jnp.zeros(()), act)
+
+
+# ----------------------------------------------------------------------------------------- oracle
+def oracle_policy(gain: float = 1.0) -> Policy:
+    """Feed-forward of the true target velocity plus proportional correction of the true position error:
+    v_chaser = v_target + gain * (p - r*), quantised to the 11 commands."""
+
+    def act(key, pstate, obs, env_state: env_lib.EnvState, params: env_lib.EnvParams):
+        position = env_lib.relative_position(env_state)
+        target_vel_cam = env_lib.HILL_FROM_CAM.T @ env_state.target_vel
+        desired = target_vel_cam + gain * (position - params.desired_pos)
+        return quantise_velocity(desired, params.speed), pstate
+
+    return Policy("oracle", lambda key: jnp.zeros(()), act)
+
+
+# ----------------------------------------------------------------------------------------- depth tracker
+@struct.dataclass
+class DepthTrackerState:
+    last_position: jax.Array  # [3] last position estimate (camera frame, m)
+    target_vel: jax.Array  # [3] filtered estimate of the target's velocity (m/s)
+    last_command: jax.Array  # [3] chaser velocity commanded at the previous step (m/s)
+    has_estimate: jax.Array  # [] bool
+
+
+def estimate_position(depth: jax.Array, camera) -> tuple[jax.Array, jax.Array]:
+    """Target position [3] from a depth observation [H, W] (z / far, 0 = background) and whether any pixel hit.
+
+    Centroid of the target pixels back-projected at their mean depth; the centre of mass lies deeper than the
+    visible surface, which the tracker does not know (a classical tracker's bias)."""
+    hit = depth > 0
+    count = hit.sum()
+    res = depth.shape[0]
+    c = (res - 1) / 2.0
+    f = camera.focal()
+    v, u = jnp.meshgrid(jnp.arange(res), jnp.arange(res), indexing="ij")
+    safe = jnp.maximum(count, 1)
+    z = (depth * camera.far * hit).sum() / safe
+    u_mean = (u * hit).sum() / safe
+    v_mean = (v * hit).sum() / safe
+    return jnp.array([(u_mean - c) / f * z, (v_mean - c) / f * z, z]), count > 0
+
+
+def depth_tracker_policy(
+    camera, kp: float = 1.0, velocity_smoothing: float = 0.3, dt: float = 0.1
+) -> Policy:
+    """PBVS-style tracker using only the depth image: estimate the target centre from the depth pixels, estimate
+    its velocity by finite differences (adding back the chaser's own commanded motion) and command
+    v = v_target_est + kp * (p_est - r*), quantised. Without a detection it repeats its last command."""
+
+    def init(key):
+        zero = jnp.zeros(3)
+        return DepthTrackerState(zero, zero, zero, jnp.zeros((), bool))
+
+    def act(key, pstate: DepthTrackerState, obs, env_state, params: env_lib.EnvParams):
+        depth = obs[..., -1]  # depth is the last channel in 'depth' and 'rgbd' modes
+        position, seen = estimate_position(depth, camera)
+        # Relative displacement = target displacement - chaser displacement (trapezoid of its last command).
+        rel_vel = (position - pstate.last_position) / params.dt
+        target_vel_raw = rel_vel + pstate.last_command
+        blend = jnp.where(pstate.has_estimate, velocity_smoothing, 0.0)
+        target_vel = jnp.where(seen & pstate.has_estimate, blend * pstate.target_vel + (1 - blend) * target_vel_raw,
+                               pstate.target_vel)
+        desired = target_vel + kp * (position - params.desired_pos)
+        action = quantise_velocity(desired, params.speed)
+        action = jnp.where(seen, action, quantise_velocity(pstate.last_command, params.speed))
+        command = env_lib.ACTIONS[action] * params.speed
+        new_state = DepthTrackerState(
+            last_position=jnp.where(seen, position, pstate.last_position),
+            target_vel=target_vel,
+            last_command=command,
+            has_estimate=pstate.has_estimate | seen,
+        )
+        return action, new_state
+
+    return Policy("depth_tracker", init, act)
+
+
+def make_policy(name: str, camera) -> Policy:
+    """'random' | 'oracle' | 'depth' (the classical depth-image tracker)."""
+    table = {
+        "random": random_policy,
+        "oracle": oracle_policy,
+        "depth": lambda: depth_tracker_policy(camera),
+        "depth_tracker": lambda: depth_tracker_policy(camera),
+    }
+    if name not in table:
+        raise ValueError(f"unknown baseline policy {name!r}; choose one of {sorted(table)}")
+    return table[name]()

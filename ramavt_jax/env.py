@@ -1,0 +1,431 @@
+"""The tracking environment: a chaser with a body-fixed camera keeps a tumbling target 5 m in front of it.
+
+Functional, gymnax-1.0-style API on a static env object::
+
+    tracking_env = env.TrackingEnv(env.EnvConfig())          # static: resolution, obs mode, dynamics mode
+    params = tracking_env.default_params()                     # traced: every physical value + the target catalogue
+    obs, state = tracking_env.reset(key, params)
+    obs, state, reward, terminated, truncated, info = tracking_env.step(key, state, action, params)
+
+Frames. All states live in the Hill (LVLH) frame of a circular reference orbit through the chaser's starting point:
+x radial (outward), y along-track, z orbit normal. The camera does not rotate relative to Hill; its axes are
+x_cam = -z_hill, y_cam = -x_hill (down = towards Earth), z_cam = +y_hill (boresight along-track, a V-bar approach).
+Velocity commands and observations are in the camera frame.
+
+Auto-reset. ``autoreset='same_step'`` (gymnax): a step that ends an episode returns the first observation of a
+freshly drawn episode and keeps the final one in ``info['final_observation']`` (two renders on those steps when
+``final_obs_in_info``). ``autoreset='next_step'`` (gymnasium vector / envpool): the step that ends an episode returns
+its real final observation; the next call starts the new episode (reward 0, ``info['is_first']``) and its action is
+ignored. Every observation is rendered once, which is what the trainer uses.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+from flax import struct
+
+from ramavt_jax import dynamics, render
+from ramavt_jax import targets as targets_lib
+from ramavt_jax.render import CameraConfig, Lighting
+
+# 11 velocity commands in the camera frame (original SNCOAT action set), scaled by EnvParams.speed.
+ACTIONS = jnp.array(
+    [
+        [0, 0, 0],
+        [1, 0, 0], [-1, 0, 0],
+        [0, 1, 0], [0, -1, 0],
+        [0, 0, 1], [0, 0, -1],
+        [1, 1, 0], [1, -1, 0], [-1, 1, 0], [-1, -1, 0],
+    ],
+    dtype=jnp.float32,
+)
+NUM_ACTIONS = ACTIONS.shape[0]
+OBS_CHANNELS = {"depth": 1, "color": 3, "rgbd": 4}
+
+# Hill coordinates of the camera axes (columns): hill = HILL_FROM_CAM @ cam.
+HILL_FROM_CAM = jnp.array([[0.0, -1.0, 0.0], [0.0, 0.0, 1.0], [-1.0, 0.0, 0.0]], dtype=jnp.float32)
+
+
+@dataclasses.dataclass(frozen=True)
+class EnvConfig:
+    """Static settings (shapes and code paths); changing one recompiles. Validated at construction."""
+
+    camera: CameraConfig = CameraConfig()
+    obs_mode: str = "depth"  # 'depth' [H,W,1] | 'color' [H,W,3] | 'rgbd' [H,W,4]
+    dynamics: str = "cw"  # 'cw' (Clohessy-Wiltshire + torque-free attitude) | 'kinematic' (original benchmark)
+    targets: tuple[str, ...] = targets_lib.TRAIN_TARGETS  # catalogue names or MJCF paths
+    frame_history: int = 1  # frames kept for averaging blur (EnvParams.blur_frames <= this)
+    autoreset: str = "same_step"  # 'same_step' | 'next_step'
+    final_obs_in_info: bool = True  # same_step only: render the final frame too
+    attitude_substeps: int = 4
+
+    def __post_init__(self):
+        if not isinstance(self.camera, CameraConfig):
+            raise ValueError(f"camera must be a render.CameraConfig, got {type(self.camera).__name__}")
+        if self.obs_mode not in OBS_CHANNELS:
+            raise ValueError(f"obs_mode must be one of {sorted(OBS_CHANNELS)}, got {self.obs_mode!r}")
+        if self.dynamics not in ("cw", "kinematic"):
+            raise ValueError(f"dynamics must be 'cw' or 'kinematic', got {self.dynamics!r}")
+        if self.autoreset not in ("same_step", "next_step"):
+            raise ValueError(f"autoreset must be 'same_step' or 'next_step', got {self.autoreset!r}")
+        if not (isinstance(self.frame_history, int) and 1 <= self.frame_history <= 16):
+            raise ValueError(f"frame_history must be an int in [1, 16], got {self.frame_history!r}")
+        if isinstance(self.targets, str):
+            object.__setattr__(self, "targets", (self.targets,))
+        if len(self.targets) == 0:
+            raise ValueError("targets must name at least one target")
+        object.__setattr__(self, "targets", tuple(str(t) for t in self.targets))
+        for t in self.targets:
+            targets_lib.resolve(t)  # raises TargetError (a ValueError) for unknown names / missing files
+
+    @property
+    def obs_shape(self) -> tuple[int, int, int]:
+        r = self.camera.resolution
+        return (r, r, OBS_CHANNELS[self.obs_mode])
+
+
+@struct.dataclass
+class EnvParams:
+    """Every physical value of the task (traced: vmap over these for domain randomisation).
+
+    Defaults are the original benchmark's training values; evaluation uses dist_weight=1, lost_patience=20.
+    """
+
+    catalogue: targets_lib.TargetModel  # [N, G, ...] targets an episode draws from (uniformly)
+    dt: jax.Array = 0.1  # s per step
+    speed: jax.Array = 1.0  # m/s per unit action
+    actuator_tau: jax.Array = 0.0  # s, first-order lag of the chaser velocity (0 = instant)
+    dist_weight: jax.Array = 0.5
+    lost_patience: jax.Array = 10  # terminate after more than this many consecutive lost steps
+    max_steps: jax.Array = 1000  # truncation
+    lost_distance: jax.Array = 15.0  # m from the desired position counts as lost
+    desired_pos: jax.Array = struct.field(default_factory=lambda: jnp.array([0.0, 0.0, 5.0]))
+    init_xy_std: jax.Array = 1.0  # m
+    init_z_min: jax.Array = 2.0  # m
+    init_z_max: jax.Array = 12.0  # m
+    target_vel_std: jax.Array = 0.2  # m/s per axis
+    target_spin_std: jax.Array = 0.1  # rad/s per body axis
+    target_accel_std: jax.Array = 0.0  # m/s^2 per axis, constant thrust of a maneuvering target
+    mean_motion: jax.Array = dynamics.mean_motion(400e3)  # rad/s of the reference orbit
+    # perturbations (0 = off); original values: actuator 0.3, delay 0.5 s, blur 3-frame average
+    actuator_noise: jax.Array = 0.0  # command * (1 + actuator_noise * N(0, 1)) per axis
+    delay_max: jax.Array = 0.0  # each step lasts dt + U(0, delay_max) s
+    blur_frames: jax.Array = 1  # observation = mean of the last blur_frames frames (<= EnvConfig.frame_history)
+    gaussian_blur_sigma: jax.Array = 0.0  # px
+    motion_blur_px: jax.Array = 0.0  # px, along the image-plane direction of the relative motion
+    depth_noise_std: jax.Array = 0.0  # additive noise on target pixels (in observation units)
+    frame_drop_prob: jax.Array = 0.0  # probability that the camera repeats its previous frame
+    sun_dir: jax.Array = struct.field(default_factory=lambda: jnp.array([0.5, -0.6, -0.62]) / 0.9993)
+    ambient: jax.Array = 0.15
+
+
+@struct.dataclass
+class EnvState:
+    """One env's state. Positions/velocities [3] in the Hill frame; quat [4] scalar-first inertial_from_body."""
+
+    target: targets_lib.TargetModel  # geometry of this episode's target, [G, ...]
+    target_index: jax.Array  # [] index into the catalogue
+    target_pos: jax.Array
+    target_vel: jax.Array
+    target_accel: jax.Array
+    target_quat: jax.Array
+    target_omega: jax.Array  # [3] body frame
+    chaser_pos: jax.Array
+    chaser_vel: jax.Array
+    sim_time: jax.Array  # [] s since the episode start (with delays): the Hill frame has turned by n * sim_time
+    frames: jax.Array  # [K, H, W, C] newest last
+    lost_steps: jax.Array  # [] consecutive steps without the target
+    steps: jax.Array  # [] steps taken this episode
+    episode_return: jax.Array  # []
+    done: jax.Array  # [] bool, the last step ended the episode (used by next_step autoreset)
+
+
+@struct.dataclass
+class Pose:
+    """Target pose seen from the camera: position [3] of its centre of mass, rotation [3, 3] camera_from_body."""
+
+    position: jax.Array
+    rotation: jax.Array
+
+
+def _rot_z(angle: jax.Array) -> jax.Array:
+    c, s = jnp.cos(angle), jnp.sin(angle)
+    z, o = jnp.zeros_like(c), jnp.ones_like(c)
+    return jnp.array([[c, -s, z], [s, c, z], [z, z, o]])
+
+
+def relative_position(state: EnvState) -> jax.Array:
+    """Target centre in the camera frame [3]."""
+    return HILL_FROM_CAM.T @ (state.target_pos - state.chaser_pos)
+
+
+def state_rotation(state: EnvState, mean_motion: jax.Array) -> jax.Array:
+    """camera_from_body [3, 3]: the attitude is inertial; the Hill frame has turned by n * t since the start."""
+    hill_from_inertial = _rot_z(-mean_motion * state.sim_time)
+    return HILL_FROM_CAM.T @ hill_from_inertial @ dynamics.quat_to_mat(state.target_quat)
+
+
+def _where(condition: jax.Array, on_true, on_false):
+    """Select between two pytrees of the same structure with a scalar condition."""
+    return jax.tree.map(lambda a, b: jnp.where(condition, a, b), on_true, on_false)
+
+
+def in_view(position: jax.Array, camera: CameraConfig) -> jax.Array:
+    """Whether a camera-frame point [3] projects inside the image and lies in front of the near plane."""
+    tan_half = jnp.tan(jnp.deg2rad(camera.fov_deg) / 2.0)
+    z = position[2]
+    safe_z = jnp.where(z > camera.near, z, 1.0)
+    return (z > camera.near) & (jnp.abs(position[0] / safe_z) <= tan_half) & (jnp.abs(position[1] / safe_z) <= tan_half)
+
+
+def reward_fn(position: jax.Array, visible: jax.Array, params: EnvParams) -> jax.Array:
+    """+1 if the target centre is in view else -5, minus dist_weight * ||r* - p|| (original SNCOAT reward)."""
+    return jnp.where(visible, 1.0, -5.0) - params.dist_weight * jnp.linalg.norm(params.desired_pos - position)
+
+
+class TrackingEnv:
+    """Static env object; all methods are pure functions of their arguments (jit/vmap them freely)."""
+
+    def __init__(self, config: EnvConfig = EnvConfig()):
+        self.config = config
+
+    # ----------------------------------------------------------------------------------------- parameters
+    def default_params(self, **overrides: Any) -> EnvParams:
+        """Original training values with this config's targets loaded; keyword overrides replace fields."""
+        catalogue, _ = targets_lib.load_many(self.config.targets)
+        params = EnvParams(catalogue=catalogue)
+        params = params.replace(**{k: jnp.asarray(v) for k, v in overrides.items()}) if overrides else params
+        return validate_params(params, self.config)
+
+    def eval_params(self, **overrides: Any) -> EnvParams:
+        """The reported-table settings: reward weight 1, lost patience 20, 1000 steps."""
+        return self.default_params(**{"dist_weight": 1.0, "lost_patience": 20, **overrides})
+
+    @property
+    def num_actions(self) -> int:
+        return NUM_ACTIONS
+
+    @property
+    def observation_shape(self) -> tuple[int, int, int]:
+        return self.config.obs_shape
+
+    # ----------------------------------------------------------------------------------------- reset
+    def reset(self, key: jax.Array, params: EnvParams) -> tuple[jax.Array, EnvState]:
+        """Draw a fresh episode. Returns (obs [H, W, C], state)."""
+        k_state, k_obs = jax.random.split(key)
+        state = self.initial_state(k_state, params)
+        return self._postprocess(k_obs, self._render(state, params), state, params, first=jnp.ones((), bool))
+
+    def initial_state(self, key: jax.Array, params: EnvParams) -> EnvState:
+        """Initial distribution (original values): target at x,y ~ N(0, 1), z ~ U[2, 12) m in the camera frame,
+        velocity N(0, 0.2) m/s, random orientation, spin N(0, 0.1) rad/s per body axis; chaser at rest at the origin.
+        The frame history is zeros (``reset`` fills it with the first observation)."""
+        k_tgt, k_xy, k_z, k_vel, k_quat, k_spin, k_acc = jax.random.split(key, 7)
+        num_targets = params.catalogue.geom_type.shape[0]
+        index = jax.random.randint(k_tgt, (), 0, num_targets)
+        xy = params.init_xy_std * jax.random.normal(k_xy, (2,))
+        z = jax.random.uniform(k_z, (), minval=params.init_z_min, maxval=params.init_z_max)
+        pos_cam = jnp.array([xy[0], xy[1], z])
+        vel_cam = params.target_vel_std * jax.random.normal(k_vel, (3,))
+        accel_cam = params.target_accel_std * jax.random.normal(k_acc, (3,))
+        r, c = self.config.camera.resolution, OBS_CHANNELS[self.config.obs_mode]
+        zero = jnp.zeros(3)
+        return EnvState(
+            target=targets_lib.select(params.catalogue, index),
+            target_index=index,
+            target_pos=HILL_FROM_CAM @ pos_cam,
+            target_vel=HILL_FROM_CAM @ vel_cam,
+            target_accel=HILL_FROM_CAM @ accel_cam,
+            target_quat=dynamics.random_quaternion(k_quat),
+            target_omega=params.target_spin_std * jax.random.normal(k_spin, (3,)),
+            chaser_pos=zero,
+            chaser_vel=zero,
+            sim_time=jnp.zeros(()),
+            frames=jnp.zeros((self.config.frame_history, r, r, c)),
+            lost_steps=jnp.zeros((), jnp.int32),
+            steps=jnp.zeros((), jnp.int32),
+            episode_return=jnp.zeros(()),
+            done=jnp.zeros((), bool),
+        )
+
+    # ----------------------------------------------------------------------------------------- step
+    def transition(self, key: jax.Array, state: EnvState, action: jax.Array, params: EnvParams) -> EnvState:
+        """Physics only: apply the velocity command and advance target and chaser by one (possibly delayed) step."""
+        k_noise, k_delay = jax.random.split(key)
+        command_cam = ACTIONS[action] * params.speed
+        command_cam = command_cam * (1.0 + params.actuator_noise * jax.random.normal(k_noise, (3,)))
+        duration = params.dt + params.delay_max * jax.random.uniform(k_delay, ())
+        command = HILL_FROM_CAM @ command_cam
+
+        # Chaser: first-order velocity lag (tau = 0 is instant), trapezoidal position update.
+        safe_tau = jnp.where(params.actuator_tau > 0, params.actuator_tau, 1.0)
+        blend = jnp.where(params.actuator_tau > 0, jnp.exp(-duration / safe_tau), 0.0)
+        chaser_vel = command + (state.chaser_vel - command) * blend
+        chaser_pos = state.chaser_pos + 0.5 * (state.chaser_vel + chaser_vel) * duration
+
+        if self.config.dynamics == "cw":
+            target_pos, target_vel = dynamics.cw_step(
+                state.target_pos, state.target_vel, state.target_accel, params.mean_motion, duration
+            )
+        else:
+            target_pos, target_vel = dynamics.kinematic_step(state.target_pos, state.target_vel, duration)
+        quat, omega = dynamics.attitude_step(
+            state.target_quat, state.target_omega, state.target.inertia, duration, self.config.attitude_substeps
+        )
+        return state.replace(
+            target_pos=target_pos,
+            target_vel=target_vel,
+            target_quat=quat,
+            target_omega=omega,
+            chaser_pos=chaser_pos,
+            chaser_vel=chaser_vel,
+            sim_time=state.sim_time + duration,
+        )
+
+    def score(self, state: EnvState, params: EnvParams) -> tuple[EnvState, jax.Array, jax.Array, jax.Array, dict]:
+        """Reward and episode end for a state just reached. Returns (state, reward, terminated, truncated, info)."""
+        position = relative_position(state)
+        visible = in_view(position, self.config.camera)
+        error = position - params.desired_pos
+        lost = ~visible | (jnp.linalg.norm(error) > params.lost_distance)
+        lost_steps = jnp.where(lost, state.lost_steps + 1, 0)
+        reward = reward_fn(position, visible, params)
+        steps = state.steps + 1
+        terminated = lost_steps > params.lost_patience
+        truncated = (steps >= params.max_steps) & ~terminated
+        state = state.replace(
+            lost_steps=lost_steps,
+            steps=steps,
+            episode_return=state.episode_return + reward,
+            done=terminated | truncated,
+        )
+        info = dict(
+            rel_pos=position,
+            tracking_error=error,
+            in_view=visible,
+            lost=lost,
+            target_index=state.target_index,
+            episode_return=state.episode_return,
+            episode_length=steps,
+            is_first=jnp.zeros((), bool),
+        )
+        return state, reward, terminated, truncated, info
+
+    def step_env(self, key: jax.Array, state: EnvState, action: jax.Array, params: EnvParams):
+        """One step without auto-reset. Returns (obs, state, reward, terminated, truncated, info)."""
+        k_phys, k_obs = jax.random.split(key)
+        state = self.transition(k_phys, state, action, params)
+        state, reward, terminated, truncated, info = self.score(state, params)
+        frame = self._render(state, params)
+        obs, state = self._postprocess(k_obs, frame, state, params)
+        return obs, state, reward, terminated, truncated, info
+
+    def step(self, key: jax.Array, state: EnvState, action: jax.Array, params: EnvParams):
+        """One step with auto-reset (see module docstring for the two modes).
+
+        Returns (obs [H, W, C], state, reward [], terminated [] bool, truncated [] bool, info dict).
+        """
+        k_phys, k_obs, k_reset, k_first = jax.random.split(key, 4)
+        fresh = self.initial_state(k_reset, params)
+        moved = self.transition(k_phys, state, action, params)
+        moved, reward, terminated, truncated, info = self.score(moved, params)
+        if self.config.autoreset == "next_step":
+            restart = state.done
+            chosen = _where(restart, fresh, moved)
+            obs, chosen = self._postprocess(k_obs, self._render(chosen, params), chosen, params, first=restart)
+            first_info = self._first_info(chosen, params)
+            info = _where(restart, first_info, info)
+            zero = jnp.zeros((), bool)
+            return (obs, chosen, jnp.where(restart, 0.0, reward), jnp.where(restart, zero, terminated),
+                    jnp.where(restart, zero, truncated), info)
+
+        done = terminated | truncated
+        if self.config.final_obs_in_info:
+            final_obs, moved = self._postprocess(k_obs, self._render(moved, params), moved, params)
+            first_obs, fresh = self._postprocess(k_first, self._render(fresh, params), fresh, params, first=jnp.ones((), bool))
+            info["final_observation"] = final_obs
+            return (jnp.where(done, first_obs, final_obs), _where(done, fresh, moved), reward, terminated, truncated, info)
+        # One render per step: a finished env draws only its new episode's first frame.
+        chosen = _where(done, fresh, moved)
+        obs, chosen = self._postprocess(k_obs, self._render(chosen, params), chosen, params, first=done)
+        return obs, chosen, reward, terminated, truncated, info
+
+    def _first_info(self, state: EnvState, params: EnvParams) -> dict:
+        position = relative_position(state)
+        return dict(
+            rel_pos=position,
+            tracking_error=position - params.desired_pos,
+            in_view=in_view(position, self.config.camera),
+            lost=jnp.zeros((), bool),
+            target_index=state.target_index,
+            episode_return=jnp.zeros(()),
+            episode_length=jnp.zeros((), jnp.int32),
+            is_first=jnp.ones((), bool),
+        )
+
+    # ----------------------------------------------------------------------------------------- observation
+    def pose(self, state: EnvState, params: EnvParams) -> Pose:
+        return Pose(position=relative_position(state), rotation=state_rotation(state, params.mean_motion))
+
+    def lighting(self, params: EnvParams) -> Lighting:
+        sun = params.sun_dir / jnp.linalg.norm(params.sun_dir)
+        return Lighting(sun_dir=sun, ambient=jnp.asarray(params.ambient, jnp.float32))
+
+    def _render(self, state: EnvState, params: EnvParams) -> render.Frame:
+        pose = self.pose(state, params)
+        shade = self.config.obs_mode != "depth"
+        return render.render(state.target, pose.position, pose.rotation, self.config.camera, self.lighting(params), shade)
+
+    def _postprocess(self, key, frame: render.Frame, state: EnvState, params: EnvParams, first=None):
+        """Image perturbations and the frame history. Returns (obs [H, W, C], state with the new frame pushed)."""
+        k_noise, k_drop = jax.random.split(key)
+        image = render.to_observation(frame, self.config.obs_mode, self.config.camera.far)
+        image = render.gaussian_blur(image, params.gaussian_blur_sigma)
+        velocity_img = (HILL_FROM_CAM.T @ (state.target_vel - state.chaser_vel))[:2]  # streak direction
+        image = render.motion_blur(image, params.motion_blur_px, jnp.arctan2(velocity_img[1], velocity_img[0]))
+        noise = params.depth_noise_std * jax.random.normal(k_noise, image.shape)
+        image = jnp.clip(jnp.where(frame.hit[..., None], image + noise, image), 0.0, 1.0)
+        dropped = jax.random.uniform(k_drop, ()) < params.frame_drop_prob
+        if first is not None:
+            dropped = dropped & ~first
+        image = jnp.where(dropped, state.frames[-1], image)
+        frames = jnp.concatenate([state.frames[1:], image[None]], axis=0)
+        if first is not None:  # a new episode starts with a history full of its first frame
+            frames = jnp.where(first, jnp.broadcast_to(image, frames.shape), frames)
+        k = frames.shape[0]
+        weights = (jnp.arange(k) >= k - params.blur_frames).astype(image.dtype)
+        obs = jnp.tensordot(weights / weights.sum(), frames, axes=1)
+        return obs, state.replace(frames=frames)
+
+
+def validate_params(params: EnvParams, config: EnvConfig) -> EnvParams:
+    """Host-side checks of concrete parameter values (skipped for traced values). Raises ValueError."""
+    import numpy as np
+
+    def check(name, ok, what):
+        value = getattr(params, name)
+        try:
+            arr = np.asarray(value)
+        except Exception:  # traced inside jit: nothing to check
+            return
+        if not np.all(ok(arr)):
+            raise ValueError(f"EnvParams.{name} must be {what}, got {arr}")
+
+    check("dt", lambda v: v > 0, "> 0")
+    check("speed", lambda v: v > 0, "> 0")
+    check("actuator_tau", lambda v: v >= 0, ">= 0")
+    check("lost_patience", lambda v: v >= 0, ">= 0")
+    check("max_steps", lambda v: v >= 1, ">= 1")
+    check("lost_distance", lambda v: v > 0, "> 0")
+    check("init_z_max", lambda v: v > np.asarray(params.init_z_min), "> init_z_min")
+    check("init_z_min", lambda v: v > config.camera.near, f"> camera.near ({config.camera.near})")
+    check("blur_frames", lambda v: (v >= 1) & (v <= config.frame_history), f"in [1, EnvConfig.frame_history={config.frame_history}]")
+    check("frame_drop_prob", lambda v: (v >= 0) & (v <= 1), "in [0, 1]")
+    for name in ("actuator_noise", "delay_max", "gaussian_blur_sigma", "motion_blur_px", "depth_noise_std",
+                 "target_vel_std", "target_spin_std", "target_accel_std", "init_xy_std", "mean_motion"):
+        check(name, lambda v: v >= 0, ">= 0")
+    return params
