@@ -1,0 +1,209 @@
+"""Building blocks of the RAMAVT Q-network (flax.linen).
+
+Everything here is shape-agnostic in the spatial size so one set of parameters works for any resolution
+with the same channel count. Layout is NHWC throughout.
+
+Speed notes (2-core CPU, see ``benchmarks/bench_network.py`` and ``/work/shared/PERF_NOTES.md``):
+- ``Im2colConv`` (pad + k*k strided slices + one matmul) is much faster than XLA's convolution on CPU,
+  above all in the backward pass. It stores its kernel exactly like ``flax.linen.Conv`` (``kernel``,
+  ``[k, k, C_in, C_out]``) so the two implementations share parameter trees.
+- ``max_pool2`` is a reshape + max (ceil mode), not ``reduce_window``: its gradient is a cheap mask instead
+  of XLA's ``select_and_scatter``.
+- ``LSTMStack`` hoists the first layer's input projection out of the time scan (one big matmul over all
+  B*T frames); only the recurrent matmuls (and the deeper layers' input projections) run inside the scan.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import flax.linen as nn
+import jax
+import jax.numpy as jnp
+from jax import lax
+
+Array = jax.Array
+Dtype = Any
+
+# ReLU nets: He (fan-in, variance 2) init for conv / hidden dense kernels.
+he_init = nn.initializers.variance_scaling(2.0, "fan_in", "truncated_normal")
+lecun_init = nn.initializers.lecun_normal()
+
+
+def conv_out_size(size: int, kernel: int, stride: int) -> int:
+    """Output size of a conv with symmetric padding ``kernel // 2`` (PyTorch ``padding=k//2``)."""
+    pad = kernel // 2
+    return (size + 2 * pad - kernel) // stride + 1
+
+
+def conv2d_im2col(x: Array, kernel: Array, stride: int) -> Array:
+    """2-D convolution as pad + k*k strided slices + one matmul.
+
+    x: [N, H, W, C]; kernel: [k, k, C, F] (flax layout); padding k//2 on every side.
+    Returns [N, H_out, W_out, F]. Numerically the same as ``lax.conv_general_dilated`` with that padding.
+    """
+    n, h, w, c = x.shape
+    k = kernel.shape[0]
+    pad = k // 2
+    ho, wo = conv_out_size(h, k, stride), conv_out_size(w, k, stride)
+    if pad:
+        x = jnp.pad(x, ((0, 0), (pad, pad), (pad, pad), (0, 0)))
+    if k == 1:
+        patches = x[:, : stride * (ho - 1) + 1 : stride, : stride * (wo - 1) + 1 : stride, :]
+    else:
+        cols = [
+            lax.slice(
+                x,
+                (0, i, j, 0),
+                (n, i + stride * (ho - 1) + 1, j + stride * (wo - 1) + 1, c),
+                (1, stride, stride, 1),
+            )
+            for i in range(k)
+            for j in range(k)
+        ]
+        patches = jnp.concatenate(cols, axis=-1)  # [N, Ho, Wo, k*k*C], (i, j, c) order = kernel row-major
+    out = patches.reshape(n * ho * wo, k * k * c) @ kernel.reshape(k * k * c, -1)
+    return out.reshape(n, ho, wo, -1)
+
+
+class Im2colConv(nn.Module):
+    """Bias-free conv with padding k//2, same parameter layout as ``nn.Conv(use_bias=False)``."""
+
+    features: int
+    kernel_size: int
+    stride: int = 1
+    dtype: Dtype = jnp.float32
+
+    @nn.compact
+    def __call__(self, x: Array) -> Array:
+        k = self.kernel_size
+        kernel = self.param("kernel", he_init, (k, k, x.shape[-1], self.features), jnp.float32)
+        return conv2d_im2col(x.astype(self.dtype), kernel.astype(self.dtype), self.stride)
+
+
+def make_conv(features: int, kernel: int, stride: int, impl: str, dtype: Dtype, name: str) -> nn.Module:
+    """The block's conv: ``Im2colConv`` ('im2col') or ``flax.linen.Conv`` ('lax'); identical parameters."""
+    if impl == "im2col":
+        return Im2colConv(features, kernel, stride, dtype=dtype, name=name)
+    pad = kernel // 2
+    return nn.Conv(
+        features,
+        (kernel, kernel),
+        strides=(stride, stride),
+        padding=((pad, pad), (pad, pad)),
+        use_bias=False,
+        dtype=dtype,
+        param_dtype=jnp.float32,
+        kernel_init=he_init,
+        name=name,
+    )
+
+
+def max_pool2(x: Array) -> Array:
+    """2x2 max-pool, stride 2, ceil mode (odd sizes padded with -inf, so 1x1 stays 1x1). x: [N, H, W, C]."""
+    n, h, w, c = x.shape
+    ph, pw = h % 2, w % 2
+    if ph or pw:
+        x = jnp.pad(x, ((0, 0), (0, ph), (0, pw), (0, 0)), constant_values=-jnp.inf)
+    return x.reshape(n, (h + ph) // 2, 2, (w + pw) // 2, 2, c).max(axis=(2, 4))
+
+
+class SqueezeExcite(nn.Module):
+    """SE layer: global average pool -> dense C/r -> ReLU -> dense C -> sigmoid -> channel scale."""
+
+    reduction: int = 8
+    dtype: Dtype = jnp.float32
+
+    @nn.compact
+    def __call__(self, x: Array) -> Array:  # [N, H, W, C]
+        c = x.shape[-1]
+        s = x.mean(axis=(1, 2))  # [N, C]
+        s = nn.relu(nn.Dense(max(1, c // self.reduction), dtype=self.dtype, kernel_init=he_init, name="squeeze")(s))
+        s = nn.sigmoid(nn.Dense(c, dtype=self.dtype, kernel_init=lecun_init, name="excite")(s))
+        return x * s[:, None, None, :].astype(x.dtype)
+
+
+class AttentionGate(nn.Module):
+    """Multi-head self-attention over the spatial positions as tokens; the output multiplies the features.
+
+    x: [N, h, w, C] -> x * MHA(x) (elementwise gating, DESIGN.md). No positional encoding (the flatten that
+    follows keeps positions). With a 1x1 feature map (64x64 input with the default backbone) there is a
+    single token: the attention weights are 1 and the gate is a learned linear map of the features.
+    """
+
+    num_heads: int = 8
+    dtype: Dtype = jnp.float32
+
+    @nn.compact
+    def __call__(self, x: Array) -> Array:
+        n, h, w, c = x.shape
+        tokens = x.reshape(n, h * w, c)
+        att = nn.MultiHeadDotProductAttention(
+            num_heads=self.num_heads, qkv_features=c, out_features=c, dtype=self.dtype, name="mha"
+        )(tokens)
+        return x * att.reshape(n, h, w, c).astype(x.dtype)
+
+
+class _LSTMCellStack(nn.Module):
+    """One time step of a stacked LSTM whose first-layer input gates were precomputed.
+
+    carry: (h, c), each [L, B, H]; inputs: (gates0 [B, 4H], reset [B] bool). The carry is zeroed where
+    ``reset`` (episode start) BEFORE this step's input is consumed. Gate order i, f, g, o.
+    """
+
+    features: int
+    layers: int
+    dtype: Dtype = jnp.float32
+
+    @nn.compact
+    def __call__(self, carry, inputs):
+        h, c = carry
+        gates_in, reset = inputs
+        keep = jnp.logical_not(reset)[None, :, None]
+        h = jnp.where(keep, h, 0.0)
+        c = jnp.where(keep, c, 0.0)
+        hs, cs = [], []
+        for layer in range(self.layers):
+            if layer > 0:
+                gates_in = nn.Dense(4 * self.features, dtype=self.dtype, kernel_init=lecun_init, name=f"in{layer}")(
+                    hs[-1]
+                )
+            rec = nn.Dense(
+                4 * self.features,
+                use_bias=False,
+                dtype=self.dtype,
+                kernel_init=nn.initializers.orthogonal(),
+                name=f"rec{layer}",
+            )(h[layer])
+            gates = (gates_in + rec).astype(jnp.float32)
+            i, f, g, o = jnp.split(gates, 4, axis=-1)
+            c_new = nn.sigmoid(f) * c[layer] + nn.sigmoid(i) * jnp.tanh(g)
+            h_new = nn.sigmoid(o) * jnp.tanh(c_new)
+            hs.append(h_new)
+            cs.append(c_new)
+        return (jnp.stack(hs), jnp.stack(cs)), hs[-1]
+
+
+class LSTMStack(nn.Module):
+    """Stacked LSTM over time with episode resets (purejaxrl ScannedRNN pattern, one ``nn.scan``).
+
+    x: [B, T, D]; reset: [B, T] bool; carry (h, c) each [L, B, H] -> (y [B, T, H], (h, c)).
+    """
+
+    features: int
+    layers: int
+    dtype: Dtype = jnp.float32
+
+    @nn.compact
+    def __call__(self, x: Array, reset: Array, carry):
+        # First-layer input projection for all B*T frames at once (one large matmul, outside the scan).
+        gates0 = nn.Dense(4 * self.features, dtype=self.dtype, kernel_init=lecun_init, name="in0")(x)
+        scan = nn.scan(
+            _LSTMCellStack,
+            variable_broadcast="params",
+            split_rngs={"params": False},
+            in_axes=1,
+            out_axes=1,
+        )
+        carry, y = scan(self.features, self.layers, self.dtype, name="cell")(carry, (gates0, reset))
+        return y, carry

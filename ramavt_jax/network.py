@@ -1,0 +1,332 @@
+"""RAMAVT, DRLAVT and the ablation Q-networks (flax.linen).
+
+Public API::
+
+    cfg = NetworkConfig(variant="ramavt")           # frozen, validated
+    net = make_network(cfg)                          # QNetwork
+    state = initial_state(cfg, batch, obs_shape)     # RecurrentState (obs_shape only needed for 'drlavt')
+    params = net.init(key, obs, reset, state)["params"]
+    q, state = net.apply({"params": params}, obs, reset, state)   # obs [B, T, H, W, C], reset [B, T] bool
+
+Variants: 'ramavt' (SE + MHA + LSTM), 'origin' (plain DRQN: conv + LSTM), 'se' (origin + SE),
+'mha' (origin + MHA), 'drlavt' (4 stacked frames as channels, no SE/MHA/LSTM, dense 1024 -> 512 -> A).
+
+Forward pass: the conv encoder runs on all B*T frames in ONE batched call; only the LSTM is scanned over
+time (one ``nn.scan``), with the carry reset to zeros where ``reset[b, t]`` (episode start) before frame t
+is consumed. The same module serves acting (T=1, carried state) and learning (T>1).
+
+Every variant takes ONE image per step, obs [B, T, H, W, C]. DRLAVT stacks frames itself: its
+``RecurrentState.frames`` holds the previous ``frame_stack - 1`` frames, which are filled with copies of the
+current frame where ``reset`` (gym FrameStack behaviour). The trainer can therefore treat DRLAVT exactly like
+the recurrent variants (store the state, burn in, reset at episode starts).
+
+Backbone block i: conv (no bias, padding k//2) -> SE (all blocks but the last) -> norm -> 2x2 max-pool
+(ceil mode) -> ReLU. Shapes follow the input resolution: 64x64 gives a 1x1x128 map, 84 -> 2x2, 128 -> 2x2,
+256 -> 4x4 (the MHA's tokens).
+
+Normalisation: 'layer' (default) normalises each frame over (H, W, C) jointly with a per-channel scale and
+bias (GroupNorm with one group): frame-local, so acting and learning see identical numbers. 'batch' is
+BatchNorm over (frames, H, W): with ``train=False`` (default, acting and targets) it uses the running
+averages and is deterministic; with ``train=True`` it uses the statistics of the B*T frames of the call and
+updates ``batch_stats`` (apply with ``mutable=["batch_stats"]``) -- so learner outputs then differ from acting
+outputs by design. 'none' skips it.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import flax
+import flax.linen as nn
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ramavt_jax.layers import (
+    AttentionGate,
+    LSTMStack,
+    SqueezeExcite,
+    conv_out_size,
+    he_init,
+    lecun_init,
+    make_conv,
+    max_pool2,
+)
+
+VARIANTS = ("ramavt", "drlavt", "origin", "se", "mha")
+NORMS = ("batch", "layer", "none")
+CONV_IMPLS = ("im2col", "lax")
+DTYPES = {"float32": jnp.float32, "bfloat16": jnp.bfloat16}
+
+
+@dataclasses.dataclass(frozen=True)
+class NetworkConfig:
+    """Q-network hyper-parameters (DESIGN.md, Network). Validated on construction."""
+
+    variant: str = "ramavt"
+    num_actions: int = 11
+    channels: tuple = (32, 64, 128, 128)
+    kernels: tuple = (3, 3, 3, 1)
+    strides: tuple = (2, 2, 1, 1)
+    pools: tuple = (True, True, True, True)  # 2x2 max-pool after block i
+    norm: str = "layer"
+    se_reduction: int = 8
+    attention_heads: int = 8
+    dense: int = 512
+    lstm: int = 512
+    lstm_layers: int = 2
+    head: int = 256
+    drlavt_dense: tuple = (1024, 512)
+    frame_stack: int = 4  # drlavt only
+    conv_impl: str = "im2col"
+    dtype: str = "float32"
+
+    def __post_init__(self):
+        def fail(msg):
+            raise ValueError(f"NetworkConfig: {msg}")
+
+        if self.variant not in VARIANTS:
+            fail(f"variant={self.variant!r} is not one of {VARIANTS}")
+        if self.norm not in NORMS:
+            fail(f"norm={self.norm!r} is not one of {NORMS}")
+        if self.conv_impl not in CONV_IMPLS:
+            fail(f"conv_impl={self.conv_impl!r} is not one of {CONV_IMPLS}")
+        if self.dtype not in DTYPES:
+            fail(f"dtype={self.dtype!r} is not one of {tuple(DTYPES)}")
+        for name in ("channels", "kernels", "strides", "pools", "drlavt_dense"):
+            if not isinstance(getattr(self, name), (tuple, list)):
+                fail(f"{name} must be a tuple, got {getattr(self, name)!r}")
+            object.__setattr__(self, name, tuple(getattr(self, name)))  # lists -> tuples (hashable, jit-static)
+        n = len(self.channels)
+        if n == 0:
+            fail("channels must name at least one conv block")
+        if not (len(self.kernels) == len(self.strides) == len(self.pools) == n):
+            fail(
+                f"channels, kernels, strides and pools must have the same length (one entry per conv block), "
+                f"got {len(self.channels)}, {len(self.kernels)}, {len(self.strides)}, {len(self.pools)}"
+            )
+        for name in ("channels", "kernels", "strides", "drlavt_dense"):
+            vals = getattr(self, name)
+            if not all(isinstance(v, (int, np.integer)) and not isinstance(v, bool) and v >= 1 for v in vals):
+                fail(f"{name} must be positive integers, got {vals!r}")
+        if not all(k % 2 == 1 for k in self.kernels):
+            fail(f"kernels must be odd (padding k//2 keeps the grid centred), got {self.kernels!r}")
+        for name in ("num_actions", "se_reduction", "attention_heads", "dense", "lstm", "lstm_layers", "head",
+                     "frame_stack"):
+            v = getattr(self, name)
+            if not isinstance(v, (int, np.integer)) or isinstance(v, bool) or v < 1:
+                fail(f"{name} must be a positive integer, got {v!r}")
+        if self.use_mha and self.channels[-1] % self.attention_heads != 0:
+            fail(
+                f"attention_heads={self.attention_heads} must divide the last block's channels "
+                f"({self.channels[-1]}) for variant {self.variant!r}"
+            )
+
+    # Derived switches (not fields: nothing is written back into the config).
+    @property
+    def use_se(self) -> bool:
+        return self.variant in ("ramavt", "se")
+
+    @property
+    def use_mha(self) -> bool:
+        return self.variant in ("ramavt", "mha")
+
+    @property
+    def recurrent(self) -> bool:
+        return self.variant != "drlavt"
+
+    @property
+    def jnp_dtype(self):
+        return DTYPES[self.dtype]
+
+    def feature_map_shape(self, height: int, width: int) -> tuple[int, int, int]:
+        """Spatial size and channels of the backbone's output for an input of height x width."""
+        for k, s, p in zip(self.kernels, self.strides, self.pools):
+            height, width = conv_out_size(height, k, s), conv_out_size(width, k, s)
+            if p:
+                height, width = -(-height // 2), -(-width // 2)
+        return height, width, self.channels[-1]
+
+
+@flax.struct.dataclass
+class RecurrentState:
+    """Carried network state.
+
+    h, c:   [lstm_layers, B, lstm] LSTM hidden and cell states ([0, B, lstm] for 'drlavt').
+    frames: [B, frame_stack - 1, H, W, C] previous frames, oldest first ('drlavt'); [B, 0] otherwise.
+    """
+
+    h: jax.Array
+    c: jax.Array
+    frames: jax.Array
+
+
+def initial_state(config: NetworkConfig, batch: int, obs_shape: tuple | None = None) -> RecurrentState:
+    """Zero state for ``batch`` sequences. ``obs_shape`` = (H, W, C) of one frame, required for 'drlavt'."""
+    layers = config.lstm_layers if config.recurrent else 0
+    h = jnp.zeros((layers, batch, config.lstm), jnp.float32)
+    if config.recurrent:
+        frames = jnp.zeros((batch, 0), jnp.float32)
+    else:
+        if obs_shape is None or len(obs_shape) != 3:
+            raise ValueError("initial_state: variant 'drlavt' needs obs_shape=(H, W, C) for its frame buffer")
+        frames = jnp.zeros((batch, config.frame_stack - 1, *obs_shape), jnp.float32)
+    return RecurrentState(h=h, c=h, frames=frames)
+
+
+def stack_frames(obs: jax.Array, reset: jax.Array, frames: jax.Array) -> tuple[jax.Array, jax.Array]:
+    """Frame stacking along T. obs [B, T, H, W, C], reset [B, T], frames [B, K-1, H, W, C] (oldest first).
+
+    Returns stacked [B, T, H, W, K*C] (channels oldest..newest) and the new buffer. Where reset[b, t] the
+    history is replaced by copies of frame t. Only moves memory: cheap to scan.
+    """
+    k1 = frames.shape[1]
+
+    def step(hist, inp):
+        x, r = inp  # [B, H, W, C], [B]
+        hist = jnp.where(r[:, None, None, None, None], x[:, None], hist)
+        full = jnp.concatenate([hist, x[:, None]], axis=1)  # [B, K, H, W, C]
+        b, k, h, w, c = full.shape
+        stacked = jnp.moveaxis(full, 1, 3).reshape(b, h, w, k * c)
+        return full[:, 1:] if k1 else hist, stacked
+
+    hist, stacked = jax.lax.scan(step, frames.astype(obs.dtype), (jnp.swapaxes(obs, 0, 1), reset.T))
+    return jnp.swapaxes(stacked, 0, 1), hist
+
+
+class Encoder(nn.Module):
+    """Conv backbone (+ MHA gate): [N, H, W, C] -> [N, h * w * C_last]. Sows block outputs to 'intermediates'."""
+
+    config: NetworkConfig
+
+    @nn.compact
+    def __call__(self, x: jax.Array, train: bool = False) -> jax.Array:
+        cfg = self.config
+        dtype = cfg.jnp_dtype
+        x = x.astype(dtype)
+        n_blocks = len(cfg.channels)
+        for i, (ch, k, s, p) in enumerate(zip(cfg.channels, cfg.kernels, cfg.strides, cfg.pools)):
+            x = make_conv(ch, k, s, cfg.conv_impl, dtype, name=f"conv{i}")(x)
+            if cfg.use_se and i < n_blocks - 1:
+                x = SqueezeExcite(cfg.se_reduction, dtype=dtype, name=f"se{i}")(x)
+            if cfg.norm == "layer":
+                x = nn.LayerNorm(reduction_axes=(1, 2, 3), feature_axes=-1, dtype=dtype, name=f"norm{i}")(x)
+            elif cfg.norm == "batch":
+                x = nn.BatchNorm(use_running_average=not train, momentum=0.99, dtype=dtype, name=f"norm{i}")(x)
+            if p:
+                x = max_pool2(x)
+            x = nn.relu(x)
+            self.sow("intermediates", f"block{i + 1}", x)
+        if cfg.use_mha:
+            x = AttentionGate(cfg.attention_heads, dtype=dtype, name="attention")(x)
+            self.sow("intermediates", "mha", x)
+        return x.reshape(x.shape[0], -1)
+
+
+class QNetwork(nn.Module):
+    """Q-network. __call__(obs [B, T, H, W, C], reset [B, T] bool, state) -> (q [B, T, A] float32, state)."""
+
+    config: NetworkConfig
+
+    def initial_state(self, batch: int, obs_shape: tuple | None = None) -> RecurrentState:
+        return initial_state(self.config, batch, obs_shape)
+
+    @nn.compact
+    def __call__(self, obs: jax.Array, reset: jax.Array, state: RecurrentState, train: bool = False):
+        cfg = self.config
+        if obs.ndim != 5 or reset.shape != obs.shape[:2]:
+            raise ValueError(f"QNetwork: expected obs [B, T, H, W, C] and reset [B, T], got {obs.shape} and {reset.shape}")
+        b, t = obs.shape[:2]
+        dtype = cfg.jnp_dtype
+        reset = reset.astype(bool)
+        if cfg.recurrent:
+            frames = state.frames
+        else:
+            obs, frames = stack_frames(obs, reset, state.frames)
+        x = Encoder(cfg, name="encoder")(obs.reshape(b * t, *obs.shape[2:]), train)  # [B*T, F]
+        if cfg.recurrent:
+            x = nn.relu(nn.Dense(cfg.dense, dtype=dtype, kernel_init=he_init, name="dense")(x))
+            y, (h, c) = LSTMStack(cfg.lstm, cfg.lstm_layers, dtype=dtype, name="lstm")(
+                x.reshape(b, t, -1), reset, (state.h, state.c)
+            )
+            y = nn.relu(nn.Dense(cfg.head, dtype=dtype, kernel_init=he_init, name="head")(y))
+            q = nn.Dense(cfg.num_actions, dtype=dtype, kernel_init=lecun_init, name="q")(y)
+            new_state = RecurrentState(h=h, c=c, frames=frames)
+        else:
+            for j, width in enumerate(cfg.drlavt_dense):
+                x = nn.relu(nn.Dense(width, dtype=dtype, kernel_init=he_init, name=f"dense{j}")(x))
+            q = nn.Dense(cfg.num_actions, dtype=dtype, kernel_init=lecun_init, name="q")(x)
+            new_state = RecurrentState(h=state.h, c=state.c, frames=frames.astype(state.frames.dtype))
+        return q.reshape(b, t, cfg.num_actions).astype(jnp.float32), new_state
+
+
+def make_network(config: NetworkConfig) -> QNetwork:
+    return QNetwork(config)
+
+
+def init_params(config: NetworkConfig, key: jax.Array, obs_shape: tuple) -> dict:
+    """Initialise variables for frames of shape (H, W, C). Returns the full variable dict
+    (``{'params': ...}`` plus ``'batch_stats'`` for norm='batch')."""
+    net = make_network(config)
+    obs = jnp.zeros((1, 1, *obs_shape), jnp.float32)
+    reset = jnp.ones((1, 1), bool)
+    variables = net.init(key, obs, reset, initial_state(config, 1, obs_shape))
+    return {k: v for k, v in variables.items() if k != "intermediates"}
+
+
+def count_params(params) -> int:
+    """Number of scalars in a parameter (or variable) tree."""
+    return int(sum(np.prod(np.shape(x)) for x in jax.tree_util.tree_leaves(params)))
+
+
+def flops_per_frame(config: NetworkConfig, obs_shape: tuple) -> int:
+    """Forward FLOPs for one frame (B=1, T=1), from XLA's cost analysis of the jitted forward.
+
+    obs_shape: (H, W, C) of one frame (for 'drlavt' the single frame; stacking is internal).
+    """
+    net = make_network(config)
+    variables = jax.eval_shape(lambda k: init_params(config, k, obs_shape), jax.random.key(0))
+    obs = jax.ShapeDtypeStruct((1, 1, *obs_shape), jnp.float32)
+    reset = jax.ShapeDtypeStruct((1, 1), jnp.bool_)
+    state = jax.eval_shape(lambda: initial_state(config, 1, obs_shape))
+    fn = jax.jit(lambda v, o, r, s: net.apply(v, o, r, s)[0])
+    cost = fn.lower(variables, obs, reset, state).compile().cost_analysis()
+    if isinstance(cost, (list, tuple)):
+        cost = cost[0]
+    return int(cost.get("flops", 0))
+
+
+def attention_maps(params, config: NetworkConfig, obs: jax.Array, variables: dict | None = None) -> dict:
+    """Activation-attention maps (Zagoruyko & Komodakis) for one frame obs [H, W, C].
+
+    For each conv block ('block1'..'blockN') and the MHA output ('mha', attention variants only): sum of squared
+    activations over channels, then a softmax over all h*w positions. Returns {name: [h, w]}, each summing to 1.
+    Pass the full ``variables`` dict instead of ``params`` when norm='batch'.
+    """
+    if variables is None:
+        variables = {"params": params}
+    net = make_network(config)
+    obs = jnp.asarray(obs, jnp.float32)
+    state = initial_state(config, 1, obs.shape)
+    _, mut = net.apply(variables, obs[None, None], jnp.ones((1, 1), bool), state, mutable=["intermediates"])
+    inter = mut["intermediates"]["encoder"]
+    maps = {}
+    for name, (act,) in inter.items():
+        energy = jnp.sum(jnp.square(act[0].astype(jnp.float32)), axis=-1)  # [h, w]
+        maps[name] = jax.nn.softmax(energy.reshape(-1)).reshape(energy.shape)
+    return maps
+
+
+__all__ = [
+    "NetworkConfig",
+    "RecurrentState",
+    "QNetwork",
+    "initial_state",
+    "make_network",
+    "init_params",
+    "count_params",
+    "flops_per_frame",
+    "attention_maps",
+    "stack_frames",
+]
+

@@ -1,0 +1,229 @@
+"""Tests for ramavt_jax.network / layers: shapes, resets, acting == learning, im2col == lax conv, maps."""
+
+import dataclasses
+
+import flax.linen as nn
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from ramavt_jax.layers import conv2d_im2col
+from ramavt_jax.network import (
+    VARIANTS,
+    NetworkConfig,
+    attention_maps,
+    count_params,
+    flops_per_frame,
+    init_params,
+    initial_state,
+    make_network,
+)
+
+SMALL = dict(channels=(8, 16, 16, 16), dense=32, lstm=24, head=16, attention_heads=4, drlavt_dense=(32, 16))
+
+
+def small(variant="ramavt", **kw):
+    return NetworkConfig(variant=variant, **{**SMALL, **kw})
+
+
+def _setup(cfg, obs_shape=(32, 32, 1), b=2, t=6, seed=0):
+    k1, k2 = jax.random.split(jax.random.key(seed))
+    variables = init_params(cfg, k1, obs_shape)
+    obs = jax.random.uniform(k2, (b, t, *obs_shape))
+    return make_network(cfg), variables, obs
+
+
+def _random_state(cfg, b, obs_shape, seed=1):
+    s = initial_state(cfg, b, obs_shape)
+    leaves, tree = jax.tree_util.tree_flatten(s)
+    keys = jax.random.split(jax.random.key(seed), len(leaves))
+    return jax.tree_util.tree_unflatten(tree, [jax.random.uniform(k, x.shape) for k, x in zip(keys, leaves)])
+
+
+@pytest.mark.parametrize("variant", VARIANTS)
+@pytest.mark.parametrize("res,ch", [(32, 1), (64, 4), (84, 3)])
+def test_shapes_small(variant, res, ch):
+    cfg = small(variant)
+    net, variables, obs = _setup(cfg, (res, res, ch), b=2, t=3)
+    state = initial_state(cfg, 2, (res, res, ch))
+    q, new = net.apply(variables, obs, jnp.zeros((2, 3), bool), state)
+    assert q.shape == (2, 3, cfg.num_actions) and q.dtype == jnp.float32
+    assert jax.tree_util.tree_map(jnp.shape, new) == jax.tree_util.tree_map(jnp.shape, state)
+    assert np.all(np.isfinite(q))
+
+
+@pytest.mark.parametrize("variant", VARIANTS)
+def test_default_config_params_and_shapes(variant):
+    cfg = NetworkConfig(variant=variant)
+    counts = {}
+    for res in (64, 128, 256):
+        shapes = jax.eval_shape(lambda k: init_params(cfg, k, (res, res, 1)), jax.random.key(0))
+        counts[res] = count_params(shapes)
+        net = make_network(cfg)
+        state = initial_state(cfg, 2, (res, res, 1))
+        q, _ = jax.eval_shape(
+            net.apply, shapes, jnp.zeros((2, 5, res, res, 1)), jnp.zeros((2, 5), bool), state
+        )
+        assert q.shape == (2, 5, 11)
+    print(variant, counts)  # parameter counts, reported with -s
+    if variant == "ramavt":
+        assert 4e6 < counts[64] < 6e6
+    if cfg.recurrent:
+        assert initial_state(cfg, 3).h.shape == (2, 3, 512)
+
+
+@pytest.mark.parametrize("variant", VARIANTS)
+def test_reset_equals_fresh_sequence(variant):
+    cfg = small(variant)
+    b, t, cut = 2, 7, 3
+    net, variables, obs = _setup(cfg, b=b, t=t)
+    reset = jnp.zeros((b, t), bool).at[:, cut].set(True)
+    state = _random_state(cfg, b, obs.shape[2:])  # arbitrary carried state: must not leak past the reset
+    q, _ = net.apply(variables, obs, reset, state)
+    fresh_reset = jnp.zeros((b, t - cut), bool).at[:, 0].set(True)
+    q2, _ = net.apply(variables, obs[:, cut:], fresh_reset, _random_state(cfg, b, obs.shape[2:], seed=7))
+    np.testing.assert_allclose(q[:, cut:], q2, atol=1e-5)
+    # and the prefix did depend on the carried state (recurrent / stacked variants)
+    q3, _ = net.apply(variables, obs, reset, initial_state(cfg, b, obs.shape[2:]))
+    assert not np.allclose(q[:, :cut], q3[:, :cut], atol=1e-6)
+
+
+@pytest.mark.parametrize("variant", VARIANTS)
+def test_acting_equals_unroll(variant):
+    cfg = small(variant)
+    b, t = 3, 8
+    net, variables, obs = _setup(cfg, b=b, t=t)
+    reset = jnp.zeros((b, t), bool).at[:, 0].set(True).at[1, 4].set(True)
+    state0 = initial_state(cfg, b, obs.shape[2:])
+    q_seq, s_seq = net.apply(variables, obs, reset, state0)
+    step = jax.jit(lambda o, r, s: net.apply(variables, o, r, s))
+    s, qs = state0, []
+    for i in range(t):
+        q, s = step(obs[:, i : i + 1], reset[:, i : i + 1], s)
+        qs.append(q)
+    np.testing.assert_allclose(jnp.concatenate(qs, 1), q_seq, atol=1e-5)
+    for a, bb in zip(jax.tree_util.tree_leaves(s), jax.tree_util.tree_leaves(s_seq)):
+        np.testing.assert_allclose(a, bb, atol=1e-5)
+
+
+@pytest.mark.parametrize("k,s,size", [(3, 2, 16), (3, 1, 9), (1, 1, 6), (5, 2, 11), (3, 2, 7)])
+def test_im2col_equals_lax_conv(k, s, size):
+    kx, kk, kg = jax.random.split(jax.random.key(0), 3)
+    x = jax.random.normal(kx, (2, size, size, 3))
+    kernel = jax.random.normal(kk, (k, k, 3, 5))
+    p = k // 2
+    conv = nn.Conv(5, (k, k), strides=(s, s), padding=((p, p), (p, p)), use_bias=False)
+
+    def lax_fn(x, w):
+        return conv.apply({"params": {"kernel": w}}, x)
+
+    y1, y2 = conv2d_im2col(x, kernel, s), lax_fn(x, kernel)
+    assert y1.shape == y2.shape
+    np.testing.assert_allclose(y1, y2, atol=1e-4, rtol=1e-4)
+    g = jax.random.normal(kg, y1.shape)
+    g1 = jax.grad(lambda x, w: jnp.sum(conv2d_im2col(x, w, s) * g), argnums=(0, 1))(x, kernel)
+    g2 = jax.grad(lambda x, w: jnp.sum(lax_fn(x, w) * g), argnums=(0, 1))(x, kernel)
+    for a, b in zip(g1, g2):
+        np.testing.assert_allclose(a, b, atol=1e-3, rtol=1e-4)
+
+
+def test_network_conv_impls_share_params_and_agree():
+    cfg = small("ramavt")
+    net, variables, obs = _setup(cfg, (33, 33, 2), t=3)
+    cfg_lax = dataclasses.replace(cfg, conv_impl="lax")
+    v2 = init_params(cfg_lax, jax.random.key(0), (33, 33, 2))
+    assert jax.tree_util.tree_structure(v2) == jax.tree_util.tree_structure(variables)
+    reset = jnp.zeros((2, 3), bool)
+    s = initial_state(cfg, 2)
+    q1, _ = net.apply(variables, obs, reset, s)
+    q2, _ = make_network(cfg_lax).apply(variables, obs, reset, s)
+    np.testing.assert_allclose(q1, q2, atol=1e-4)
+
+
+@pytest.mark.parametrize("variant", ["ramavt", "drlavt"])
+def test_attention_maps(variant):
+    cfg = small(variant)
+    variables = init_params(cfg, jax.random.key(0), (64, 64, 1))
+    obs = jax.random.uniform(jax.random.key(1), (64, 64, 1))
+    maps = attention_maps(variables["params"], cfg, obs)
+    expected = {f"block{i}" for i in range(1, 5)} | ({"mha"} if cfg.use_mha else set())
+    assert set(maps) == expected
+    assert maps["block1"].shape == (16, 16) and maps["block4"].shape == (1, 1)
+    for m in maps.values():
+        assert m.ndim == 2
+        np.testing.assert_allclose(float(m.sum()), 1.0, atol=1e-5)
+        assert np.all(m >= 0)
+
+
+def test_batchnorm_train_and_eval():
+    cfg = small("ramavt", norm="batch")
+    net, variables, obs = _setup(cfg, t=4)
+    assert "batch_stats" in variables
+    reset = jnp.zeros((2, 4), bool)
+    s = initial_state(cfg, 2)
+    (q, _), upd = net.apply(variables, obs, reset, s, train=True, mutable=["batch_stats"])
+    assert q.shape == (2, 4, 11)
+    changed = jax.tree_util.tree_map(lambda a, b: bool(jnp.any(a != b)), upd["batch_stats"], variables["batch_stats"])
+    assert any(jax.tree_util.tree_leaves(changed))
+    q_eval, _ = net.apply(variables, obs, reset, s)  # running averages: deterministic, frame-local
+    q_one, _ = net.apply(variables, obs[:1], reset[:1], jax.tree_util.tree_map(lambda x: x, initial_state(cfg, 1)))
+    np.testing.assert_allclose(q_eval[:1], q_one, atol=1e-5)
+
+
+@pytest.mark.parametrize("norm", ["layer", "none"])
+def test_grad_finite_and_bf16(norm):
+    cfg = small("ramavt", norm=norm)
+    net, variables, obs = _setup(cfg, t=4)
+    reset = jnp.zeros((2, 4), bool)
+    s = initial_state(cfg, 2)
+
+    def loss(p):
+        q, _ = net.apply({"params": p}, obs, reset, s)
+        return jnp.mean(q**2)
+
+    g = jax.jit(jax.grad(loss))(variables["params"])
+    assert all(np.all(np.isfinite(x)) for x in jax.tree_util.tree_leaves(g))
+    cfg16 = dataclasses.replace(cfg, dtype="bfloat16")
+    q16, _ = make_network(cfg16).apply(variables, obs, reset, s)
+    q32, _ = net.apply(variables, obs, reset, s)
+    assert q16.dtype == jnp.float32
+    np.testing.assert_allclose(q16, q32, atol=0.1, rtol=0.1)
+
+
+def test_flops_and_params_positive():
+    cfg = small("ramavt")
+    f64 = flops_per_frame(cfg, (64, 64, 1))
+    f128 = flops_per_frame(cfg, (128, 128, 1))
+    assert 0 < f64 < f128
+    assert count_params(init_params(cfg, jax.random.key(0), (32, 32, 1))) > 0
+
+
+@pytest.mark.parametrize(
+    "kw,match",
+    [
+        (dict(variant="foo"), "variant"),
+        (dict(norm="group"), "norm"),
+        (dict(conv_impl="cudnn"), "conv_impl"),
+        (dict(dtype="float16"), "dtype"),
+        (dict(channels=(32, 64), kernels=(3, 3, 3, 1)), "same length"),
+        (dict(kernels=(3, 2, 3, 1)), "odd"),
+        (dict(channels=(32, 64, 128, 0)), "positive"),
+        (dict(attention_heads=3), "attention_heads"),
+        (dict(lstm_layers=0), "lstm_layers"),
+        (dict(num_actions=0), "num_actions"),
+        (dict(channels=32), "tuple"),
+    ],
+)
+def test_bad_config(kw, match):
+    with pytest.raises(ValueError, match=match):
+        NetworkConfig(**kw)
+
+
+def test_bad_inputs():
+    with pytest.raises(ValueError, match="obs_shape"):
+        initial_state(NetworkConfig(variant="drlavt"), 2)
+    cfg = small()
+    net, variables, obs = _setup(cfg, t=2)
+    with pytest.raises(ValueError, match="expected obs"):
+        net.apply(variables, obs[:, 0], jnp.zeros((2,), bool), initial_state(cfg, 2))
