@@ -1,0 +1,538 @@
+"""Recurrent DQN training (R2D2-style) for the tracking task: config, presets and the jitted trainer.
+
+API (purejaxrl shape)::
+
+    cfg = preset("quick")                               # or TrainConfig(...), frozen and validated
+    train = make_train(cfg)                             # pure function of a key
+    out = jax.jit(train)(jax.random.PRNGKey(0))         # {'runner_state': RunnerState, 'metrics': ChunkMetrics}
+    outs = jax.jit(jax.vmap(make_train(cfg)))(keys)     # several seeds at once (small configs)
+    summary = run(cfg, "runs/quick", seed=0)            # host driver: logs, checkpoints, evaluation (train_log.py)
+
+One *iteration* = every env acts ``rollout_steps`` steps (epsilon-greedy, next-step auto-reset), the chunk goes to
+the sequence replay, then the learner does ``updates_per_iteration`` gradient steps (none before
+``learning_starts``). One *chunk* = ``iterations_per_chunk`` iterations in one ``lax.scan`` inside one jitted
+call; the host only logs, evaluates and checkpoints between chunks.
+
+Learner: sample ``batch_size`` windows of ``burn_in + train_len + 1`` stored steps; from the stored recurrent
+state run ``burn_in`` steps through the online net under ``stop_gradient`` (the target net runs over the whole
+window from the same stored state, also without gradient), then the masked double-Q / n-step TD loss
+(:mod:`ramavt_jax.losses`) over the ``train_len`` transitions after burn-in.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import math
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+from flax import struct
+
+from ramavt_jax import env as env_lib
+from ramavt_jax import replay as replay_lib
+from ramavt_jax.baselines import Policy
+from ramavt_jax.losses import TDConfig, sequence_td_loss
+from ramavt_jax.network import NetworkConfig, RecurrentState, init_params, initial_state, make_network
+from ramavt_jax.render import CameraConfig
+
+__all__ = [
+    "TrainConfig", "preset", "PRESETS", "TrainingDivergedError", "LearnerState", "ActorState", "RunnerState",
+    "ChunkMetrics", "Trainer", "make_train", "greedy_policy", "run",
+]
+
+
+class TrainingDivergedError(RuntimeError):
+    """The loss (or mean Q) became NaN/inf; the state that produced it is not checkpointed."""
+
+
+# ============================================================================================ config
+@dataclasses.dataclass(frozen=True)
+class TrainConfig:
+    """Everything a training run needs. Frozen; validated on construction. Sizes in env steps are totals over envs.
+
+    Derived values are properties (nothing is written back): ``sequence_length``, ``env_steps_per_iteration``,
+    ``updates_per_iteration``, ``env_steps_per_chunk``, ``num_chunks``.
+    """
+
+    env: env_lib.EnvConfig = env_lib.EnvConfig(camera=CameraConfig(resolution=64), autoreset="next_step")
+    env_params: tuple = ()  # ((name, value), ...) overrides of EnvParams for TRAINING (evaluation uses eval_params)
+    network: NetworkConfig = NetworkConfig()
+    # ---- acting
+    num_envs: int = 64
+    rollout_steps: int = 20  # env steps per env per iteration
+    iterations_per_chunk: int = 25
+    total_env_steps: int = 1_280_000
+    eps_start: float = 0.9  # DESIGN.md: 0.9 -> 0.1
+    eps_end: float = 0.1
+    eps_decay_steps: int = 800_000  # linear over this many env steps (all envs together)
+    # ---- replay
+    replay_capacity: int = 64_000  # env steps kept (all envs); divisible by num_envs
+    burn_in: int = 10
+    train_len: int = 20  # trained transitions per sampled window (window = burn_in + train_len + 1 observations)
+    sample_period: int = 1  # stride between admissible window starts
+    batch_size: int = 32  # windows per gradient step
+    learning_starts: int = 20_000  # env steps stored before the first update
+    obs_dtype: str = "uint8"  # replay storage of observations
+    replay_ratio: float = 1.0  # trained frames (batch_size * train_len) per env frame
+    # ---- learner
+    lr: float = 5e-4
+    adam_eps: float = 1e-4
+    max_grad_norm: float = 10.0  # 0 = no clipping
+    gamma: float = 0.97
+    n_step: int = 5
+    double_q: bool = True
+    value_rescale: bool = False
+    huber_delta: float | None = None  # None = MSE (DESIGN.md), else Huber
+    reward_scale: float = 0.1
+    target_update: str = "polyak"  # 'polyak' | 'period'
+    polyak_tau: float = 0.01
+    target_period: int = 500  # gradient steps between hard target syncs ('period')
+    augment: bool = False
+    augment_config: Any = None  # augment.AugmentConfig; None = crop + cutout only (flips/rot90 change action meaning)
+    # ---- host driver
+    eval_episodes: int = 32  # per split at the end (0 = no final evaluation)
+    eval_max_steps: int = 1000
+    checkpoint_every_chunks: int = 10  # 0 = only at the end / on interrupt
+    checkpoint_replay: bool = True  # store the replay buffer too: resume is bit-exact
+    keep_checkpoints: int = 2
+    tensorboard: bool = False
+    debug_nan_at_update: int = -1  # tests: the loss becomes NaN from this gradient step on (-1 = off)
+
+    def __post_init__(self):
+        def fail(msg):
+            raise ValueError(f"TrainConfig: {msg}")
+
+        def integer(name, lo=None):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, (int, np.integer)):
+                fail(f"{name} must be an int, got {v!r}")
+            if lo is not None and v < lo:
+                fail(f"{name} must be >= {lo}, got {v}")
+
+        if not isinstance(self.env, env_lib.EnvConfig):
+            fail(f"env must be an env.EnvConfig, got {type(self.env).__name__}")
+        if self.env.autoreset != "next_step":
+            fail("env.autoreset must be 'next_step' for training (the final observation of every episode is stored "
+                 f"and truncation bootstraps from it), got {self.env.autoreset!r}")
+        if not isinstance(self.network, NetworkConfig):
+            fail(f"network must be a network.NetworkConfig, got {type(self.network).__name__}")
+        if self.network.num_actions != env_lib.NUM_ACTIONS:
+            fail(f"network.num_actions={self.network.num_actions} but the env has {env_lib.NUM_ACTIONS} actions")
+        if self.network.norm == "batch":
+            fail("network.norm='batch' is not supported by the trainer (acting and learning must see the same "
+                 "network); use 'layer' or 'none'")
+        if isinstance(self.env_params, dict):
+            object.__setattr__(self, "env_params", tuple(sorted(self.env_params.items())))
+        known = {f.name for f in dataclasses.fields(env_lib.EnvParams)} - {"catalogue"}
+        for item in self.env_params:
+            if not (isinstance(item, tuple) and len(item) == 2 and item[0] in known):
+                fail(f"env_params must be (name, value) pairs naming EnvParams fields {sorted(known)}, got {item!r}")
+        for name in ("num_envs", "rollout_steps", "iterations_per_chunk", "total_env_steps", "replay_capacity",
+                     "train_len", "sample_period", "batch_size", "n_step", "target_period", "eval_max_steps",
+                     "keep_checkpoints"):
+            integer(name, 1)
+        for name in ("eps_decay_steps", "burn_in", "learning_starts", "eval_episodes", "checkpoint_every_chunks"):
+            integer(name, 0)
+        integer("debug_nan_at_update", -1)
+        for name in ("eps_start", "eps_end"):
+            if not 0.0 <= getattr(self, name) <= 1.0:
+                fail(f"{name} must be in [0, 1], got {getattr(self, name)}")
+        if not 0.0 <= self.gamma <= 1.0:
+            fail(f"gamma must be in [0, 1], got {self.gamma}")
+        if not self.lr > 0 or not self.adam_eps > 0:
+            fail(f"lr and adam_eps must be > 0, got lr={self.lr}, adam_eps={self.adam_eps}")
+        if not self.max_grad_norm >= 0:
+            fail(f"max_grad_norm must be >= 0 (0 = no clipping), got {self.max_grad_norm}")
+        if not self.reward_scale > 0:
+            fail(f"reward_scale must be > 0, got {self.reward_scale}")
+        if self.huber_delta is not None and not self.huber_delta > 0:
+            fail(f"huber_delta must be None (MSE) or > 0, got {self.huber_delta}")
+        if self.target_update not in ("polyak", "period"):
+            fail(f"target_update must be 'polyak' or 'period', got {self.target_update!r}")
+        if not 0.0 < self.polyak_tau <= 1.0:
+            fail(f"polyak_tau must be in (0, 1], got {self.polyak_tau}")
+        if self.n_step > self.train_len:
+            fail(f"n_step={self.n_step} must be <= train_len={self.train_len}")
+        if self.obs_dtype not in ("uint8", "float16", "float32"):
+            fail(f"obs_dtype must be 'uint8', 'float16' or 'float32', got {self.obs_dtype!r}")
+        if self.total_env_steps % self.env_steps_per_chunk:
+            n = self.env_steps_per_chunk
+            fail(f"total_env_steps={self.total_env_steps} must be a multiple of the env steps per chunk "
+                 f"(num_envs * rollout_steps * iterations_per_chunk = {n}); try {max(1, round(self.total_env_steps / n)) * n}")
+        if self.replay_capacity % self.num_envs:
+            fail(f"replay_capacity={self.replay_capacity} must be divisible by num_envs={self.num_envs}")
+        per_env = self.replay_capacity // self.num_envs
+        if per_env < max(self.sequence_length, self.rollout_steps):
+            fail(f"replay_capacity={self.replay_capacity} leaves {per_env} steps per env, fewer than the window "
+                 f"(burn_in + train_len + 1 = {self.sequence_length}) or rollout_steps ({self.rollout_steps})")
+        if self.sample_period > self.sequence_length:
+            fail(f"sample_period={self.sample_period} must be <= the window length {self.sequence_length}")
+        if self.learning_starts > self.replay_capacity:
+            fail(f"learning_starts={self.learning_starts} exceeds replay_capacity={self.replay_capacity}")
+        if self.learning_starts > self.total_env_steps:
+            fail(f"learning_starts={self.learning_starts} exceeds total_env_steps={self.total_env_steps}: nothing would be learned")
+        if not self.replay_ratio > 0:
+            fail(f"replay_ratio must be > 0, got {self.replay_ratio}")
+        exact = self.replay_ratio * self.env_steps_per_iteration / (self.batch_size * self.train_len)
+        if exact < 1 - 1e-9 or abs(exact - round(exact)) > 1e-6:
+            fail(f"replay_ratio={self.replay_ratio} gives {exact:.4g} gradient steps per iteration (replay_ratio * "
+                 f"num_envs * rollout_steps / (batch_size * train_len)); it must be a whole number >= 1")
+        if not self.network.recurrent and self.burn_in < self.network.frame_stack - 1:
+            fail(f"variant 'drlavt' rebuilds its {self.network.frame_stack}-frame stack from the window's own "
+                 f"observations during burn-in: burn_in must be >= frame_stack - 1 = {self.network.frame_stack - 1}, "
+                 f"got {self.burn_in}")
+        if self.augment:
+            try:
+                from ramavt_jax import augment as _aug  # noqa: F401
+            except ImportError as e:  # pragma: no cover
+                fail(f"augment=True needs ramavt_jax.augment ({e})")
+            if self.augment_config is not None and not isinstance(self.augment_config, _aug.AugmentConfig):
+                fail(f"augment_config must be an augment.AugmentConfig, got {type(self.augment_config).__name__}")
+
+    # ---- derived (read-only)
+    @property
+    def sequence_length(self) -> int:
+        return self.burn_in + self.train_len + 1
+
+    @property
+    def env_steps_per_iteration(self) -> int:
+        return self.num_envs * self.rollout_steps
+
+    @property
+    def updates_per_iteration(self) -> int:
+        return int(round(self.replay_ratio * self.env_steps_per_iteration / (self.batch_size * self.train_len)))
+
+    @property
+    def env_steps_per_chunk(self) -> int:
+        return self.env_steps_per_iteration * self.iterations_per_chunk
+
+    @property
+    def num_chunks(self) -> int:
+        return self.total_env_steps // self.env_steps_per_chunk
+
+    def to_dict(self) -> dict:
+        """JSON-friendly nested dict (for config.json and checkpoint metadata)."""
+        def conv(x):
+            if dataclasses.is_dataclass(x):
+                return {f.name: conv(getattr(x, f.name)) for f in dataclasses.fields(x)}
+            if isinstance(x, (tuple, list)):
+                return [conv(v) for v in x]
+            if isinstance(x, (np.integer, np.floating)):
+                return x.item()
+            return x
+        return conv(self)
+
+
+def _quick() -> TrainConfig:
+    """~5 min on 2 CPU cores; the DESIGN.md task (default training EnvParams) at 32x32 depth, small net."""
+    return TrainConfig(
+        env=env_lib.EnvConfig(camera=CameraConfig(resolution=32), autoreset="next_step"),
+        network=NetworkConfig(variant="ramavt", channels=(16, 32, 32), kernels=(3, 3, 3), strides=(1, 1, 1),
+                              pools=(True, True, True), se_reduction=4, attention_heads=4, dense=128, lstm=128,
+                              lstm_layers=1, head=128),
+        num_envs=64, rollout_steps=20, iterations_per_chunk=25, total_env_steps=384_000,
+        eps_start=1.0, eps_end=0.05, eps_decay_steps=200_000,
+        replay_capacity=64_000, burn_in=10, train_len=20, batch_size=32, learning_starts=10_240,
+        replay_ratio=1.0, lr=5e-4, gamma=0.97, n_step=5, reward_scale=0.1, target_update="polyak", polyak_tau=0.01,
+        eval_episodes=32, checkpoint_every_chunks=5,
+    )
+
+
+def _paper() -> TrainConfig:
+    """The paper's settings: 256x256 depth, full RAMAVT, batch 64, Adam 1e-4, gamma 0.99, 50,000-step replay."""
+    return TrainConfig(
+        env=env_lib.EnvConfig(camera=CameraConfig(resolution=256), autoreset="next_step"),
+        network=NetworkConfig(variant="ramavt"),
+        num_envs=16, rollout_steps=20, iterations_per_chunk=10, total_env_steps=2_000_000,
+        eps_start=0.9, eps_end=0.1, eps_decay_steps=1_000_000,
+        replay_capacity=50_000, burn_in=4, train_len=8, batch_size=64, learning_starts=10_000,
+        replay_ratio=1.6, lr=1e-4, gamma=0.99, n_step=1, reward_scale=1.0, target_update="period",
+        target_period=1000, checkpoint_every_chunks=20, eval_episodes=32,
+    )
+
+
+PRESETS = {"quick": _quick, "paper": _paper}
+
+
+def preset(name: str, **overrides: Any) -> TrainConfig:
+    """A named configuration ('quick' | 'paper'); keyword overrides replace top-level fields."""
+    if name not in PRESETS:
+        raise ValueError(f"unknown preset {name!r}; choose one of {sorted(PRESETS)}")
+    cfg = PRESETS[name]()
+    return dataclasses.replace(cfg, **overrides) if overrides else cfg
+
+
+# ============================================================================================ state containers
+@struct.dataclass
+class LearnerState:
+    params: Any
+    target_params: Any
+    opt_state: Any
+    updates: jax.Array  # [] int32 gradient steps taken
+
+
+@struct.dataclass
+class ActorState:
+    """The acting envs ([N] leading axis everywhere except ``net_state``'s LSTM leaves, [layers, N, units])."""
+
+    env_state: env_lib.EnvState
+    obs: jax.Array  # [N, H, W, C] current observation (not yet consumed by the network)
+    is_first: jax.Array  # [N] bool, obs is an episode's first observation
+    net_state: RecurrentState  # state BEFORE consuming obs
+
+
+@struct.dataclass
+class RunnerState:
+    learner: LearnerState
+    actor: ActorState
+    replay: Any  # flashbax TrajectoryBufferState
+    key: jax.Array  # raw uint32[2] PRNG key (checkpoint friendly)
+    env_steps: jax.Array  # [] int32, all envs together
+    chunk: jax.Array  # [] int32 chunks completed
+
+
+@struct.dataclass
+class ChunkMetrics:
+    """Per-iteration sums ([iterations] per chunk; the host aggregates)."""
+
+    episodes: jax.Array  # episodes completed
+    episode_length_sum: jax.Array
+    episode_return_sum: jax.Array  # unscaled env reward
+    loss_sum: jax.Array
+    q_sum: jax.Array  # mean taken Q per update, summed
+    grad_norm_sum: jax.Array
+    updates: jax.Array  # gradient steps done this iteration
+    epsilon: jax.Array
+    env_steps: jax.Array  # at the end of the iteration
+
+
+def _raw_key(key: jax.Array) -> jax.Array:
+    if jnp.issubdtype(key.dtype, jax.dtypes.prng_key):
+        return jax.random.key_data(key)
+    return key
+
+
+# ============================================================================================ trainer
+class Trainer:
+    """Pure pieces of training for one config: ``init(key)``, ``chunk(state)``, ``train(key)`` (vmappable)."""
+
+    def __init__(self, config: TrainConfig, tracking_env: env_lib.TrackingEnv | None = None):
+        self.config = config
+        self.env = tracking_env if tracking_env is not None else env_lib.TrackingEnv(config.env)
+        self.env_params = self.env.default_params(**dict(config.env_params))
+        self.obs_shape = tuple(config.env.obs_shape)
+        self.net = make_network(config.network)
+        self.td = TDConfig(gamma=config.gamma, n_step=config.n_step, double_q=config.double_q,
+                           value_rescale=config.value_rescale, huber_delta=config.huber_delta)
+        lr_tx = optax.adam(config.lr, eps=config.adam_eps)
+        self.optimizer = (optax.chain(optax.clip_by_global_norm(config.max_grad_norm), lr_tx)
+                          if config.max_grad_norm > 0 else lr_tx)
+        self.augment_fn = None
+        if config.augment:
+            from ramavt_jax import augment as aug
+            aug_cfg = config.augment_config or aug.AugmentConfig(flip=False, rot90=False)
+            self.augment_fn = functools.partial(aug.augment_batch, config=aug_cfg)
+        self.replay = replay_lib.make_replay(
+            replay_lib.ReplayConfig(capacity_steps=config.replay_capacity, sequence_length=config.sequence_length,
+                                    period=config.sample_period, batch_size=config.batch_size,
+                                    obs_dtype=config.obs_dtype),
+            config.num_envs, self._example_transition())
+
+    # ---------------------------------------------------------------- helpers
+    def _example_transition(self) -> replay_lib.Transition:
+        s = initial_state(self.config.network, 1, self.obs_shape)
+        return replay_lib.Transition(
+            obs=jnp.zeros(self.obs_shape), action=jnp.zeros((), jnp.int32), reward=jnp.zeros(()),
+            terminated=jnp.zeros((), bool), truncated=jnp.zeros((), bool), is_first=jnp.zeros((), bool),
+            recurrent_state=(s.h[:, 0], s.c[:, 0]))
+
+    def epsilon(self, env_steps: jax.Array) -> jax.Array:
+        c = self.config
+        frac = jnp.clip(env_steps / max(c.eps_decay_steps, 1), 0.0, 1.0) if c.eps_decay_steps else 1.0
+        return c.eps_start + (c.eps_end - c.eps_start) * frac
+
+    def q_values(self, params, obs, reset, state):
+        """Online/target forward: obs [B, T, H, W, C], reset [B, T] -> (q [B, T, A], state)."""
+        return self.net.apply({"params": params}, obs, reset, state)
+
+    # ---------------------------------------------------------------- init
+    def init(self, key: jax.Array) -> RunnerState:
+        c = self.config
+        key = _raw_key(key)
+        key, k_net, k_env = jax.random.split(key, 3)
+        params = init_params(c.network, k_net, self.obs_shape)["params"]
+        learner = LearnerState(params=params, target_params=jax.tree.map(jnp.copy, params),
+                               opt_state=self.optimizer.init(params), updates=jnp.zeros((), jnp.int32))
+        obs, env_state = jax.vmap(self.env.reset, in_axes=(0, None))(jax.random.split(k_env, c.num_envs),
+                                                                     self.env_params)
+        actor = ActorState(env_state=env_state, obs=obs, is_first=jnp.ones((c.num_envs,), bool),
+                           net_state=initial_state(c.network, c.num_envs, self.obs_shape))
+        return RunnerState(learner=learner, actor=actor, replay=self.replay.init(), key=key,
+                           env_steps=jnp.zeros((), jnp.int32), chunk=jnp.zeros((), jnp.int32))
+
+    # ---------------------------------------------------------------- acting
+    def act_step(self, params, actor: ActorState, epsilon: jax.Array, key: jax.Array):
+        """One epsilon-greedy step of all envs. Returns (actor, Transition [N, ...] (state [layers, N, units]), info)."""
+        c = self.config
+        k_eps, k_rand, k_env = jax.random.split(key, 3)
+        q, net_state = self.q_values(params, actor.obs[:, None], actor.is_first[:, None], actor.net_state)
+        greedy = jnp.argmax(q[:, 0], axis=-1).astype(jnp.int32)
+        explore = jax.random.uniform(k_eps, (c.num_envs,)) < epsilon
+        action = jnp.where(explore, jax.random.randint(k_rand, (c.num_envs,), 0, env_lib.NUM_ACTIONS), greedy)
+        obs, env_state, reward, terminated, truncated, info = jax.vmap(self.env.step, in_axes=(0, 0, 0, None))(
+            jax.random.split(k_env, c.num_envs), actor.env_state, action, self.env_params)
+        transition = replay_lib.Transition(
+            obs=actor.obs, action=action, reward=reward, terminated=terminated, truncated=truncated,
+            is_first=actor.is_first, recurrent_state=(actor.net_state.h, actor.net_state.c))
+        new_actor = ActorState(env_state=env_state, obs=obs, is_first=info["is_first"], net_state=net_state)
+        done = terminated | truncated
+        stats = dict(episodes=done.sum(), length=jnp.where(done, info["episode_length"], 0).sum(),
+                     ret=jnp.where(done, info["episode_return"], 0.0).sum())
+        return new_actor, transition, stats
+
+    def rollout(self, params, actor: ActorState, env_steps: jax.Array, key: jax.Array):
+        """``rollout_steps`` acting steps. Returns (actor, chunk in replay layout [N, T, ...], stats, epsilon)."""
+        c = self.config
+
+        def body(carry, k):
+            actor, steps = carry
+            eps = self.epsilon(steps)
+            actor, tr, stats = self.act_step(params, actor, eps, k)
+            return (actor, steps + c.num_envs), (tr, stats, eps)
+
+        (actor, _), (traj, stats, eps) = jax.lax.scan(body, (actor, env_steps),
+                                                      jax.random.split(key, c.rollout_steps))
+        return actor, replay_lib.chunk_to_storage(traj), jax.tree.map(jnp.sum, stats), eps[-1]
+
+    # ---------------------------------------------------------------- learning
+    def loss(self, params, target_params, batch: replay_lib.Transition, key: jax.Array):
+        """Masked TD loss of one sampled batch (leaves [B, L, ...]). Returns (loss, aux)."""
+        c = self.config
+        burn = c.burn_in
+        obs = batch.obs
+        if self.augment_fn is not None:
+            obs = self.augment_fn(key, obs)
+        masks = replay_lib.sequence_masks(batch.is_first, burn)
+        reset = masks["reset"]
+        h0, c0 = replay_lib.state_from_storage(jax.tree.map(lambda x: x[:, 0], batch.recurrent_state))
+        if c.network.recurrent:
+            frames = jnp.zeros((obs.shape[0], 0), jnp.float32)
+        else:  # rebuilt during burn-in (burn_in >= frame_stack - 1 is validated)
+            frames = jnp.repeat(obs[:, :1], c.network.frame_stack - 1, axis=1)
+        state0 = jax.lax.stop_gradient(RecurrentState(h=h0, c=c0, frames=frames))
+        q_target, _ = self.q_values(target_params, obs, reset, state0)
+        q_target = jax.lax.stop_gradient(q_target[:, burn:])  # [B, T+1, A]
+        state = state0
+        if burn:
+            _, state = self.q_values(jax.lax.stop_gradient(params), obs[:, :burn], reset[:, :burn], state0)
+            state = jax.lax.stop_gradient(state)
+        q_online, _ = self.q_values(params, obs[:, burn:], reset[:, burn:], state)  # [B, T+1, A]
+        loss, aux = sequence_td_loss(
+            q_online, q_target, batch.action[:, burn:-1], batch.reward[:, burn:-1] * c.reward_scale,
+            batch.terminated[:, burn:-1], batch.truncated[:, burn:-1], masks["loss_mask"][:, burn:], self.td)
+        mask = masks["loss_mask"][:, burn:].astype(jnp.float32)
+        aux = dict(aux, q_mean=(aux["q_taken"] * mask).sum() / jnp.maximum(mask.sum(), 1.0))
+        return loss, aux
+
+    def update(self, learner: LearnerState, replay_state, key: jax.Array):
+        """One gradient step on a fresh sample. Returns (learner, (loss, q_mean, grad_norm))."""
+        c = self.config
+        k_sample, k_aug = jax.random.split(key)
+        batch = self.replay.sample(replay_state, k_sample)
+        (loss, aux), grads = jax.value_and_grad(self.loss, has_aux=True)(learner.params, learner.target_params,
+                                                                           batch, k_aug)
+        if c.debug_nan_at_update >= 0:
+            poison = learner.updates >= c.debug_nan_at_update
+            loss = jnp.where(poison, jnp.nan, loss)
+            grads = jax.tree.map(lambda g: jnp.where(poison, jnp.nan, g), grads)
+        updates, opt_state = self.optimizer.update(grads, learner.opt_state, learner.params)
+        params = optax.apply_updates(learner.params, updates)
+        n = learner.updates + 1
+        if c.target_update == "polyak":
+            target = optax.incremental_update(params, learner.target_params, c.polyak_tau)
+        else:
+            target = optax.periodic_update(params, learner.target_params, n, c.target_period)
+        new = LearnerState(params=params, target_params=target, opt_state=opt_state, updates=n)
+        return new, (loss, aux["q_mean"], optax.global_norm(grads))
+
+    def learn(self, learner: LearnerState, replay_state, env_steps: jax.Array, key: jax.Array):
+        """``updates_per_iteration`` steps if the replay is ready, else none. Returns (learner, sums)."""
+        c = self.config
+        ready = (env_steps >= c.learning_starts) & self.replay.can_sample(replay_state)
+
+        def do(learner):
+            learner, (loss, q, gn) = jax.lax.scan(lambda l, k: self.update(l, replay_state, k), learner,
+                                                  jax.random.split(key, c.updates_per_iteration))
+            return learner, (loss.sum(), q.sum(), gn.sum(), jnp.int32(c.updates_per_iteration))
+
+        def skip(learner):
+            z = jnp.zeros(())
+            return learner, (z, z, z, jnp.int32(0))
+
+        return jax.lax.cond(ready, do, skip, learner)
+
+    def iteration(self, runner: RunnerState) -> tuple[RunnerState, ChunkMetrics]:
+        key, k_act, k_learn = jax.random.split(runner.key, 3)
+        actor, chunk, stats, eps = self.rollout(runner.learner.params, runner.actor, runner.env_steps, k_act)
+        replay_state = self.replay.add(runner.replay, chunk)
+        env_steps = runner.env_steps + self.config.env_steps_per_iteration
+        learner, (loss, q, gn, n) = self.learn(runner.learner, replay_state, env_steps, k_learn)
+        metrics = ChunkMetrics(episodes=stats["episodes"], episode_length_sum=stats["length"],
+                               episode_return_sum=stats["ret"], loss_sum=loss, q_sum=q, grad_norm_sum=gn, updates=n,
+                               epsilon=eps, env_steps=env_steps)
+        runner = runner.replace(learner=learner, actor=actor, replay=replay_state, key=key, env_steps=env_steps)
+        return runner, metrics
+
+    def chunk(self, runner: RunnerState) -> tuple[RunnerState, ChunkMetrics]:
+        """``iterations_per_chunk`` iterations in one lax.scan (jit this; metrics are [iterations])."""
+        runner, metrics = jax.lax.scan(lambda r, _: self.iteration(r), runner, None,
+                                       length=self.config.iterations_per_chunk)
+        return runner.replace(chunk=runner.chunk + 1), metrics
+
+    def train(self, key: jax.Array) -> dict:
+        """Whole run (init + all chunks) as one pure function: {'runner_state', 'metrics' [chunks, iterations]}."""
+        runner = self.init(key)
+        runner, metrics = jax.lax.scan(lambda r, _: self.chunk(r), runner, None, length=self.config.num_chunks)
+        return {"runner_state": runner, "metrics": metrics}
+
+
+def make_train(config: TrainConfig, tracking_env: env_lib.TrackingEnv | None = None):
+    """purejaxrl-style: returns ``train(key) -> {'runner_state', 'metrics'}``; jit it, vmap it over seeds."""
+    return Trainer(config, tracking_env).train
+
+
+# ============================================================================================ greedy policy
+@struct.dataclass
+class GreedyState:
+    net_state: RecurrentState  # per env (no batch axis): h, c [layers, units], frames [K-1, H, W, C]
+    first: jax.Array  # [] bool
+
+
+def greedy_policy(network: NetworkConfig, params, obs_shape: tuple, name: str = "greedy") -> Policy:
+    """A ``baselines.Policy`` acting greedily with a trained Q-network (per env; evaluate.run_episodes vmaps it)."""
+    net = make_network(network)
+
+    def init(key):
+        s = initial_state(network, 1, obs_shape)
+        return GreedyState(net_state=RecurrentState(h=s.h[:, 0], c=s.c[:, 0], frames=s.frames[0]),
+                           first=jnp.ones((), bool))
+
+    def act(key, pstate: GreedyState, obs, env_state, env_params):
+        s = pstate.net_state
+        batched = RecurrentState(h=s.h[:, None], c=s.c[:, None], frames=s.frames[None])
+        q, new = net.apply({"params": params}, obs[None, None], pstate.first[None, None], batched)
+        new = RecurrentState(h=new.h[:, 0], c=new.c[:, 0], frames=new.frames[0])
+        return jnp.argmax(q[0, 0]).astype(jnp.int32), GreedyState(net_state=new, first=jnp.zeros((), bool))
+
+    return Policy(name, init, act)
+
+
+def run(config: TrainConfig, out_dir, seed: int = 0, resume=True, progress: bool = True, **kwargs) -> dict:
+    """Host driver (logging, evaluation, checkpoints); see :func:`ramavt_jax.train_log.run`."""
+    from ramavt_jax.train_log import run as _run
+
+    return _run(config, out_dir, seed=seed, resume=resume, progress=progress, **kwargs)
