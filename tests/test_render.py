@@ -16,6 +16,8 @@ mujoco = pytest.importorskip("mujoco")
 from ramavt_jax import render as R  # noqa: E402
 from ramavt_jax import targets  # noqa: E402
 
+PAD = 32  # one geom count for every model: one compilation
+
 # Own models: every geom type, rotated geoms (euler / quat / axisangle / fromto), several and nested bodies,
 # a body offset from the world origin, sites and a free joint.
 TEST_MJCF = {
@@ -91,9 +93,19 @@ def _mujoco_depth(model, data, rot_wb, pos_wb, position, rotation, cam):
     nray = vec.shape[0]
     geomid = np.zeros(nray, np.int32)
     dist = np.zeros(nray, np.float64)
-    mujoco.mj_multiRay(model, data, pos_wc, vec.reshape(-1), None, 1, -1, geomid, dist, None, nray, 1e9)
+    normal = np.zeros(3 * nray, np.float64)
+    mujoco.mj_multiRay(model, data, pos_wc, vec.reshape(-1), None, 1, -1, geomid, dist, normal, nray, 1e9)
     hit = (dist >= cam.near) & (dist <= cam.far)
-    return np.where(hit, dist, 0.0).reshape(cam.resolution, cam.resolution), hit.reshape(cam.resolution, cam.resolution)
+    shape = (cam.resolution, cam.resolution)
+    normal_cam = (normal.reshape(-1, 3) @ rot_wc).reshape(shape + (3,))
+    return np.where(hit, dist, 0.0).reshape(shape), hit.reshape(shape), normal_cam, geomid.reshape(shape)
+
+
+def _albedo(model):
+    rgba = np.array(model.geom_rgba, np.float64)
+    has = model.geom_matid >= 0
+    rgba[has] = model.mat_rgba[model.geom_matid[has]]
+    return rgba[:, :3]
 
 
 def _poses(rng, radius, cam, n):
@@ -122,7 +134,7 @@ def _edge_pixels(mask):
     """Pixels with a differing 8-neighbour."""
     p = np.pad(mask, 1, mode="edge")
     h, w = mask.shape
-    edge = np.zeros_like(mask)
+    edge = np.zeros(mask.shape, bool)
     for dv in (-1, 0, 1):
         for du in (-1, 0, 1):
             edge |= p[1 + dv : 1 + dv + h, 1 + du : 1 + du + w] != mask
@@ -133,17 +145,19 @@ def _check_against_mujoco(path, seed=0, n_poses=8, res=40):
     cam = R.CameraConfig(resolution=res, fov_deg=60.0)
     light = R.default_lighting()
     model, data, rot_wb, pos_wb = _world_from_body(path)
-    target = targets.load(path)
+    target = targets.load(path, pad_to=max(PAD, model.ngeom))
     rng = np.random.default_rng(seed)
     radius = float(target.bound_radius)
     poses = _poses(rng, radius, cam, n_poses)
     positions = jnp.asarray(np.stack([p for p, _ in poses]), jnp.float32)
     rotations = jnp.asarray(np.stack([r for _, r in poses]), jnp.float32)
     batch = jax.tree.map(lambda a: jnp.broadcast_to(a, (n_poses,) + a.shape), target)
-    frames = R.render_batch(batch, positions, rotations, cam, light, shade=False)
+    frames = R.render_batch(batch, positions, rotations, cam, light, shade=True)
+    albedo = _albedo(model)
+    sun, amb = np.asarray(light.sun_dir, np.float64), float(light.ambient)
     total_hits = 0
     for i, (pos, rot) in enumerate(poses):
-        ref_depth, ref_hit = _mujoco_depth(model, data, rot_wb, pos_wb, pos, rot, cam)
+        ref_depth, ref_hit, ref_normal, ref_geom = _mujoco_depth(model, data, rot_wb, pos_wb, pos, rot, cam)
         depth = np.asarray(frames.depth[i])
         hit = np.asarray(frames.hit[i])
         both = hit & ref_hit
@@ -154,6 +168,12 @@ def _check_against_mujoco(path, seed=0, n_poses=8, res=40):
         bad = mismatch & ~_edge_pixels(ref_hit) & ~near_far
         assert not bad.any(), f"{path} pose {i}: {bad.sum()} hit/miss mismatches away from silhouette edges"
         assert mismatch.sum() <= max(2, 0.02 * ref_hit.sum()), f"{path} pose {i}: {mismatch.sum()} mismatches"
+        # Lambertian colour from MuJoCo's normals (away from silhouette and geom edges, where normals jump).
+        ref_rgb = albedo[ref_geom] * (amb + (1 - amb) * np.maximum(ref_normal @ sun, 0.0))[..., None]
+        interior = both & ~_edge_pixels(np.where(ref_hit, ref_geom, -1))
+        cerr = np.abs(np.asarray(frames.rgb[i]) - ref_rgb)[interior]
+        assert cerr.size == 0 or np.quantile(cerr.max(-1), 0.99) < 2e-3, f"{path} pose {i}: colour error {cerr.max():.2e}"
+        assert not np.asarray(frames.rgb[i])[~hit].any(), "sky must be black"
         total_hits += ref_hit.sum()
     assert total_hits > 0, f"{path}: no pose saw the target"
 
@@ -176,4 +196,119 @@ def test_own_models_match_mujoco(own_models, name):
 
 @pytest.mark.parametrize("path", _model_paths(), ids=lambda p: Path(p).stem)
 def test_catalogue_matches_mujoco(path):
-    _check_against_mujoco(path, seed=2, n_poses=8)
+    _check_against_mujoco(path, seed=2, n_poses=12)
+
+
+# ----------------------------------------------------------------------------------------------- API behaviour
+
+
+@pytest.fixture(scope="module")
+def scene(own_models):
+    """A batch of 5 poses of the all-types model at 32x32."""
+    cam = R.CameraConfig(resolution=32)
+    target = targets.load(own_models["all_types"], pad_to=PAD)
+    rng = np.random.default_rng(5)
+    poses = _poses(rng, float(target.bound_radius), cam, 5)
+    pos = jnp.asarray(np.stack([p for p, _ in poses]), jnp.float32)
+    rot = jnp.asarray(np.stack([r for _, r in poses]), jnp.float32)
+    batch = jax.tree.map(lambda a: jnp.broadcast_to(a, (5,) + a.shape), target)
+    return cam, target, batch, pos, rot
+
+
+def _frames_equal(a, b, atol=1e-5):
+    np.testing.assert_allclose(np.asarray(a.depth), np.asarray(b.depth), atol=atol)
+    np.testing.assert_allclose(np.asarray(a.rgb), np.asarray(b.rgb), atol=atol)
+    np.testing.assert_array_equal(np.asarray(a.hit), np.asarray(b.hit))
+
+
+def test_camera_config_validation():
+    cam = R.CameraConfig()
+    assert cam.resolution == 64 and np.isclose(cam.focal(), 32 / np.tan(np.radians(30)))
+    hash(cam)
+    for kwargs in [dict(resolution=4), dict(resolution=2048), dict(resolution=64.0), dict(fov_deg=0.0),
+                   dict(fov_deg=180.0), dict(near=0.0), dict(far=0.01)]:
+        with pytest.raises(ValueError):
+            R.CameraConfig(**kwargs)
+
+
+def test_camera_rays():
+    cam = R.CameraConfig(resolution=9, fov_deg=90.0)
+    rays = np.asarray(R.camera_rays(cam))
+    assert rays.shape == (9, 9, 3) and rays.dtype == np.float32
+    np.testing.assert_allclose(rays[4, 4], [0, 0, 1])
+    np.testing.assert_allclose(rays[0, 8], [4 / 4.5, -4 / 4.5, 1], rtol=1e-6)  # top-right: x right, y down
+
+
+def test_jit_matches_no_jit(scene):
+    cam, target, _, pos, rot = scene
+    light = R.default_lighting()
+    jitted = jax.jit(R.render, static_argnames=("cam", "shade"))(target, pos[0], rot[0], cam, light)
+    with jax.disable_jit():
+        eager = R.render(target, pos[0], rot[0], cam, light)
+    _frames_equal(jitted, eager)
+    assert np.asarray(jitted.hit).any()
+
+
+def test_vmap_matches_loop_and_batch(scene):
+    cam, _, batch, pos, rot = scene
+    light = R.default_lighting()
+    vm = jax.jit(jax.vmap(R.render, in_axes=(0, 0, 0, None, None)), static_argnums=3)(batch, pos, rot, cam, light)
+    for i in range(pos.shape[0]):
+        one = R.render(jax.tree.map(lambda a: a[i], batch), pos[i], rot[i], cam, light)
+        _frames_equal(jax.tree.map(lambda a: a[i], vm), one)
+    for chunk in (None, 1, 7):
+        _frames_equal(R.render_batch(batch, pos, rot, cam, light, chunk=chunk), vm)
+    depth_only = R.render_batch(batch, pos, rot, cam, light, shade=False)
+    np.testing.assert_array_equal(np.asarray(depth_only.depth), np.asarray(vm.depth))
+    assert not np.asarray(depth_only.rgb).any()
+
+
+def test_tiling_is_exact(scene):
+    """The tile culling must never drop a hit: compare with tiles covering everything (tile = resolution)."""
+    cam, _, batch, pos, rot = scene
+    light = R.default_lighting()
+    a = R.render_batch(batch, pos, rot, cam, light, tile=8)
+    b = R.render_batch(batch, pos, rot, cam, light, tile=32)
+    c = R.render_batch(batch, pos, rot, R.CameraConfig(resolution=32), light, tile=5)  # non-dividing tile
+    _frames_equal(a, b)
+    _frames_equal(a, c)
+
+
+def test_observation_modes(scene):
+    cam, _, batch, pos, rot = scene
+    frames = R.render_batch(batch, pos, rot, cam, R.default_lighting())
+    for mode, ch in [("depth", 1), ("color", 3), ("rgbd", 4)]:
+        obs = np.asarray(R.to_observation(frames, mode, cam.far))
+        assert obs.shape == (5, 32, 32, ch) and obs.dtype == np.float32
+        assert obs.min() >= 0.0 and obs.max() <= 1.0
+    depth = np.asarray(R.to_observation(frames, "depth", cam.far))[..., 0]
+    np.testing.assert_allclose(depth, np.asarray(frames.depth) / cam.far, rtol=1e-6)
+    assert (depth[~np.asarray(frames.hit)] == 0).all()
+    rgbd = np.asarray(R.to_observation(frames, "rgbd", cam.far))
+    np.testing.assert_array_equal(rgbd[..., 3], depth)
+    with pytest.raises(ValueError, match="unknown observation mode"):
+        R.to_observation(frames, "infrared", cam.far)
+
+
+def test_gaussian_blur():
+    img = jax.random.uniform(jax.random.PRNGKey(0), (24, 20, 3))
+    np.testing.assert_array_equal(np.asarray(R.gaussian_blur(img, 0.0)), np.asarray(img))
+    out = jax.jit(R.gaussian_blur)(img, jnp.float32(1.5))
+    assert out.shape == img.shape
+    assert abs(float(out.mean()) - float(img.mean())) < 0.01
+    assert float(out.std()) < float(img.std())
+    const = jnp.full((16, 16, 1), 0.7)
+    np.testing.assert_allclose(np.asarray(R.gaussian_blur(const, 2.0)), 0.7, atol=1e-5)  # borders do not darken
+    batched = jax.vmap(R.gaussian_blur, in_axes=(0, 0))(jnp.stack([img, img]), jnp.array([0.0, 1.5]))
+    np.testing.assert_allclose(np.asarray(batched[1]), np.asarray(out), atol=1e-6)
+
+
+def test_motion_blur():
+    img = jnp.zeros((21, 21, 1)).at[10, 10, 0].set(1.0)
+    np.testing.assert_array_equal(np.asarray(R.motion_blur(img, 0.0, 0.3)), np.asarray(img))
+    out = np.asarray(jax.jit(R.motion_blur)(img, 8.0, 0.0))
+    assert out.shape == img.shape
+    np.testing.assert_allclose(out.sum(), 1.0, atol=1e-5)
+    assert out[10].sum() > 0.99  # a horizontal streak stays in its row
+    vert = np.asarray(R.motion_blur(img, 8.0, np.pi / 2))
+    assert vert[:, 10].sum() > 0.99

@@ -72,13 +72,16 @@ def geom_table(target: TargetModel, position: jax.Array, rotation: jax.Array) ->
     c = jnp.sum(q * o * o, axis=1) - 1.0
     c = jnp.where(target.geom_mask, c, jnp.inf)  # padding: no real root, never hit
     cap_hl = jnp.where(target.geom_type == CAPSULE, hl, _BIG)
+    # Padding geoms: both slab planes at +inf -> the slab interval is empty for every ray.
+    lo = jnp.where(target.geom_mask[:, None], -e - o, jnp.inf)
+    hi = jnp.where(target.geom_mask[:, None], e - o, jnp.inf)
     rows = [
         m.reshape(-1, 9).T,  # 9
         (q * o).T,  # 3
         c[None],  # 1
         q.T,  # 3
-        (-e - o).T,  # 3
-        (e - o).T,  # 3
+        lo.T,  # 3
+        hi.T,  # 3
         o.T,  # 3
         cap_hl[None],  # 1
         jnp.stack([q[:, 1] * q[:, 2], q[:, 0] * q[:, 2], q[:, 0] * q[:, 1]]),  # 3 pair weights (x, y, z cross terms)

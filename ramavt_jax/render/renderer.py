@@ -23,6 +23,7 @@ from ramavt_jax.targets import TargetModel
 
 DEFAULT_TILE = 8
 DEFAULT_CHUNK_RAYS = 16384  # rays per loop iteration when chunk is None
+DEFAULT_GEOMS_PER_TILE = 6  # tiles overlapped by at most this many geoms take the short geom list
 
 
 def _tile_layout(cam: CameraConfig, tile: int):
@@ -80,7 +81,7 @@ def _assemble(tiles: jax.Array, b: int, nt: int, tile: int, res: int) -> jax.Arr
     return img[:, :res, :res]
 
 
-@functools.partial(jax.jit, static_argnames=("cam", "shade", "chunk", "tile"))
+@functools.partial(jax.jit, static_argnames=("cam", "shade", "chunk", "tile", "geoms_per_tile"))
 def render_batch(
     targets: TargetModel,
     positions: jax.Array,
@@ -90,6 +91,7 @@ def render_batch(
     shade: bool = True,
     chunk: int | None = None,
     tile: int = DEFAULT_TILE,
+    geoms_per_tile: int = DEFAULT_GEOMS_PER_TILE,
 ) -> Frame:
     """Render B targets at once: targets with leading [B], positions [B, 3], rotations [B, 3, 3] -> Frame [B, ...].
 
@@ -104,56 +106,87 @@ def render_batch(
     n_tiles = nt * nt
     npix = tile * tile
     total = b * n_tiles
-    if chunk is None:
-        chunk = max(1, DEFAULT_CHUNK_RAYS // npix)
+    if chunk is None:  # ~16k rays, but small batches must not pay for a mostly empty chunk
+        chunk = max(1, min(DEFAULT_CHUNK_RAYS // npix, max(16, total // 8)))
     chunk = int(min(chunk, total))
     n_chunks = -(-total // chunk)
     cap = n_chunks * chunk
 
-    tables = jax.vmap(intersect.geom_table)(targets, positions, rotations)  # [B, F, G]
+    tables = jnp.swapaxes(jax.vmap(intersect.geom_table)(targets, positions, rotations), 1, 2)  # [B, G, F]
+    n_geoms = tables.shape[1]
+    kg = int(min(geoms_per_tile, n_geoms))
     if shade:
-        stables = jax.vmap(intersect.shade_table)(targets, positions, rotations)  # [B, S, G]
-    radius = jnp.broadcast_to(targets.bound_radius, (b,))
-    need = jax.vmap(_tile_mask, in_axes=(0, 0, None, None, None))(positions, radius, cam, u_rng, v_rng)
-    flat = need.reshape(-1)
-    count = jnp.sum(flat, dtype=jnp.int32)
-    order = jnp.nonzero(flat, size=cap, fill_value=0)[0].astype(jnp.int32)
+        stables = jnp.swapaxes(jax.vmap(intersect.shade_table)(targets, positions, rotations), 1, 2)
+        stables = stables.reshape(b * n_geoms, -1)  # [B*G, S]
+    # Per (env, tile, geom): does the geom's bounding sphere project onto the tile?
+    geom_centre = jnp.einsum("bij,bgj->bgi", rotations, targets.geom_pos) + positions[:, None, :]
+    geom_r = jnp.where(targets.geom_mask, targets.geom_rbound, -1.0)
+    mask_fn = jax.vmap(jax.vmap(_tile_mask, in_axes=(0, 0, None, None, None)), in_axes=(0, 0, None, None, None))
+    overlap = mask_fn(geom_centre, geom_r, cam, u_rng, v_rng)  # [B, G, T]
+    overlap = jnp.swapaxes(overlap & targets.geom_mask[..., None], 1, 2).reshape(total, n_geoms)  # [B*T, G]
+    n_over = jnp.sum(overlap, axis=1, dtype=jnp.int32)
+    flat = n_over > 0
+    small = flat & (n_over <= kg)
+    big = n_over > kg
     xs_t, ys_t = jnp.asarray(xs), jnp.asarray(ys)
     sun = jnp.asarray(lighting.sun_dir, jnp.float32)
     amb = jnp.asarray(lighting.ambient, jnp.float32)
 
-    def body(state):
-        i, dbuf, cbuf = state
-        start = i * chunk
-        ids = jax.lax.dynamic_slice(order, (start,), (chunk,))
+    def cast_tiles(ids, gid, gvalid):
+        """ids [K] (env*T + tile); gid [K, g] geom indices; gvalid [K, g] or None -> depth [K,P], rgb [K,P,3]."""
         env, tid = ids // n_tiles, ids % n_tiles
         x, y = xs_t[tid], ys_t[tid]  # [K, P]
-        tab = jnp.transpose(tables[env], (1, 2, 0))[..., None]  # [F, G, K, 1]
-        t = intersect.cast(tab, x, y, cam.near)  # [G, K, P]
+        tab = jnp.transpose(tables[env[:, None], gid], (2, 1, 0))[..., None]  # [F, g, K, 1]
+        t = intersect.cast(tab, x, y, cam.near)  # [g, K, P]
+        if gvalid is not None:
+            t = jnp.where(gvalid.T[:, :, None], t, jnp.inf)
         tmin = jnp.min(t, axis=0)
         hit = tmin <= cam.far
         depth = jnp.where(hit, tmin, 0.0)
-        dbuf = jax.lax.dynamic_update_slice(dbuf, depth, (start, 0))
-        if shade:
-            g = jnp.argmin(t, axis=0)  # [K, P]
-            st = jnp.take_along_axis(stables[env], g[:, None, :], axis=2)  # [K, S, P]
-            st = jnp.moveaxis(st, 1, 0)  # [S, K, P]
-            n = intersect.surface_normal(st, x, y, jnp.where(hit, tmin, 1.0))
-            lam = jnp.maximum(n[0] * sun[0] + n[1] * sun[1] + n[2] * sun[2], 0.0)
-            light = jnp.where(hit, amb + (1.0 - amb) * lam, 0.0)
-            rgb = jnp.stack([st[intersect.S_RGB0 + k] * light for k in range(3)], axis=-1)  # [K, P, 3]
-            cbuf = jax.lax.dynamic_update_slice(cbuf, jnp.clip(rgb, 0.0, 1.0), (start, 0, 0))
-        return i + 1, dbuf, cbuf
+        if not shade:
+            return depth, None
+        slot = jnp.argmin(t, axis=0)  # [K, P]
+        g = jnp.take_along_axis(gid, slot, axis=1)  # [K, P]
+        st = jnp.take(stables, (env[:, None] * n_geoms + g).reshape(-1), axis=0)  # [K*P, S] row gather
+        st = st.T.reshape(st.shape[1], *depth.shape)  # [S, K, P]
+        n = intersect.surface_normal(st, x, y, jnp.where(hit, tmin, 1.0))
+        lam = jnp.maximum(n[0] * sun[0] + n[1] * sun[1] + n[2] * sun[2], 0.0)
+        light = jnp.where(hit, amb + (1.0 - amb) * lam, 0.0)
+        rgb = jnp.stack([st[intersect.S_RGB0 + k] * light for k in range(3)])  # [3, K, P]
+        return depth, jnp.clip(rgb, 0.0, 1.0)
 
-    dbuf = jnp.zeros((cap + 1, npix), jnp.float32)
-    cbuf = jnp.zeros((cap + 1, npix, 3) if shade else (1, 1, 3), jnp.float32)
-    _, dbuf, cbuf = jax.lax.while_loop(lambda s: s[0] * chunk < count, body, (jnp.int32(0), dbuf, cbuf))
+    def run_list(select, few: bool, bufs):
+        """Cast the tiles in `select` (compacted, `chunk` per iteration) and scatter them into the image buffers."""
+        count = jnp.sum(select, dtype=jnp.int32)
+        order = jnp.nonzero(select, size=cap, fill_value=total)[0].astype(jnp.int32)
 
-    slot = jnp.where(flat, jnp.cumsum(flat, dtype=jnp.int32) - 1, cap)  # compacted position, or the empty row
-    depth = _assemble(dbuf[slot], b, nt, tile, cam.resolution)
+        def body(state):
+            i, dbuf, cbuf = state
+            ids = jax.lax.dynamic_slice(order, (i * chunk,), (chunk,))
+            safe = jnp.minimum(ids, total - 1)
+            if few:  # the (at most kg) overlapping geoms of each tile first
+                ov = overlap[safe]
+                gid = jnp.argsort(~ov, axis=1, stable=True)[:, :kg].astype(jnp.int32)
+                gvalid = jnp.take_along_axis(ov, gid, axis=1)
+            else:
+                gid = jnp.broadcast_to(jnp.arange(n_geoms, dtype=jnp.int32), (chunk, n_geoms))
+                gvalid = None
+            depth, rgb = cast_tiles(safe, gid, gvalid)
+            dbuf = dbuf.at[ids].set(depth, mode="drop")  # padding ids (== total) are dropped
+            if shade:
+                cbuf = cbuf.at[:, ids].set(rgb, mode="drop")
+            return i + 1, dbuf, cbuf
+
+        _, dbuf, cbuf = jax.lax.while_loop(lambda s: s[0] * chunk < count, body, (jnp.int32(0),) + bufs)
+        return dbuf, cbuf
+
+    bufs = (jnp.zeros((total, npix), jnp.float32), jnp.zeros((3, total, npix) if shade else (1, 1, 1), jnp.float32))
+    bufs = run_list(small, True, bufs)
+    dbuf, cbuf = run_list(big, False, bufs)
+    depth = _assemble(dbuf, b, nt, tile, cam.resolution)
     hit = depth > 0.0
     if shade:
-        rgb = _assemble(cbuf[slot], b, nt, tile, cam.resolution)
+        rgb = _assemble(jnp.moveaxis(cbuf, 0, -1), b, nt, tile, cam.resolution)
     else:
         rgb = jnp.zeros(depth.shape + (3,), jnp.float32)
     return Frame(depth=depth, rgb=rgb, hit=hit)
