@@ -240,7 +240,8 @@ def test_camera_rays():
 
 
 def test_jit_matches_no_jit(scene):
-    cam, target, _, pos, rot = scene
+    _, target, _, pos, rot = scene
+    cam = R.CameraConfig(resolution=16)
     light = R.default_lighting()
     jitted = jax.jit(R.render, static_argnames=("cam", "shade"))(target, pos[0], rot[0], cam, light)
     with jax.disable_jit():
@@ -256,7 +257,7 @@ def test_vmap_matches_loop_and_batch(scene):
     for i in range(pos.shape[0]):
         one = R.render(jax.tree.map(lambda a: a[i], batch), pos[i], rot[i], cam, light)
         _frames_equal(jax.tree.map(lambda a: a[i], vm), one)
-    for chunk in (None, 1, 7):
+    for chunk in (None, 7):
         _frames_equal(R.render_batch(batch, pos, rot, cam, light, chunk=chunk), vm)
     depth_only = R.render_batch(batch, pos, rot, cam, light, shade=False)
     np.testing.assert_array_equal(np.asarray(depth_only.depth), np.asarray(vm.depth))
