@@ -95,7 +95,8 @@ class EnvParams:
     Defaults are the original benchmark's training values; evaluation uses dist_weight=1, lost_patience=20.
     """
 
-    catalogue: targets_lib.TargetModel  # [N, G, ...] targets an episode draws from (uniformly)
+    catalogue: targets_lib.TargetModel  # [N, G, ...] targets an episode draws from
+    target_probs: jax.Array  # [N] probability of each catalogue target at reset (one-hot pins a target)
     dt: jax.Array = 0.1  # s per step
     speed: jax.Array = 1.0  # m/s per unit action
     actuator_tau: jax.Array = 0.0  # s, first-order lag of the chaser velocity (0 = instant)
@@ -197,9 +198,15 @@ class TrackingEnv:
     def default_params(self, **overrides: Any) -> EnvParams:
         """Original training values with this config's targets loaded; keyword overrides replace fields."""
         catalogue, _ = targets_lib.load_many(self.config.targets)
-        params = EnvParams(catalogue=catalogue)
+        num = len(self.config.targets)
+        params = EnvParams(catalogue=catalogue, target_probs=jnp.full((num,), 1.0 / num))
         params = params.replace(**{k: jnp.asarray(v) for k, v in overrides.items()}) if overrides else params
         return validate_params(params, self.config)
+
+    def pinned(self, params: EnvParams, target: int | str) -> EnvParams:
+        """Params whose episodes all use one target (by index or name in EnvConfig.targets)."""
+        index = self.config.targets.index(target) if isinstance(target, str) else int(target)
+        return params.replace(target_probs=jax.nn.one_hot(index, len(self.config.targets)))
 
     def eval_params(self, **overrides: Any) -> EnvParams:
         """The reported-table settings: reward weight 1, lost patience 20, 1000 steps."""
@@ -225,8 +232,7 @@ class TrackingEnv:
         velocity N(0, 0.2) m/s, random orientation, spin N(0, 0.1) rad/s per body axis; chaser at rest at the origin.
         The frame history is zeros (``reset`` fills it with the first observation)."""
         k_tgt, k_xy, k_z, k_vel, k_quat, k_spin, k_acc = jax.random.split(key, 7)
-        num_targets = params.catalogue.geom_type.shape[0]
-        index = jax.random.randint(k_tgt, (), 0, num_targets)
+        index = jax.random.categorical(k_tgt, jnp.log(params.target_probs))
         xy = params.init_xy_std * jax.random.normal(k_xy, (2,))
         z = jax.random.uniform(k_z, (), minval=params.init_z_min, maxval=params.init_z_max)
         pos_cam = jnp.array([xy[0], xy[1], z])
@@ -424,6 +430,8 @@ def validate_params(params: EnvParams, config: EnvConfig) -> EnvParams:
     check("init_z_max", lambda v: v > np.asarray(params.init_z_min), "> init_z_min")
     check("init_z_min", lambda v: v > config.camera.near, f"> camera.near ({config.camera.near})")
     check("blur_frames", lambda v: (v >= 1) & (v <= config.frame_history), f"in [1, EnvConfig.frame_history={config.frame_history}]")
+    check("target_probs", lambda v: (v >= 0).all() & (abs(v.sum() - 1) < 1e-4) & (v.shape == (len(config.targets),)),
+          f"[{len(config.targets)}] non-negative probabilities summing to 1")
     check("frame_drop_prob", lambda v: (v >= 0) & (v <= 1), "in [0, 1]")
     for name in ("actuator_noise", "delay_max", "gaussian_blur_sigma", "motion_blur_px", "depth_noise_std",
                  "target_vel_std", "target_spin_std", "target_accel_std", "init_xy_std", "mean_motion"):

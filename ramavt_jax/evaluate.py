@@ -131,18 +131,19 @@ def summarise(stats: EpisodeStats) -> Summary:
 def evaluate_per_target(
     config: env_lib.EnvConfig,
     policy: Policy,
-    target_names: Sequence[str],
     key: jax.Array,
     episodes_per_target: int,
     params_overrides: dict | None = None,
     eval_settings: bool = True,
 ) -> dict[str, Summary]:
-    """Summary per target: each target gets its own env whose catalogue holds only that target."""
+    """Summary per target of `config.targets`; one compiled program serves all targets (the target is pinned by
+    `EnvParams.target_probs`, a traced value)."""
+    tracking_env = env_lib.TrackingEnv(config)
+    make = tracking_env.eval_params if eval_settings else tracking_env.default_params
+    params = make(**(params_overrides or {}))
     results = {}
-    for i, name in enumerate(target_names):
-        tracking_env = env_lib.TrackingEnv(dataclasses.replace(config, targets=(name,)))
-        make = tracking_env.eval_params if eval_settings else tracking_env.default_params
-        params = make(**(params_overrides or {}))
-        stats, _ = run_episodes(tracking_env, policy, params, jax.random.fold_in(key, i), episodes_per_target)
+    for i, name in enumerate(config.targets):
+        stats, _ = run_episodes(tracking_env, policy, tracking_env.pinned(params, i), jax.random.fold_in(key, i),
+                                episodes_per_target)
         results[name] = summarise(stats)
     return results

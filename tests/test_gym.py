@@ -1,0 +1,47 @@
+"""Gymnasium adapters pass gymnasium's own checker and agree with the functional env."""
+
+import numpy as np
+import pytest
+from gymnasium.utils.env_checker import check_env
+
+from ramavt_jax import env, render
+from ramavt_jax.gym_adapter import TrackingGymEnv, TrackingVectorEnv
+
+CONFIG = env.EnvConfig(camera=render.CameraConfig(resolution=16), targets=("Satellite-v0",))
+
+
+def test_check_env_passes():
+    gym_env = TrackingGymEnv(CONFIG, render_mode="rgb_array")
+    check_env(gym_env, skip_render_check=False)
+
+
+def test_episode_loop_and_render():
+    gym_env = TrackingGymEnv(CONFIG, render_mode="rgb_array")
+    obs, info = gym_env.reset(seed=3)
+    assert obs.shape == (16, 16, 1) and obs.dtype == np.float32 and "rel_pos" in info
+    obs, reward, terminated, truncated, info = gym_env.step(5)
+    assert isinstance(reward, float) and isinstance(terminated, bool) and isinstance(truncated, bool)
+    assert gym_env.render().shape == (16, 16, 3)
+    with pytest.raises(ValueError, match="action"):
+        gym_env.step(11)
+
+
+def test_seeded_reset_is_deterministic():
+    a, b = TrackingGymEnv(CONFIG), TrackingGymEnv(CONFIG)
+    np.testing.assert_array_equal(a.reset(seed=7)[0], b.reset(seed=7)[0])
+    np.testing.assert_array_equal(a.step(1)[0], b.step(1)[0])
+
+
+def test_vector_env_next_step_autoreset():
+    vec = TrackingVectorEnv(4, CONFIG, params=env.TrackingEnv(CONFIG).default_params(max_steps=3))
+    obs, _ = vec.reset(seed=0)
+    assert obs.shape == (4, 16, 16, 1)
+    truncs, firsts = [], []
+    for _ in range(4):
+        obs, reward, terminated, truncated, info = vec.step(np.zeros(4, dtype=np.int64))
+        truncs.append(truncated.copy())
+        firsts.append(info["is_first"].copy())
+    assert np.all(truncs[2]) and not np.any(truncs[3])
+    assert np.all(firsts[3]) and not np.any(firsts[2])
+    with pytest.raises(ValueError, match="shape"):
+        vec.step(np.zeros(3, dtype=np.int64))
