@@ -313,3 +313,24 @@ def test_motion_blur():
     assert out[10].sum() > 0.99  # a horizontal streak stays in its row
     vert = np.asarray(R.motion_blur(img, 8.0, np.pi / 2))
     assert vert[:, 10].sum() > 0.99
+
+
+def test_vmapped_render_uses_batch_rule_with_per_env_lighting():
+    """vmap(render) goes through render_batch's custom rule; per-env lighting and nested vmap still match a loop."""
+    tg = targets.load_many(["Satellite-v0", "Capsule-v0"])[0]
+    cam = R.CameraConfig(resolution=24)
+    pos = jnp.array([[0.0, 0.0, 5.0], [0.3, 0.2, 6.0]])
+    rot = jnp.broadcast_to(jnp.eye(3), (2, 3, 3))
+    light = R.default_lighting()
+    flipped = jax.vmap(lambda s: R.Lighting(sun_dir=s, ambient=jnp.float32(0.2)))(
+        jnp.stack([light.sun_dir, -light.sun_dir]))
+    out = jax.jit(jax.vmap(lambda t, p, r, l: R.render(t, p, r, cam, l, True)))(tg, pos, rot, flipped)
+    for i, lit in enumerate([light, R.Lighting(sun_dir=-light.sun_dir, ambient=jnp.float32(0.2))]):
+        one = R.render(jax.tree.map(lambda x: x[i], tg), pos[i], rot[i], cam, lit, True)
+        np.testing.assert_allclose(out.depth[i], one.depth, atol=1e-6)
+        np.testing.assert_allclose(out.rgb[i], one.rgb, atol=1e-6)
+    nested = jax.vmap(jax.vmap(lambda p, r: R.render(jax.tree.map(lambda x: x[0], tg), p, r, cam, light, False),
+                               in_axes=(0, None)), in_axes=(None, 0))(pos, rot)
+    assert nested.depth.shape == (2, 2, 24, 24)
+    single = R.render(jax.tree.map(lambda x: x[0], tg), pos[1], rot[0], cam, light, False)
+    np.testing.assert_allclose(nested.depth[0, 1], single.depth, atol=1e-6)

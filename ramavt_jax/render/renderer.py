@@ -129,8 +129,9 @@ def render_batch(
     small = flat & (n_over <= kg)
     big = n_over > kg
     xs_t, ys_t = jnp.asarray(xs), jnp.asarray(ys)
-    sun = jnp.asarray(lighting.sun_dir, jnp.float32)
-    amb = jnp.asarray(lighting.ambient, jnp.float32)
+    # lighting may be shared ([3], []) or per env ([B, 3], [B]), e.g. when env params are randomised
+    sun_all = jnp.broadcast_to(jnp.asarray(lighting.sun_dir, jnp.float32), (b, 3))
+    amb_all = jnp.broadcast_to(jnp.asarray(lighting.ambient, jnp.float32), (b,))
 
     def cast_tiles(ids, gid, gvalid):
         """ids [K] (env*T + tile); gid [K, g] geom indices; gvalid [K, g] or None -> depth [K,P], rgb [K,P,3]."""
@@ -150,6 +151,8 @@ def render_batch(
         st = jnp.take(stables, (env[:, None] * n_geoms + g).reshape(-1), axis=0)  # [K*P, S] row gather
         st = st.T.reshape(st.shape[1], *depth.shape)  # [S, K, P]
         n = intersect.surface_normal(st, x, y, jnp.where(hit, tmin, 1.0))
+        sun = sun_all[env].T[:, :, None]  # [3, K, 1]
+        amb = amb_all[env][:, None]  # [K, 1]
         lam = jnp.maximum(n[0] * sun[0] + n[1] * sun[1] + n[2] * sun[2], 0.0)
         light = jnp.where(hit, amb + (1.0 - amb) * lam, 0.0)
         rgb = jnp.stack([st[intersect.S_RGB0 + k] * light for k in range(3)])  # [3, K, P]
@@ -202,8 +205,29 @@ def render(
 ) -> Frame:
     """Render one target: position [3] (centre of mass, camera frame), rotation [3, 3] camera_from_body -> Frame.
 
-    Jit- and vmap-able; for many envs call `render_batch`, which shares one compacted tile list over the batch.
+    Jit- and vmap-able. Under ``jax.vmap`` it becomes one `render_batch` call (a custom batching rule), so a
+    vmapped env step shares one compacted tile list over all its envs instead of running a batched loop per env.
     """
-    batch = jax.tree.map(lambda a: jnp.asarray(a)[None], target)
-    frame = render_batch(batch, jnp.asarray(position)[None], jnp.asarray(rotation)[None], cam, lighting, shade)
-    return jax.tree.map(lambda a: a[0], frame)
+    return _vmappable_render(cam, bool(shade))(target, jnp.asarray(position), jnp.asarray(rotation), lighting)
+
+
+@functools.lru_cache(maxsize=None)
+def _vmappable_render(cam: CameraConfig, shade: bool):
+    @jax.custom_batching.custom_vmap
+    def render_one(target, position, rotation, lighting):
+        batch = jax.tree.map(lambda a: jnp.asarray(a)[None], (target, position, rotation))
+        frame = render_batch(*batch, cam, lighting, shade)
+        return jax.tree.map(lambda a: a[0], frame)
+
+    @render_one.def_vmap
+    def render_many(axis_size, in_batched, target, position, rotation, lighting):
+        def batched(x, is_batched):
+            x = jnp.asarray(x)
+            return x if is_batched else jnp.broadcast_to(x, (axis_size,) + x.shape)
+
+        target, position, rotation = jax.tree.map(batched, (target, position, rotation), tuple(in_batched[:3]))
+        lighting = jax.tree.map(batched, lighting, in_batched[3])
+        frame = render_batch(target, position, rotation, cam, lighting, shade)
+        return frame, jax.tree.map(lambda _: True, frame)
+
+    return render_one
