@@ -255,11 +255,23 @@ def _paper() -> TrainConfig:
     )
 
 
-PRESETS = {"quick": _quick, "paper": _paper}
+def _smoke() -> TrainConfig:
+    """Seconds of compute: plumbing checks (tests, CI). 16x16 depth, a tiny plain DRQN, 4 chunks of 320 steps."""
+    return TrainConfig(
+        env=env_lib.EnvConfig(camera=CameraConfig(resolution=16), autoreset="next_step"),
+        network=NetworkConfig(variant="origin", channels=(8, 8), kernels=(3, 3), strides=(1, 1), pools=(True, True),
+                              dense=32, lstm=32, lstm_layers=1, head=32),
+        num_envs=8, rollout_steps=10, iterations_per_chunk=4, total_env_steps=1280, eps_decay_steps=1280,
+        replay_capacity=800, burn_in=3, train_len=5, batch_size=4, learning_starts=160, replay_ratio=0.5, n_step=2,
+        eval_episodes=4, eval_max_steps=50, checkpoint_every_chunks=2,
+    )
+
+
+PRESETS = {"quick": _quick, "paper": _paper, "smoke": _smoke}
 
 
 def preset(name: str, **overrides: Any) -> TrainConfig:
-    """A named configuration ('quick' | 'paper'); keyword overrides replace top-level fields."""
+    """A named configuration ('quick' | 'paper' | 'smoke'); keyword overrides replace top-level fields."""
     if name not in PRESETS:
         raise ValueError(f"unknown preset {name!r}; choose one of {sorted(PRESETS)}")
     cfg = PRESETS[name]()

@@ -116,6 +116,25 @@ def final_evaluation(config: TrainConfig, params: Any, key: jax.Array) -> dict:
 
 
 # ============================================================================================ driver
+_COMPILED: dict = {}  # (config, env id) -> (trainer, init, compiled chunk, compile seconds); a run's pieces are reused
+
+
+def _compiled(config: TrainConfig, tracking_env) -> tuple:
+    """Trainer, jitted init and AOT-compiled chunk for a config (cached: repeated runs, resumes and tests
+    in one process compile once)."""
+    key = (config, id(tracking_env))
+    if key not in _COMPILED:
+        trainer = Trainer(config, tracking_env)
+        init = jax.jit(trainer.init)
+        t0 = time.time()
+        abstract = jax.eval_shape(init, jax.ShapeDtypeStruct((2,), np.uint32))
+        compiled = jax.jit(trainer.chunk, donate_argnums=0).lower(abstract).compile()
+        if len(_COMPILED) >= 4:
+            _COMPILED.pop(next(iter(_COMPILED)))
+        _COMPILED[key] = (trainer, init, compiled, time.time() - t0)
+    return _COMPILED[key]
+
+
 def _finite_params(state) -> bool:
     return all(bool(np.isfinite(np.asarray(x)).all()) for x in jax.tree.leaves(state.learner.params))
 
@@ -148,8 +167,8 @@ def run(config: TrainConfig, out_dir, seed: int = 0, resume=True, progress: bool
     out.mkdir(parents=True, exist_ok=True)
     ckpt_dir = out / "checkpoints"
     source = _resolve_resume(resume, ckpt_dir)
-    trainer = Trainer(config, tracking_env)
-    state = jax.jit(trainer.init)(jax.random.PRNGKey(seed))
+    trainer, init, compiled, compile_s = _compiled(config, tracking_env)
+    state = init(jax.random.PRNGKey(seed))
     (out / "config.json").write_text(json.dumps({"seed": seed, "config": config.to_dict()}, indent=1, default=str))
 
     if source is not None:
@@ -178,10 +197,6 @@ def run(config: TrainConfig, out_dir, seed: int = 0, resume=True, progress: bool
         store.save(int(st.chunk), saved, json.loads(json.dumps(meta, default=str)))
         return int(st.chunk)
 
-    chunk_fn = jax.jit(trainer.chunk, donate_argnums=0)
-    t0 = time.time()
-    compiled = chunk_fn.lower(state).compile()
-    compile_s = time.time() - t0
     end = config.num_chunks if max_chunks is None else min(config.num_chunks, start + max_chunks)
     last_saved = start if source is not None else None
     bar = None

@@ -1,0 +1,262 @@
+"""Trainer: config validation, burn-in gradients, sequence plumbing, stored recurrent state, vmap over seeds, learning."""
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from ramavt_jax import baselines, evaluate
+from ramavt_jax import env as env_lib
+from ramavt_jax import replay as replay_lib
+from ramavt_jax import train as T
+from ramavt_jax.losses import sequence_td_loss
+from ramavt_jax.network import NetworkConfig, RecurrentState, init_params, initial_state
+from ramavt_jax.render import CameraConfig
+
+SMOKE = T.preset("smoke")
+
+
+@pytest.fixture(scope="module")
+def trainer():
+    return T.Trainer(SMOKE)
+
+
+@pytest.fixture(scope="module")
+def learner():
+    params = init_params(SMOKE.network, jax.random.PRNGKey(0), SMOKE.env.obs_shape)["params"]
+    # a target net that differs from the online net, so double-Q and the target path are both exercised
+    target = jax.tree.map(lambda p: p * 0.9, params)
+    return params, target
+
+
+@pytest.fixture(scope="module")
+def loss_fn(trainer):
+    return jax.jit(lambda p, t, b: trainer.loss(p, t, b, jax.random.PRNGKey(0))[0])
+
+
+# ------------------------------------------------------------------------------------------ config
+def test_presets():
+    quick, paper = T.preset("quick"), T.preset("paper")
+    assert quick.env.camera.resolution <= 48 and quick.env.obs_mode == "depth"
+    assert quick.env_params == ()  # the DESIGN.md task, not an easier one
+    assert paper.env.camera.resolution == 256 and paper.batch_size == 64 and paper.lr == 1e-4
+    assert paper.gamma == 0.99 and paper.replay_capacity == 50_000
+    assert paper.network == NetworkConfig(variant="ramavt")
+    for cfg in (quick, paper, SMOKE):
+        assert cfg.updates_per_iteration >= 1 and cfg.num_chunks >= 1
+    assert T.preset("quick", lr=1e-3).lr == 1e-3
+    with pytest.raises(ValueError, match="unknown preset"):
+        T.preset("huge")
+
+
+@pytest.mark.parametrize(
+    "overrides, message",
+    [
+        (dict(total_env_steps=1000), "multiple of the env steps per chunk"),
+        (dict(replay_capacity=801), "divisible by num_envs"),
+        (dict(replay_capacity=64), "steps per env"),
+        (dict(eps_start=1.5), r"eps_start must be in \[0, 1\]"),
+        (dict(gamma=-0.1), "gamma"),
+        (dict(lr=0.0), "lr and adam_eps must be > 0"),
+        (dict(n_step=9), "n_step=9 must be <= train_len"),
+        (dict(replay_ratio=0.3), "whole number"),
+        (dict(target_update="soft"), "target_update"),
+        (dict(learning_starts=10_000), "exceeds replay_capacity"),
+        (dict(num_envs=0), "num_envs must be >= 1"),
+        (dict(batch_size=2.5), "batch_size must be an int"),
+        (dict(env=env_lib.EnvConfig(camera=CameraConfig(resolution=16))), "autoreset must be 'next_step'"),
+        (dict(network=NetworkConfig(variant="drlavt", channels=(8,), kernels=(3,), strides=(1,), pools=(True,)),
+              burn_in=2), "burn_in must be >= frame_stack - 1"),
+        (dict(network=NetworkConfig(norm="batch")), "norm='batch'"),
+        (dict(env_params=(("warp_speed", 9.0),)), "env_params"),
+    ],
+)
+def test_invalid_configs_raise_clear_errors(overrides, message):
+    with pytest.raises(ValueError, match=message):
+        dataclasses.replace(SMOKE, **overrides)
+
+
+def test_drlavt_with_enough_burn_in_is_accepted():
+    net = NetworkConfig(variant="drlavt", channels=(8,), kernels=(3,), strides=(1,), pools=(True,), drlavt_dense=(16,))
+    cfg = dataclasses.replace(SMOKE, network=net, burn_in=3)
+    assert cfg.burn_in == net.frame_stack - 1
+
+
+# ------------------------------------------------------------------------------------------ learner plumbing
+def _batch(key, cfg, is_first=None, terminated=None):
+    """A hand-made sampled batch [B, L, ...] (random obs/actions/rewards, random stored LSTM state)."""
+    B, L = cfg.batch_size, cfg.sequence_length
+    ks = jax.random.split(key, 5)
+    n = cfg.network
+    h = 0.5 * jax.random.normal(ks[3], (B, L, n.lstm_layers, n.lstm))
+    c = 0.5 * jax.random.normal(ks[4], (B, L, n.lstm_layers, n.lstm))
+    z = jnp.zeros((B, L), bool)
+    return replay_lib.Transition(
+        obs=jax.random.uniform(ks[0], (B, L, *cfg.env.obs_shape)),
+        action=jax.random.randint(ks[1], (B, L), 0, 11),
+        reward=jax.random.normal(ks[2], (B, L)) * 3.0,
+        terminated=z if terminated is None else terminated,
+        truncated=z,
+        is_first=z if is_first is None else is_first,
+        recurrent_state=(h, c),
+    )
+
+
+def test_burn_in_gets_no_gradient(trainer, learner, loss_fn):
+    params, target = learner
+    cfg, burn = SMOKE, SMOKE.burn_in
+    batch = _batch(jax.random.PRNGKey(1), cfg)
+
+    def loss(obs, h):
+        return loss_fn(params, target, batch.replace(obs=obs, recurrent_state=(h, batch.recurrent_state[1])))
+
+    g_obs, g_h = jax.jit(jax.grad(loss, argnums=(0, 1)))(batch.obs, batch.recurrent_state[0])
+    g_obs, g_h = np.asarray(g_obs), np.asarray(g_h)
+    assert np.all(g_obs[:, :burn] == 0.0), "burn-in observations must not receive gradient"
+    assert np.all(g_h == 0.0), "the stored recurrent state is an input, not a parameter"
+    assert np.all(np.abs(g_obs[:, burn:-1]).sum(axis=(0, 2, 3, 4)) > 0)
+    # Rewards reach the loss only through the (stop-gradient) targets: perturb them instead of differentiating.
+    base = float(loss_fn(params, target, batch))
+    for t in range(cfg.sequence_length):
+        changed = float(loss_fn(params, target, batch.replace(reward=batch.reward.at[:, t].add(5.0))))
+        if t < burn or t == cfg.sequence_length - 1:  # burn-in rewards; the last step is only a bootstrap obs
+            assert changed == base, f"reward of step {t} must not enter the loss"
+        else:
+            assert changed != base, f"reward of trained step {t} must enter the loss"
+    # and the parameters do get a gradient
+    gp = jax.jit(jax.grad(lambda p: loss_fn(p, target, batch)))(params)
+    assert sum(float(jnp.abs(x).sum()) for x in jax.tree.leaves(gp)) > 0
+
+
+def test_loss_masks_the_episode_crossing_and_matches_hand_plumbing(trainer, learner, loss_fn):
+    params, target = learner
+    cfg, burn = SMOKE, SMOKE.burn_in
+    B, L, T_ = cfg.batch_size, cfg.sequence_length, cfg.train_len
+    # window: obs 0..L-1. Episode ends at transition burn+1 (obs burn+2 is terminal), obs burn+3 starts a new one.
+    is_first = np.zeros((B, L), bool)
+    is_first[:, burn + 3] = True
+    terminated = np.zeros((B, L), bool)
+    terminated[:, burn + 1] = True
+    batch = _batch(jax.random.PRNGKey(3), cfg, jnp.asarray(is_first), jnp.asarray(terminated))
+    loss = loss_fn(params, target, batch)
+
+    # By hand: both nets run over the WHOLE window from the stored state of step 0 (one call, no burn-in split).
+    h0, c0 = (jnp.moveaxis(x[:, 0], 0, 1) for x in batch.recurrent_state)
+    s0 = RecurrentState(h=h0, c=c0, frames=jnp.zeros((B, 0)))
+    q_fn = jax.jit(lambda p: trainer.q_values(p, batch.obs, batch.is_first, s0)[0])
+    q_on, q_tg = q_fn(params), q_fn(target)
+    mask = np.ones((B, T_), np.float32)
+    mask[:, 2] = 0.0  # transition burn+2: terminal obs -> first obs of the next episode
+    expected, _ = sequence_td_loss(
+        q_on[:, burn:], q_tg[:, burn:], batch.action[:, burn:-1], batch.reward[:, burn:-1] * cfg.reward_scale,
+        batch.terminated[:, burn:-1], batch.truncated[:, burn:-1], jnp.asarray(mask), trainer.td)
+    np.testing.assert_allclose(float(loss), float(expected), rtol=2e-5)
+
+    def perturbed(t, what):
+        if what == "reward":
+            return batch.replace(reward=batch.reward.at[:, t].add(10.0))
+        return batch.replace(action=(batch.action.at[:, t].add(1)) % 11)
+
+    for what in ("reward", "action"):
+        same = loss_fn(params, target, perturbed(burn + 2, what))
+        assert float(same) == float(loss), f"the crossing transition's {what} must not matter"
+        assert float(loss_fn(params, target, perturbed(burn, what))) != float(loss)
+
+
+def test_stored_recurrent_state_is_the_actors_state():
+    cfg = dataclasses.replace(SMOKE, env_params=(("max_steps", 6),))  # episodes end inside the rollout
+    tr = T.Trainer(cfg)
+    state = jax.jit(tr.init)(jax.random.PRNGKey(4))
+    rollout = jax.jit(tr.rollout)
+    params = state.learner.params
+    actor, chunk1, _, _ = rollout(params, state.actor, jnp.int32(0), jax.random.PRNGKey(5))
+    actor, chunk2, stats, _ = rollout(params, actor, jnp.int32(80), jax.random.PRNGKey(6))
+    assert int(stats["episodes"]) > 0
+    h, c = (np.asarray(x) for x in chunk2.recurrent_state)  # [N, T, layers, units]
+    assert np.all(np.asarray(chunk1.recurrent_state[0])[:, 0] == 0.0)  # fresh actors start from zeros
+    assert np.abs(h).sum() > 0
+    # Recompute the carries by stepping the network from the stored state of the chunk's first step.
+    s = RecurrentState(h=jnp.moveaxis(chunk2.recurrent_state[0][:, 0], 0, 1),
+                       c=jnp.moveaxis(chunk2.recurrent_state[1][:, 0], 0, 1), frames=jnp.zeros((cfg.num_envs, 0)))
+    step = jax.jit(lambda s, o, r: tr.q_values(params, o, r, s)[1])
+    for t in range(cfg.rollout_steps):
+        s = step(s, chunk2.obs[:, t:t + 1], chunk2.is_first[:, t:t + 1])
+        ref_h = np.moveaxis(np.asarray(s.h), 0, 1)
+        if t + 1 < cfg.rollout_steps:
+            np.testing.assert_allclose(h[:, t + 1], ref_h, atol=1e-5)
+            np.testing.assert_allclose(c[:, t + 1], np.moveaxis(np.asarray(s.c), 0, 1), atol=1e-5)
+    np.testing.assert_allclose(np.asarray(actor.net_state.h), np.asarray(s.h), atol=1e-5)
+    # next-step autoreset layout: an episode end at t -> step t+1 holds the final obs (reward 0, no flags)
+    # -> step t+2 is_first
+    done = np.asarray(chunk2.terminated | chunk2.truncated)
+    first = np.asarray(chunk2.is_first)
+    for n, t in zip(*np.nonzero(done[:, :-2])):
+        assert first[n, t + 2] and not first[n, t + 1]
+        assert float(chunk2.reward[n, t + 1]) == 0.0 and not done[n, t + 1]
+    # the stored obs is quantised only when it enters the buffer, not here
+    assert chunk2.obs.dtype == jnp.float32
+
+
+# ------------------------------------------------------------------------------------------ seeds
+def test_vmapped_seeds_equal_single_seed_runs():
+    cfg = dataclasses.replace(SMOKE, total_env_steps=640)  # 2 chunks, 8 gradient steps... cheap
+    train = T.make_train(cfg)
+    keys = jax.random.split(jax.random.PRNGKey(7), 2)
+    both = jax.jit(jax.vmap(train))(keys)
+    single = jax.jit(train)
+    for i in range(2):
+        one = single(keys[i])
+        np.testing.assert_array_equal(np.asarray(both["metrics"].episodes[i]), np.asarray(one["metrics"].episodes))
+        np.testing.assert_array_equal(np.asarray(both["runner_state"].replay.experience.action[i]),
+                                      np.asarray(one["runner_state"].replay.experience.action))
+        for a, b in zip(jax.tree.leaves(both["runner_state"].learner.params), jax.tree.leaves(one["runner_state"].learner.params)):
+            np.testing.assert_allclose(np.asarray(a[i]), np.asarray(b), rtol=1e-4, atol=1e-5)
+    assert int(both["runner_state"].learner.updates[0]) > 0
+    diff = jax.tree.leaves(jax.tree.map(lambda x: float(jnp.abs(x[0] - x[1]).max()), both["runner_state"].learner.params))
+    assert max(diff) > 0  # the seeds really differ
+
+
+# ------------------------------------------------------------------------------------------ greedy policy
+def test_greedy_policy_matches_the_network_over_a_sequence(trainer, learner):
+    params, _ = learner
+    policy = T.greedy_policy(SMOKE.network, params, SMOKE.env.obs_shape)
+    obs = jax.random.uniform(jax.random.PRNGKey(8), (5, *SMOKE.env.obs_shape))
+    ps = policy.init(jax.random.PRNGKey(0))
+    actions = []
+    for t in range(5):
+        a, ps = policy.act(jax.random.PRNGKey(t), ps, obs[t], None, None)
+        actions.append(int(a))
+    q, _ = trainer.q_values(params, obs[None], jnp.array([[True, False, False, False, False]]),
+                            initial_state(SMOKE.network, 1))
+    assert actions == np.asarray(jnp.argmax(q[0], -1)).tolist()
+
+
+# ------------------------------------------------------------------------------------------ learning
+EASY = dataclasses.replace(
+    SMOKE,
+    # Easy task: a slow target near r*, a fast chaser (random actions lose it quickly), short episodes.
+    env_params=(("init_xy_std", 0.3), ("init_z_max", 6.0), ("init_z_min", 4.0), ("lost_patience", 0),
+                ("max_steps", 100), ("speed", 3.0), ("target_spin_std", 0.0), ("target_vel_std", 0.02)),
+    network=NetworkConfig(variant="origin", channels=(8, 16), kernels=(3, 3), strides=(1, 1), pools=(True, True),
+                          dense=64, lstm=64, lstm_layers=1, head=64),
+    num_envs=32, rollout_steps=10, iterations_per_chunk=10, total_env_steps=9600, eps_start=1.0, eps_end=0.05,
+    eps_decay_steps=6000, replay_capacity=9600, burn_in=4, train_len=8, batch_size=20, learning_starts=1600,
+    replay_ratio=1.0, lr=1e-3, gamma=0.9, n_step=3, reward_scale=0.1, polyak_tau=0.05,
+)
+
+
+def test_learns_an_easy_task():
+    out = jax.jit(T.make_train(EASY))(jax.random.PRNGKey(0))
+    params = out["runner_state"].learner.params
+    tracking_env = env_lib.TrackingEnv(EASY.env)
+    env_params = tracking_env.default_params(**dict(EASY.env_params))
+    key = jax.random.PRNGKey(123)
+    greedy = evaluate.summarise(evaluate.run_episodes(
+        tracking_env, T.greedy_policy(EASY.network, params, EASY.env.obs_shape), env_params, key, 64)[0])
+    rand = evaluate.summarise(evaluate.run_episodes(tracking_env, baselines.random_policy(), env_params, key, 64)[0])
+    m = out["metrics"]
+    print(f"random {rand.length_mean:.1f}, greedy {greedy.length_mean:.1f}, training episodes per chunk "
+          f"{np.round(np.asarray(m.episode_length_sum.sum(1) / np.maximum(m.episodes.sum(1), 1)), 1)}")
+    assert greedy.length_mean > 1.5 * rand.length_mean, (greedy, rand)
