@@ -352,7 +352,9 @@ class TrackingEnv:
         done = terminated | truncated
         if self.config.final_obs_in_info:
             final_obs, moved = self._postprocess(k_obs, self._render(moved, params), moved, params)
-            first_obs, fresh = self._postprocess(k_first, self._render(fresh, params), fresh, params, first=jnp.ones((), bool))
+            # Only finished envs need the new episode's frame; the others are culled (no tile is cast for them).
+            first_frame = self._render(fresh, params, visible=done)
+            first_obs, fresh = self._postprocess(k_first, first_frame, fresh, params, first=jnp.ones((), bool))
             info["final_observation"] = final_obs
             return (jnp.where(done, first_obs, final_obs), _where(done, fresh, moved), reward, terminated, truncated, info)
         # One render per step: a finished env draws only its new episode's first frame.
@@ -381,10 +383,15 @@ class TrackingEnv:
         sun = params.sun_dir / jnp.linalg.norm(params.sun_dir)
         return Lighting(sun_dir=sun, ambient=jnp.asarray(params.ambient, jnp.float32))
 
-    def _render(self, state: EnvState, params: EnvParams) -> render.Frame:
+    def _render(self, state: EnvState, params: EnvParams, visible: jax.Array | None = None) -> render.Frame:
+        """Camera frame of `state`; where `visible` is False the target is moved behind the camera, which the
+        renderer's culling skips at almost no cost (used for frames that will be discarded)."""
         pose = self.pose(state, params)
+        position = pose.position
+        if visible is not None:
+            position = jnp.where(visible, position, jnp.array([0.0, 0.0, -1e6]))
         shade = self.config.obs_mode != "depth"
-        return render.render(state.target, pose.position, pose.rotation, self.config.camera, self.lighting(params), shade)
+        return render.render(state.target, position, pose.rotation, self.config.camera, self.lighting(params), shade)
 
     def _postprocess(self, key, frame: render.Frame, state: EnvState, params: EnvParams, first=None):
         """Image perturbations and the frame history. Returns (obs [H, W, C], state with the new frame pushed)."""
