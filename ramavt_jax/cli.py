@@ -114,6 +114,12 @@ def main(argv: list[str] | None = None) -> None:
             commands["eval"] = evaluate.eval_cmd
     except ImportError:
         pass
+    try:
+        from ramavt_jax import viz
+
+        commands["plot"] = viz.plot_cmd
+    except ImportError:
+        pass
     tyro.extras.subcommand_cli_from_dict(commands, prog="ramavt", args=argv)
 
 

@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-from typing import Sequence
+from pathlib import Path
+from typing import Literal, Sequence
 
 import jax
 import jax.numpy as jnp
@@ -36,8 +37,9 @@ class EpisodeStats:
 
     length: jax.Array
     episode_return: jax.Array
-    terminated: jax.Array  # ended by losing the target (else truncated at max_steps)
+    terminated: jax.Array  # ended by losing the target
     target_index: jax.Array
+    truncated: jax.Array | None = None  # ended by reaching max_steps (None: unknown, taken as ~terminated)
 
 
 def run_episodes(
@@ -60,15 +62,20 @@ def run_episodes(
 
 @functools.lru_cache(maxsize=32)
 def _episode_runner(tracking_env, policy, steps, record):
+    """Jitted runner. With `record` the whole horizon is one lax.scan; without, a lax.while_loop that stops as soon
+    as every episode has ended (random agents lose the target within ~200 steps). Both draw the same per-step keys,
+    so the same key gives the same episodes either way."""
+
     def run(params, key, num_episodes):
         k_reset, k_policy, k_loop = jax.random.split(key, 3)
         obs, state = jax.vmap(tracking_env.reset, in_axes=(0, None))(jax.random.split(k_reset, num_episodes), params)
         pstate = jax.vmap(policy.init)(jax.random.split(k_policy, num_episodes))
         alive = jnp.ones(num_episodes, bool)
         zeros = jnp.zeros(num_episodes)
+        step_keys = jax.random.split(k_loop, steps)
 
         def body(carry, step_key):
-            obs, state, pstate, alive, length, ret, term = carry
+            obs, state, pstate, alive, length, ret, term, trunc = carry
             k_act, k_env = jax.random.split(step_key)
             act_keys = jax.random.split(k_act, num_episodes)
             action, pstate = jax.vmap(policy.act, in_axes=(0, 0, 0, 0, None))(act_keys, pstate, obs, state, params)
@@ -79,6 +86,7 @@ def _episode_runner(tracking_env, policy, steps, record):
             length = length + alive
             ret = ret + jnp.where(alive, reward, 0.0)
             term = term | (alive & terminated)
+            trunc = trunc | (alive & truncated)
             out = None
             if record:
                 out = EpisodeRecord(
@@ -87,11 +95,27 @@ def _episode_runner(tracking_env, policy, steps, record):
                     in_view=info["in_view"],
                 )
             alive = alive & ~(terminated | truncated)
-            return (obs, state, pstate, alive, length, ret, term), out
+            return (obs, state, pstate, alive, length, ret, term, trunc), out
 
-        init = (obs, state, pstate, alive, zeros.astype(jnp.int32), zeros, jnp.zeros(num_episodes, bool))
-        (_, state, _, _, length, ret, term), rec = jax.lax.scan(body, init, jax.random.split(k_loop, steps))
-        return EpisodeStats(length=length, episode_return=ret, terminated=term, target_index=state.target_index), rec
+        none = jnp.zeros(num_episodes, bool)
+        init = (obs, state, pstate, alive, zeros.astype(jnp.int32), zeros, none, none)
+        if record:
+            carry, rec = jax.lax.scan(body, init, step_keys)
+        else:
+            def cond(c):
+                t, carry = c
+                return (t < steps) & carry[3].any()
+
+            def loop(c):
+                t, carry = c
+                return t + 1, body(carry, step_keys[t])[0]
+
+            _, carry = jax.lax.while_loop(cond, loop, (jnp.zeros((), jnp.int32), init))
+            rec = None
+        _, state, _, _, length, ret, term, trunc = carry
+        stats = EpisodeStats(length=length, episode_return=ret, terminated=term, target_index=state.target_index,
+                             truncated=trunc)
+        return stats, rec
 
     return jax.jit(run, static_argnums=2)
 
@@ -107,15 +131,26 @@ class Summary:
     return_mean: float
     return_min: float
     return_max: float
-    lost_fraction: float
+    lost_fraction: float  # ended by losing the target
+    truncated_fraction: float = float("nan")  # tracked until max_steps
+    length_std: float = float("nan")
+    return_std: float = float("nan")
 
     def as_dict(self) -> dict:
         return dataclasses.asdict(self)
 
 
 def summarise(stats: EpisodeStats) -> Summary:
-    length = np.asarray(stats.length, dtype=np.float64)
-    ret = np.asarray(stats.episode_return, dtype=np.float64)
+    """Table I columns (mean / min / max of episode length and return) plus how the episodes ended.
+
+    An episode that was neither lost nor truncated (run for fewer steps than max_steps) counts in neither fraction.
+    """
+    length = np.asarray(stats.length, dtype=np.float64).reshape(-1)
+    ret = np.asarray(stats.episode_return, dtype=np.float64).reshape(-1)
+    lost = np.asarray(stats.terminated, bool).reshape(-1)
+    trunc = ~lost if stats.truncated is None else np.asarray(stats.truncated, bool).reshape(-1)
+    if length.size == 0:
+        raise ValueError("summarise: no episodes")
     return Summary(
         episodes=int(length.size),
         length_mean=float(length.mean()),
@@ -124,8 +159,19 @@ def summarise(stats: EpisodeStats) -> Summary:
         return_mean=float(ret.mean()),
         return_min=float(ret.min()),
         return_max=float(ret.max()),
-        lost_fraction=float(np.asarray(stats.terminated).mean()),
+        lost_fraction=float(lost.mean()),
+        truncated_fraction=float(trunc.mean()),
+        length_std=float(length.std()),
+        return_std=float(ret.std()),
     )
+
+
+def concat_stats(stats: Sequence[EpisodeStats]) -> EpisodeStats:
+    """Join the episodes of several runs (e.g. one per target) into one EpisodeStats."""
+    stats = list(stats)
+    if any(s.truncated is None for s in stats):
+        stats = [s.replace(truncated=None) for s in stats]
+    return jax.tree.map(lambda *xs: np.concatenate([np.asarray(x).reshape(-1) for x in xs]), *stats)
 
 
 def evaluate_per_target(
@@ -147,3 +193,258 @@ def evaluate_per_target(
                                 episodes_per_target)
         results[name] = summarise(stats)
     return results
+
+
+# ============================================================================================ perturbations
+# Table II of the paper; the original values (DESIGN.md): command * (1 + 0.3 N(0, 1)), step duration dt + U(0, 0.5) s,
+# observation = mean of the last 3 frames (the paper gives no frame count; 3 is our choice).
+PERTURBATION_VALUES = {"actuator_noise": 0.3, "delay_max": 0.5, "blur_frames": 3}
+PERTURBATIONS: dict[str, tuple[str, ...]] = {
+    "actuator_noise": ("actuator_noise",),
+    "time_delay": ("delay_max",),
+    "blur": ("blur_frames",),
+    "all": ("actuator_noise", "delay_max", "blur_frames"),
+    "none": (),
+}
+
+
+def perturbation_overrides(name: str, values: dict | None = None) -> dict:
+    """EnvParams overrides of one Table II setting ('actuator_noise' | 'time_delay' | 'blur' | 'all' | 'none')."""
+    if name not in PERTURBATIONS:
+        raise ValueError(f"unknown perturbation setting {name!r}; choose one of {list(PERTURBATIONS)}")
+    values = {**PERTURBATION_VALUES, **(values or {})}
+    return {field: values[field] for field in PERTURBATIONS[name]}
+
+
+# ============================================================================================ targets
+def resolve_targets(spec: str | Sequence[str]) -> tuple[str, ...]:
+    """'test' (held-out split) | 'train' | 'all' | comma-separated catalogue names and/or MJCF file paths.
+
+    Raises ValueError naming the entry that is neither a catalogue name nor a readable MJCF file."""
+    from ramavt_jax import targets as targets_lib
+
+    items = [s.strip() for s in spec.split(",")] if isinstance(spec, str) else [str(s).strip() for s in spec]
+    items = [s for s in items if s]
+    if not items:
+        raise ValueError("no targets given: use 'test', 'train', 'all' or comma-separated names / MJCF files")
+    out: list[str] = []
+    for item in items:
+        if item in ("test", "train", "all"):
+            out.extend(targets_lib.split(item))
+            continue
+        try:
+            targets_lib.resolve(item)
+        except (ValueError, OSError) as e:
+            raise ValueError(f"unknown target {item!r}: not a split (test/train/all), not a catalogue name "
+                             f"({', '.join(targets_lib.CATALOGUE)}) and not a readable MJCF file ({e})") from None
+        out.append(item)
+    return tuple(dict.fromkeys(out))  # keep order, drop repeats
+
+
+# ============================================================================================ trained runs
+def _from_dict(cls, data: dict):
+    """Rebuild a (nested) frozen config dataclass from its to_dict() form: lists become tuples."""
+    import typing
+
+    hints = typing.get_type_hints(cls)
+    kwargs = {}
+    for f in dataclasses.fields(cls):
+        if f.name not in data:
+            continue
+        value = data[f.name]
+        sub = hints.get(f.name)
+        default = f.default if f.default is not dataclasses.MISSING else None
+        target = sub if dataclasses.is_dataclass(sub) else (type(default) if dataclasses.is_dataclass(default) else None)
+        if f.name == "augment_config" and isinstance(value, dict):
+            from ramavt_jax import augment
+
+            target = augment.AugmentConfig
+        if target is not None and isinstance(value, dict):
+            value = _from_dict(target, value)
+        else:
+            value = _tuplify(value)
+        kwargs[f.name] = value
+    return cls(**kwargs)
+
+
+def _tuplify(x):
+    return tuple(_tuplify(v) for v in x) if isinstance(x, list) else x
+
+
+@dataclasses.dataclass(frozen=True)
+class LoadedRun:
+    policy: Policy
+    config: object  # train.TrainConfig
+    params: object  # network params
+    run_dir: str
+    seed: int
+    step: int  # checkpoint step (chunks completed)
+    meta: dict
+
+
+def load_policy(run_dir, step: int | None = None, name: str | None = None) -> LoadedRun:
+    """The greedy policy of a training run folder written by ``train.run`` (config.json + checkpoints/).
+
+    Only the online network parameters are read from the checkpoint (not the replay buffer)."""
+    import json
+
+    import orbax.checkpoint as ocp
+
+    from ramavt_jax import train
+    from ramavt_jax.checkpoint import CheckpointStore
+
+    run_dir = Path(run_dir)
+    cfg_file = run_dir / "config.json"
+    if not cfg_file.is_file():
+        raise FileNotFoundError(f"{cfg_file} not found: --run must name a folder written by `ramavt train` "
+                                f"(config.json, checkpoints/)")
+    saved = json.loads(cfg_file.read_text())
+    config = _from_dict(train.TrainConfig, saved["config"])
+    store = CheckpointStore(run_dir / "checkpoints", create=False)
+    step = store.latest_step() if step is None else int(step)
+    trainer = train.Trainer(config)
+    like = jax.eval_shape(trainer.init, jax.ShapeDtypeStruct((2,), jnp.uint32))
+    if not config.checkpoint_replay:
+        like = like.replace(replay=None)
+    leaves, treedef = jax.tree.flatten(like)
+    meta = store.read_meta(step)
+    if meta.get("_num_leaves") != len(leaves):
+        raise ValueError(f"checkpoint {step} in {run_dir} holds {meta.get('_num_leaves')} arrays, this code expects "
+                         f"{len(leaves)}: it was written by another code version")
+    index_tree = jax.tree.unflatten(treedef, list(range(len(leaves))))
+    wanted = jax.tree.leaves(index_tree.learner.params)
+    abstract = {f"{i:05d}": jax.ShapeDtypeStruct(leaves[i].shape, leaves[i].dtype) for i in wanted}
+    restored = store.manager.restore(
+        int(step), args=ocp.args.Composite(state=ocp.args.PyTreeRestore(abstract, partial_restore=True)))["state"]
+    params_like = like.learner.params
+    p_leaves, p_def = jax.tree.flatten(params_like)
+    params = jax.tree.unflatten(p_def, [jnp.asarray(restored[f"{i:05d}"]) for i in wanted])
+    store.close()
+    label = name or run_dir.name
+    policy = train.greedy_policy(config.network, params, tuple(config.env.obs_shape), name=label)
+    meta = {k: v for k, v in meta.items() if k not in ("_num_leaves", "config")}
+    return LoadedRun(policy=policy, config=config, params=params, run_dir=str(run_dir),
+                     seed=int(saved.get("seed", -1)), step=int(step), meta=meta)
+
+
+# ============================================================================================ speed
+def measure_speed(tracking_env: env_lib.TrackingEnv, policy: Policy, params: env_lib.EnvParams, key: jax.Array,
+                  steps: int = 200) -> float:
+    """Control-loop rate in Hz of one env: policy.act + env.step as one jitted call per step (greedy, batch 1),
+    timed over `steps` calls after a warm-up call. Includes dispatch overhead, as a real control loop would."""
+    import time
+
+    @jax.jit
+    def step(carry, k):
+        obs, state, pstate = carry
+        k_act, k_env = jax.random.split(k)
+        action, pstate = policy.act(k_act, pstate, obs, state, params)
+        obs, state, *_ = tracking_env.step_env(k_env, state, action, params)
+        return obs, state, pstate
+
+    k_reset, k_pol, k_loop = jax.random.split(key, 3)
+    obs, state = jax.jit(tracking_env.reset)(k_reset, params)
+    carry = (obs, state, jax.jit(policy.init)(k_pol))
+    keys = list(jax.random.split(k_loop, steps + 1))
+    carry = jax.block_until_ready(step(carry, keys[0]))
+    t0 = time.perf_counter()
+    for k in keys[1:]:
+        carry = step(carry, k)
+    jax.block_until_ready(carry)
+    return steps / (time.perf_counter() - t0)
+
+
+# ============================================================================================ `ramavt eval`
+def eval_cmd(
+    policy: Literal["checkpoint", "oracle", "depth", "random"] = "checkpoint",
+    run: tuple[Path, ...] = (),
+    baselines: bool = True,
+    targets: str = "test",
+    episodes: int = 20,
+    max_steps: int = 1000,
+    tables: tuple[int, ...] = (1, 2, 3),
+    obs: tuple[Literal["depth", "rgbd", "color"], ...] = ("depth",),
+    resolution: int = 64,
+    dynamics: Literal["cw", "kinematic"] = "cw",
+    actuator_noise: float = 0.3,
+    delay_max: float = 0.5,
+    blur_frames: int = 3,
+    speed_steps: int = 200,
+    seed: int = 0,
+    out: Path = Path("eval"),
+    figures: bool = False,
+) -> dict:
+    """Evaluate policies greedily and write the paper's tables (Markdown + JSON) to --out.
+
+    Args:
+        policy: 'checkpoint' (trained runs given by --run) or a baseline: 'oracle' (true state, an upper bound),
+            'depth' (classical depth-image tracker) or 'random'.
+        run: training run folders (written by `ramavt train`); each is one row of Tables I-III.
+        baselines: also evaluate oracle, depth tracker and random in every table.
+        targets: 'test' (held-out split), 'train', 'all', or comma-separated catalogue names / MJCF files.
+        episodes: episodes per target (run side by side).
+        max_steps: episode length cap (the paper: 1000).
+        tables: which tables to produce (2 runs the five perturbation settings, 5x the episodes).
+        obs: input modes of the baselines (the depth tracker skips 'color'; oracle and random run once).
+        resolution: camera resolution of the baselines (trained runs use their own).
+        dynamics: target motion model of the baselines (trained runs use their own).
+        actuator_noise: Table II actuator noise (command x (1 + a N(0, 1))).
+        delay_max: Table II time delay: each step lasts dt + U(0, delay_max) s.
+        blur_frames: Table II image blur: observation = mean of the last n frames.
+        speed_steps: single-env steps timed for the speed column (0 = skip).
+        seed: evaluation seed (the same episodes for every policy).
+        out: output folder (tables.md, results.json, figures/).
+        figures: also plot one episode per policy (tracking error, 3-D trajectory, frame strip), attention maps and
+            training curves of the runs.
+    """
+    import shlex
+    import sys
+    import time
+
+    from ramavt_jax import baselines as baselines_lib
+    from ramavt_jax import render, tables as tables_lib
+
+    t0 = time.time()
+    names = resolve_targets(targets)
+    if episodes < 1 or max_steps < 1:
+        raise ValueError(f"episodes and max_steps must be >= 1, got {episodes} and {max_steps}")
+    bad = [t for t in tables if t not in (1, 2, 3)]
+    if bad:
+        raise ValueError(f"tables must be among 1, 2, 3, got {bad}")
+    if policy == "checkpoint" and not run:
+        raise ValueError("--policy checkpoint needs at least one --run folder (or pick a baseline policy)")
+    entries: list[tables_lib.Entry] = []
+    loaded: list[LoadedRun] = []
+    for run_dir in run:
+        lr = load_policy(run_dir)
+        loaded.append(lr)
+        cfg = lr.config
+        overrides = {k: v for k, v in dict(cfg.env_params).items() if k not in ("dist_weight", "lost_patience")}
+        info = {"run_dir": str(run_dir), "variant": cfg.network.variant, "augment": bool(cfg.augment),
+                "seed": lr.seed, "step": lr.step, "env_steps": lr.meta.get("env_steps")}
+        entries.append(tables_lib.Entry(Path(run_dir).name, "checkpoint", lr.policy, cfg.env, overrides,
+                                        cfg.env.obs_mode, info))
+    wanted = [policy] if policy != "checkpoint" else []
+    if baselines:
+        wanted += [p for p in ("oracle", "depth", "random") if p not in wanted]
+    camera = render.CameraConfig(resolution=resolution)
+    labels = {"oracle": "oracle (true state)", "depth": "depth tracker", "random": "random"}
+    for name in wanted:
+        pol = baselines_lib.make_policy(name, camera)  # one object per baseline: one compile for all its runs
+        modes = [m for m in obs if not (name == "depth" and m == "color")] if name == "depth" else list(obs[:1])
+        for mode in modes:
+            config = env_lib.EnvConfig(camera=camera, obs_mode=mode, targets=names, dynamics=dynamics)
+            label = mode if name == "depth" else f"any ({mode})"
+            entries.append(tables_lib.Entry(labels[name], "baseline", pol, config, {}, label, {"variant": name}))
+    values = {"actuator_noise": actuator_noise, "delay_max": delay_max, "blur_frames": blur_frames}
+    result = tables_lib.run_suite(entries, names, episodes, max_steps, seed, tuple(tables), values, speed_steps)
+    if figures:
+        from ramavt_jax import viz
+
+        result["figures"] = viz.eval_figures(entries, loaded, names[0], Path(out) / "figures", seed=seed,
+                                             steps=max_steps)
+    result["wall_s"] = time.time() - t0
+    command = "ramavt " + " ".join(shlex.quote(a) for a in sys.argv[1:]) if sys.argv[1:2] == ["eval"] else ""
+    md, js = tables_lib.write(result, out, command)
+    print(f"wrote {md} and {js} ({result['wall_s']:.0f} s)")
+    return result

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 from pathlib import Path
+from typing import Literal
 
 import jax
 import jax.numpy as jnp
@@ -167,3 +168,197 @@ def plot_trajectory_3d(frames: EpisodeFrames, out: str | Path) -> Path:
     fig.savefig(out, dpi=120)
     plt.close(fig)
     return out
+
+
+# ============================================================================================ paper figures
+def _save(fig, out: str | Path, dpi: int = 120) -> Path:
+    import matplotlib.pyplot as plt
+
+    out = Path(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out, dpi=dpi)
+    plt.close(fig)
+    return out
+
+
+def _display(image: np.ndarray) -> tuple[np.ndarray, str | None]:
+    """[H, W, C] observation -> (image, cmap) for imshow: depth (and the depth of rgbd) in grey, stretched so the
+    farthest target pixel is white (depth / far is ~0.25 at the 5 m goal, too dark to see), colour as is."""
+    image = np.asarray(image, np.float32)
+    if image.shape[-1] in (1, 4):
+        depth = image[..., -1]
+        return depth / max(float(depth.max()), 1e-6), "gray"
+    return np.clip(image, 0, 1), None
+
+
+def strip_indices(length: int, count: int) -> np.ndarray:
+    """`count` steps spread evenly over an episode of `length` steps (first and last included)."""
+    if length < 1:
+        raise ValueError("empty episode")
+    return np.unique(np.linspace(0, length - 1, min(count, length)).round().astype(int))
+
+
+def plot_frame_strip(frames: EpisodeFrames, out: str | Path, count: int = 8) -> Path:
+    """The observations the policy saw at `count` steps across the episode (the paper's Fig. 5c)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    length = max(int(np.asarray(frames.alive).sum()), 1)
+    idx = strip_indices(length, count)
+    fig, axes = plt.subplots(1, len(idx), figsize=(1.6 * len(idx), 1.9), squeeze=False)
+    for ax, t in zip(axes[0], idx):
+        image, cmap = _display(np.asarray(frames.obs[t]))
+        ax.imshow(image, cmap=cmap, vmin=0, vmax=1, interpolation="nearest")
+        ax.set_title(f"step {t}", fontsize=8)
+        ax.axis("off")
+    fig.tight_layout()
+    return _save(fig, out)
+
+
+def attention_panels(params, network_config, observations: np.ndarray) -> list[dict]:
+    """network.attention_maps for each frame of `observations` [K, H, W, C]: a list of {name: [h, w]} dicts."""
+    from ramavt_jax import network
+
+    fn = jax.jit(lambda o: network.attention_maps(params, network_config, o))
+    return [jax.device_get(fn(jnp.asarray(o))) for o in np.asarray(observations)]
+
+
+def plot_attention(observations: np.ndarray, maps: list[dict], out: str | Path, alpha: float = 0.55) -> Path:
+    """The paper's Fig. 6: per frame (row) the input image, then each conv block's map and the MHA output's map
+    (each a softmax over positions, summing to 1), upsampled to the image and overlaid on it."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    observations = np.asarray(observations)
+    names = list(maps[0])
+    rows, cols = len(maps), 1 + len(names)
+    fig, axes = plt.subplots(rows, cols, figsize=(1.9 * cols, 2.0 * rows), squeeze=False)
+    for r, (obs, m) in enumerate(zip(observations, maps)):
+        image, cmap = _display(obs)
+        res = image.shape[0]
+        axes[r][0].imshow(image, cmap=cmap, vmin=0, vmax=1, interpolation="nearest")
+        axes[r][0].set_title("input", fontsize=8)
+        for c, name in enumerate(names, start=1):
+            a = np.asarray(m[name], np.float32)
+            ax = axes[r][c]
+            ax.imshow(image, cmap=cmap or None, vmin=0, vmax=1, interpolation="nearest")
+            ax.imshow(a, cmap="jet", alpha=alpha, extent=(-0.5, res - 0.5, res - 0.5, -0.5), interpolation="bilinear",
+                      vmin=0, vmax=max(float(a.max()), 1e-12))
+            label = "MHA" if name == "mha" else name.replace("block", "conv block ")
+            ax.set_title(f"{label} ({a.shape[0]}x{a.shape[1]})", fontsize=8)
+        for ax in axes[r]:
+            ax.axis("off")
+    fig.tight_layout()
+    return _save(fig, out)
+
+
+def episode_figures(tracking_env: env_lib.TrackingEnv, policy: Policy, params: env_lib.EnvParams, key: jax.Array,
+                    steps: int, out_dir: str | Path, prefix: str, strip: int = 8,
+                    network=None) -> dict[str, str]:
+    """Record one episode and write tracking error, 3-D trajectory and frame strip PNGs (and, with
+    `network=(network_config, net_params)`, attention maps of 3 frames across the episode). Returns {kind: path}."""
+    out_dir = Path(out_dir)
+    frames = record_episode(tracking_env, policy, params, key, steps)
+    desired = float(np.asarray(params.desired_pos)[2])
+    paths = {
+        "tracking_error": plot_tracking_error(frames, _mkdir(out_dir) / f"{prefix}_tracking_error.png", desired),
+        "trajectory_3d": plot_trajectory_3d(frames, out_dir / f"{prefix}_trajectory_3d.png"),
+        "frames": plot_frame_strip(frames, out_dir / f"{prefix}_frames.png", strip),
+    }
+    if network is not None:
+        net_cfg, net_params = network
+        length = max(int(np.asarray(frames.alive).sum()), 1)
+        obs = np.asarray(frames.obs)[strip_indices(length, 3)]
+        paths["attention"] = plot_attention(obs, attention_panels(net_params, net_cfg, obs),
+                                            out_dir / f"{prefix}_attention.png")
+    return {k: str(v) for k, v in paths.items()}
+
+
+def _mkdir(path: Path) -> Path:
+    path.mkdir(parents=True, exist_ok=True)
+    return path
+
+
+def _slug(name: str) -> str:
+    return "".join(c if c.isalnum() or c in "-_" else "_" for c in name).strip("_") or "policy"
+
+
+def eval_figures(entries, loaded, target: str, out_dir: str | Path, seed: int = 0, steps: int = 1000) -> dict:
+    """Figures for `ramavt eval --figures`: one recorded episode on `target` per evaluated policy, attention maps
+    of the trained runs and their training curves. Returns {figure: path}."""
+    from ramavt_jax import viz_train
+
+    out_dir = Path(out_dir)
+    runs = {lr.run_dir: lr for lr in loaded}
+    out = {}
+    for e in entries:
+        config = dataclasses.replace(e.env_config, targets=(target,))
+        tracking_env = env_lib.TrackingEnv(config)
+        params = tracking_env.eval_params(**e.env_overrides, max_steps=steps)
+        lr = runs.get(e.info.get("run_dir"))
+        network = (lr.config.network, lr.params) if lr is not None else None
+        prefix = _slug(f"{e.name}_{config.obs_mode}")
+        for k, v in episode_figures(tracking_env, e.policy, params, jax.random.PRNGKey(seed), steps, out_dir, prefix,
+                                    network=network).items():
+            out[f"{prefix}/{k}"] = v
+    if loaded:
+        out["training_curves"] = str(viz_train.plot_training_runs([lr.run_dir for lr in loaded],
+                                                                  out_dir / "training_curves.png"))
+    return out
+
+
+# ============================================================================================ `ramavt plot`
+def plot_cmd(
+    runs: tuple[Path, ...] = (),
+    run: Path | None = None,
+    policy: Literal["oracle", "depth", "random"] = "oracle",
+    target: str = "Satellite-v2",
+    steps: int = 1000,
+    resolution: int = 64,
+    obs: Literal["depth", "color", "rgbd"] = "depth",
+    seed: int = 0,
+    frames: int = 8,
+    out: Path = Path("figures"),
+) -> dict:
+    """Paper figures as PNGs: training curves (mean ± std over seeds), and for one episode the tracking error x/y/z,
+    3-D trajectories, a strip of observed frames and (for a trained run) attention maps.
+
+    Args:
+        runs: training run folders for the curves; folders differing only by a seed suffix (_s0, -seed1) form one
+            band.
+        run: a trained run folder whose greedy policy flies the episode (attention maps included); else --policy.
+        policy: baseline flying the episode when no --run is given.
+        target: catalogue name or MJCF file of the episode's target.
+        steps: episode length cap.
+        resolution: camera resolution for a baseline (a trained run uses its own).
+        obs: observation mode for a baseline (a trained run uses its own).
+        seed: episode seed.
+        frames: frames in the strip.
+        out: output folder.
+    """
+    from ramavt_jax import baselines, evaluate, viz_train
+
+    names = evaluate.resolve_targets(target)
+    out_paths = {}
+    if runs:
+        labels = {viz_train.group_name(r): viz_train.run_label(r) for r in runs}
+        out_paths["training_curves"] = str(viz_train.plot_training_runs(runs, out / "training_curves.png", labels=labels))
+    if run is not None:
+        lr = evaluate.load_policy(run)
+        config = dataclasses.replace(lr.config.env, targets=names[:1])
+        overrides = {k: v for k, v in dict(lr.config.env_params).items() if k not in ("dist_weight", "lost_patience")}
+        pol, network, prefix = lr.policy, (lr.config.network, lr.params), _slug(Path(run).name)
+    else:
+        config = env_lib.EnvConfig(camera=render.CameraConfig(resolution=resolution), obs_mode=obs, targets=names[:1])
+        overrides, pol, network, prefix = {}, baselines.make_policy(policy, config.camera), None, policy
+    tracking_env = env_lib.TrackingEnv(config)
+    params = tracking_env.eval_params(**overrides, max_steps=steps)
+    out_paths.update(episode_figures(tracking_env, pol, params, jax.random.PRNGKey(seed), steps, out, prefix,
+                                     strip=frames, network=network))
+    for k, v in out_paths.items():
+        print(f"{k}: {v}")
+    return out_paths

@@ -1,0 +1,243 @@
+"""The paper's evaluation tables: run a set of policies over targets and perturbation settings, write Markdown/JSON.
+
+Table I   one row per (policy, input mode): average / min / max episode length and reward, lost fraction, speed (Hz).
+Table II  the perturbation suite per policy: actuator noise, time delay, image blur, all three, none.
+Table III the ablation: one row per trained run folder (AEL, AER, speed), baselines for reference.
+
+Every policy sees the same episodes: the key of (setting, target) does not depend on the policy (common random
+numbers), so differences between rows are not reset luck.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import platform
+import time
+from pathlib import Path
+from typing import Callable
+
+import jax
+import numpy as np
+
+from ramavt_jax import env as env_lib
+from ramavt_jax import evaluate
+from ramavt_jax.baselines import Policy
+
+# The paper's numbers (RAMAVT, IEEE TAES; 256x256 renders of the SNCOAT benchmark, 6 held-out targets).
+PAPER_TABLE1 = [  # name, input, AEL, min, max, AER, min, max, Hz
+    ("Random", "-", 152.2, 21, 385, -1545.2, -3214.8, -178.4, 42703.5),
+    ("DRLAVT", "rgbd", 857.9, 6, 1000, -268.9, -2341.4, 386.4, 63.1),
+    ("DRLAVT", "depth", 901.1, 6, 1000, 430.3, -55.69, 382.2, 66.6),
+    ("DRLAVT", "color", 841.6, 15, 1000, -201.9, -1798.7, 320.4, 68.9),
+    ("RAMAVT", "rgbd", 952.4, 41, 1000, -398.5, -1523.2, 481.4, 202.7),
+    ("RAMAVT", "depth", 959.1, 162, 1000, -59.4, -800.5, 445.4, 216.1),
+    ("RAMAVT", "color", 685.3, 43, 1000, -1755.1, -4097.5, 434.7, 210.9),
+]
+PAPER_TABLE2 = [  # name, setting, AEL, AER (RAMAVT rows are RGBD: the 'none' row equals Table I's RGBD row)
+    ("DRLAVT", "all", 456.3, -758.6),
+    ("RAMAVT", "actuator_noise", 876.5, -438.9),
+    ("RAMAVT", "time_delay", 596.6, -793.3),
+    ("RAMAVT", "blur", 793.3, -810.1),
+    ("RAMAVT", "all", 580.8, -971.8),
+    ("RAMAVT", "none", 952.4, -398.5),
+]
+PAPER_TABLE3 = [  # name, AEL, AER, Hz (RGBD)
+    ("Origin", 368.5, -1876.3, 214.3), ("Augment", 419.3, -1283.6, 215.7), ("SE", 625.8, -956.0, 211.3),
+    ("MHA", 731.1, -845.7, 206.6), ("RAMAVT", 952.4, -398.5, 202.7),
+]
+SETTING_MARKS = {  # setting -> (actuator noise, time delay, image blur)
+    "actuator_noise": (1, 0, 0), "time_delay": (0, 1, 0), "blur": (0, 0, 1), "all": (1, 1, 1), "none": (0, 0, 0),
+}
+
+
+@dataclasses.dataclass
+class Entry:
+    """One evaluated policy in one input mode."""
+
+    name: str
+    kind: str  # 'baseline' | 'checkpoint'
+    policy: Policy
+    env_config: env_lib.EnvConfig
+    env_overrides: dict = dataclasses.field(default_factory=dict)  # EnvParams overrides (a run's training values)
+    input_label: str = ""  # what the Input column shows
+    info: dict = dataclasses.field(default_factory=dict)
+
+
+def settings_for(tables: tuple[int, ...]) -> list[str]:
+    return list(evaluate.PERTURBATIONS) if 2 in tables else ["none"]
+
+
+def run_suite(entries: list[Entry], targets: tuple[str, ...], episodes: int, max_steps: int, seed: int,
+              tables: tuple[int, ...] = (1, 2, 3), perturbation_values: dict | None = None, speed_steps: int = 200,
+              log: Callable[[str], None] = print) -> dict:
+    """Evaluate every entry on every target (vmapped episodes) for each needed setting. Returns a JSON-able dict."""
+    values = {**evaluate.PERTURBATION_VALUES, **(perturbation_values or {})}
+    settings = settings_for(tables)
+    root = jax.random.PRNGKey(seed)
+    results = []
+    for entry in entries:
+        t_entry = time.time()
+        history = max(entry.env_config.frame_history, int(values["blur_frames"]))
+        config = dataclasses.replace(entry.env_config, targets=tuple(targets), frame_history=history)
+        tracking_env = env_lib.TrackingEnv(config)
+        row = {"name": entry.name, "kind": entry.kind, "input": entry.input_label or config.obs_mode,
+               "obs_mode": config.obs_mode, "resolution": config.camera.resolution, "dynamics": config.dynamics,
+               "info": entry.info, "settings": {}}
+        for s_index, setting in enumerate(settings):
+            t0 = time.time()
+            params = tracking_env.eval_params(**{**entry.env_overrides, "max_steps": max_steps,
+                                                 **evaluate.perturbation_overrides(setting, values)})
+            per_target, all_stats = {}, []
+            for i, target in enumerate(targets):
+                key = jax.random.fold_in(jax.random.fold_in(root, s_index), i)  # same episodes for every policy
+                stats, _ = evaluate.run_episodes(tracking_env, entry.policy, tracking_env.pinned(params, i), key,
+                                                 episodes)
+                stats = jax.device_get(stats)
+                all_stats.append(stats)
+                per_target[target] = evaluate.summarise(stats).as_dict()
+            overall = evaluate.summarise(evaluate.concat_stats(all_stats)).as_dict()
+            row["settings"][setting] = {"overall": overall, "per_target": per_target, "wall_s": time.time() - t0}
+            log(f"{entry.name:<22} {row['input']:<6} {setting:<15} AEL {overall['length_mean']:7.1f} "
+                f"AER {overall['return_mean']:9.1f} lost {overall['lost_fraction']:.2f} ({time.time() - t0:.0f} s)")
+        row["speed_hz"] = None
+        if speed_steps > 0:
+            params = tracking_env.pinned(tracking_env.eval_params(**entry.env_overrides, max_steps=max_steps), 0)
+            row["speed_hz"] = evaluate.measure_speed(tracking_env, entry.policy, params, jax.random.fold_in(root, 99),
+                                                     speed_steps)
+            log(f"{entry.name:<22} {row['input']:<6} speed {row['speed_hz']:.1f} Hz (single env, {speed_steps} steps)")
+        row["wall_s"] = time.time() - t_entry
+        results.append(row)
+    return {"settings": {"seed": seed, "episodes_per_target": episodes, "targets": list(targets),
+                         "max_steps": max_steps, "eval_params": {"dist_weight": 1.0, "lost_patience": 20},
+                         "perturbation_values": values, "perturbation_settings": settings, "tables": list(tables),
+                         "speed_steps": speed_steps},
+            "machine": machine_info(), "rows": results}
+
+
+def machine_info() -> dict:
+    return {"platform": platform.platform(), "processor": platform.processor() or platform.machine(),
+            "cpu_count": os.cpu_count(), "jax": jax.__version__, "backend": jax.default_backend(),
+            "devices": [str(d) for d in jax.devices()],
+            "load_average": list(os.getloadavg()) if hasattr(os, "getloadavg") else None}
+
+
+# ============================================================================================ Markdown
+def _f(x, digits=1) -> str:
+    return "-" if x is None or (isinstance(x, float) and not np.isfinite(x)) else f"{x:.{digits}f}"
+
+
+def _table(header: list[str], rows: list[list[str]]) -> str:
+    lines = ["| " + " | ".join(header) + " |", "|" + "|".join("---" for _ in header) + "|"]
+    lines += ["| " + " | ".join(str(c) for c in r) + " |" for r in rows]
+    return "\n".join(lines)
+
+
+def table1_md(result: dict) -> str:
+    rows = []
+    for r in result["rows"]:
+        s = r["settings"].get("none")
+        if s is None:
+            continue
+        o = s["overall"]
+        rows.append([r["name"], r["input"], _f(o["length_mean"]), _f(o["length_min"], 0), _f(o["length_max"], 0),
+                     _f(o["return_mean"]), _f(o["return_min"]), _f(o["return_max"]), _f(100 * o["lost_fraction"], 0),
+                     _f(r.get("speed_hz"))])
+    return _table(["Policy", "Input", "AEL", "EL min", "EL max", "AER", "ER min", "ER max", "lost %", "Speed (Hz)"],
+                  rows)
+
+
+def table2_md(result: dict) -> str:
+    rows = []
+    for r in result["rows"]:
+        for setting in evaluate.PERTURBATIONS:
+            s = r["settings"].get(setting)
+            if s is None:
+                continue
+            marks = ["✓" if m else "-" for m in SETTING_MARKS[setting]]
+            o = s["overall"]
+            rows.append([r["name"], r["input"], *marks, _f(o["length_mean"]), _f(o["return_mean"]),
+                         _f(100 * o["lost_fraction"], 0)])
+    return _table(["Policy", "Input", "Actuator noise", "Time delay", "Image blur", "AEL", "AER", "lost %"], rows)
+
+
+def table3_md(result: dict) -> str:
+    rows = []
+    for r in result["rows"]:
+        s = r["settings"].get("none")
+        if s is None:
+            continue
+        info = r.get("info", {})
+        o = s["overall"]
+        rows.append([r["name"], info.get("variant", r["kind"]), str(info.get("augment", "-")), r["input"],
+                     _f(o["length_mean"]), _f(o["return_mean"]), _f(r.get("speed_hz"))])
+    return _table(["Run", "Variant", "Augment", "Input", "AEL", "AER", "Speed (Hz)"], rows)
+
+
+def per_target_md(result: dict) -> str:
+    rows = []
+    for r in result["rows"]:
+        s = r["settings"].get("none")
+        if s is None:
+            continue
+        for target, o in s["per_target"].items():
+            rows.append([r["name"], r["input"], target, _f(o["length_mean"]), _f(o["length_min"], 0),
+                         _f(o["return_mean"]), _f(100 * o["lost_fraction"], 0)])
+    return _table(["Policy", "Input", "Target", "AEL", "EL min", "AER", "lost %"], rows)
+
+
+def paper_md() -> str:
+    t1 = _table(["Name", "Input", "AEL", "EL min", "EL max", "AER", "ER min", "ER max", "Speed (Hz)"],
+                [[str(c) for c in row] for row in PAPER_TABLE1])
+    t2 = _table(["Name", "Setting", "AEL", "AER"], [[str(c) for c in row] for row in PAPER_TABLE2])
+    t3 = _table(["Name", "AEL", "AER", "Speed (Hz)"], [[str(c) for c in row] for row in PAPER_TABLE3])
+    return f"Table I\n\n{t1}\n\nTable II (RGBD)\n\n{t2}\n\nTable III (RGBD)\n\n{t3}"
+
+
+def to_markdown(result: dict, command: str = "") -> str:
+    s, m = result["settings"], result["machine"]
+    pv = s["perturbation_values"]
+    head = [
+        "# Evaluation",
+        "",
+        f"- command: `{command}`" if command else "",
+        f"- targets ({len(s['targets'])}): {', '.join(s['targets'])}",
+        f"- episodes per target: {s['episodes_per_target']} (vmapped; {s['episodes_per_target'] * len(s['targets'])} "
+        f"per row and setting), seed {s['seed']}, same initial states for every policy",
+        f"- settings: eval params (reward dist_weight 1, lost after > 20 consecutive lost steps), max {s['max_steps']} "
+        f"steps, greedy policies",
+        f"- perturbations: actuator noise {pv['actuator_noise']} (command x (1 + a N(0,1))), time delay "
+        f"U(0, {pv['delay_max']}) s added to each 0.1 s step, blur = mean of the last {pv['blur_frames']} frames",
+        f"- speed: policy + env step of ONE env as one jitted call per step, {s['speed_steps']} steps (Hz)",
+        f"- machine: {m['cpu_count']} CPUs ({m['processor']}), {m['backend']} backend, jax {m['jax']}, load average "
+        f"{', '.join(f'{x:.1f}' for x in m['load_average'] or [])} at the end",
+        f"- wall time: {result.get('wall_s', float('nan')):.0f} s",
+    ]
+    rows = result["rows"]
+    for r in rows:
+        if r["kind"] == "checkpoint":
+            i = r["info"]
+            head.append(f"- {r['name']}: run `{i.get('run_dir')}`, variant {i.get('variant')}, training seed "
+                        f"{i.get('seed')}, checkpoint step {i.get('step')} ({i.get('env_steps')} env steps), "
+                        f"{r['resolution']}x{r['resolution']} {r['obs_mode']}")
+    parts = ["\n".join(h for h in head if h)]
+    tables = s["tables"]
+    if 1 in tables:
+        parts.append("## Table I: tracking performance (no perturbation)\n\n" + table1_md(result))
+    if 2 in tables:
+        parts.append("## Table II: perturbations\n\n" + table2_md(result))
+    if 3 in tables and any(r["kind"] == "checkpoint" for r in rows):
+        parts.append("## Table III: ablation\n\n" + table3_md(result))
+    parts.append("## Per target (no perturbation)\n\n" + per_target_md(result))
+    parts.append("## The paper's numbers (for comparison; 256x256, their simulator)\n\n" + paper_md())
+    return "\n\n".join(parts) + "\n"
+
+
+def write(result: dict, out: Path, command: str = "") -> tuple[Path, Path]:
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    md, js = out / "tables.md", out / "results.json"
+    md.write_text(to_markdown(result, command))
+    js.write_text(json.dumps({**result, "command": command}, indent=1, default=float))
+    return md, js
