@@ -421,8 +421,10 @@ class Trainer:
         return actor, replay_lib.chunk_to_storage(traj), jax.tree.map(jnp.sum, stats), eps[-1]
 
     # ---------------------------------------------------------------- learning
-    def loss(self, params, target_params, batch: replay_lib.Transition, key: jax.Array):
-        """Masked TD loss of one sampled batch (leaves [B, L, ...]). Returns (loss, aux)."""
+    def prepare(self, params, target_params, batch: replay_lib.Transition, key: jax.Array) -> dict:
+        """Everything the loss needs that takes no gradient: (augmented) observations, reset flags and loss mask,
+        the target net's Q over the window and the online net's state after burn-in, both run from the stored
+        recurrent state of the window's first step."""
         c = self.config
         burn = c.burn_in
         obs = batch.obs
@@ -435,28 +437,37 @@ class Trainer:
             frames = jnp.zeros((obs.shape[0], 0), jnp.float32)
         else:  # rebuilt during burn-in (burn_in >= frame_stack - 1 is validated)
             frames = jnp.repeat(obs[:, :1], c.network.frame_stack - 1, axis=1)
-        state0 = jax.lax.stop_gradient(RecurrentState(h=h0, c=c0, frames=frames))
-        q_target, _ = self.q_values(target_params, obs, reset, state0)
-        q_target = jax.lax.stop_gradient(q_target[:, burn:])  # [B, T+1, A]
-        state = state0
+        state = RecurrentState(h=h0, c=c0, frames=frames)
+        q_target, _ = self.q_values(target_params, obs, reset, state)
         if burn:
-            _, state = self.q_values(jax.lax.stop_gradient(params), obs[:, :burn], reset[:, :burn], state0)
-            state = jax.lax.stop_gradient(state)
-        q_online, _ = self.q_values(params, obs[:, burn:], reset[:, burn:], state)  # [B, T+1, A]
-        loss, aux = sequence_td_loss(
-            q_online, q_target, batch.action[:, burn:-1], batch.reward[:, burn:-1] * c.reward_scale,
-            batch.terminated[:, burn:-1], batch.truncated[:, burn:-1], masks["loss_mask"][:, burn:], self.td)
-        mask = masks["loss_mask"][:, burn:].astype(jnp.float32)
+            _, state = self.q_values(params, obs[:, :burn], reset[:, :burn], state)
+        prepared = dict(obs=obs[:, burn:], reset=reset[:, burn:], state=state, q_target=q_target[:, burn:],
+                        action=batch.action[:, burn:-1], reward=batch.reward[:, burn:-1] * c.reward_scale,
+                        terminated=batch.terminated[:, burn:-1], truncated=batch.truncated[:, burn:-1],
+                        mask=masks["loss_mask"][:, burn:])
+        return jax.lax.stop_gradient(prepared)
+
+    def trained_loss(self, params, prepared: dict):
+        """TD loss over the trained part of the window (gradient w.r.t. params only). Returns (loss, aux)."""
+        q_online, _ = self.q_values(params, prepared["obs"], prepared["reset"], prepared["state"])  # [B, T+1, A]
+        loss, aux = sequence_td_loss(q_online, prepared["q_target"], prepared["action"], prepared["reward"],
+                                     prepared["terminated"], prepared["truncated"], prepared["mask"], self.td)
+        mask = prepared["mask"].astype(jnp.float32)
         aux = dict(aux, q_mean=(aux["q_taken"] * mask).sum() / jnp.maximum(mask.sum(), 1.0))
         return loss, aux
+
+    def loss(self, params, target_params, batch: replay_lib.Transition, key: jax.Array):
+        """Masked TD loss of one sampled batch (leaves [B, L, ...]): burn-in without gradient, then the loss over
+        the ``train_len`` transitions after it. Returns (loss, aux)."""
+        return self.trained_loss(params, self.prepare(params, target_params, batch, key))
 
     def update(self, learner: LearnerState, replay_state, key: jax.Array):
         """One gradient step on a fresh sample. Returns (learner, (loss, q_mean, grad_norm))."""
         c = self.config
         k_sample, k_aug = jax.random.split(key)
         batch = self.replay.sample(replay_state, k_sample)
-        (loss, aux), grads = jax.value_and_grad(self.loss, has_aux=True)(learner.params, learner.target_params,
-                                                                           batch, k_aug)
+        prepared = self.prepare(learner.params, learner.target_params, batch, k_aug)
+        (loss, aux), grads = jax.value_and_grad(self.trained_loss, has_aux=True)(learner.params, prepared)
         if c.debug_nan_at_update >= 0:
             poison = learner.updates >= c.debug_nan_at_update
             loss = jnp.where(poison, jnp.nan, loss)

@@ -122,7 +122,11 @@ _COMPILED: dict = {}  # (config, env id) -> (trainer, init, compiled chunk, comp
 def _compiled(config: TrainConfig, tracking_env) -> tuple:
     """Trainer, jitted init and AOT-compiled chunk for a config (cached: repeated runs, resumes and tests
     in one process compile once)."""
-    key = (config, id(tracking_env))
+    host_only = dict(total_env_steps=config.env_steps_per_chunk, eval_episodes=0, eval_max_steps=1,
+                     checkpoint_every_chunks=0, checkpoint_replay=True, keep_checkpoints=1, tensorboard=False)
+    # host-only fields do not change the compiled chunk (learning_starts does; it is kept in the key separately
+    # because the shortened total_env_steps would fail validation with it)
+    key = (dataclasses.replace(config, learning_starts=0, **host_only), config.learning_starts, id(tracking_env))
     if key not in _COMPILED:
         trainer = Trainer(config, tracking_env)
         init = jax.jit(trainer.init)
