@@ -25,9 +25,10 @@ from jax import lax
 Array = jax.Array
 Dtype = Any
 
-# ReLU nets: He (fan-in, variance 2) init for conv / hidden dense kernels.
-he_init = nn.initializers.variance_scaling(2.0, "fan_in", "truncated_normal")
-lecun_init = nn.initializers.lecun_normal()
+# ReLU nets: He (fan-in, variance 2) init for conv / hidden dense kernels. Plain normals: truncated normals
+# compile noticeably slower on CPU (erfinv) and initialisation time dominated the tests.
+he_init = nn.initializers.variance_scaling(2.0, "fan_in", "normal")
+lecun_init = nn.initializers.variance_scaling(1.0, "fan_in", "normal")
 
 
 def conv_out_size(size: int, kernel: int, stride: int) -> int:
@@ -100,12 +101,18 @@ def make_conv(features: int, kernel: int, stride: int, impl: str, dtype: Dtype, 
 
 
 def max_pool2(x: Array) -> Array:
-    """2x2 max-pool, stride 2, ceil mode (odd sizes padded with -inf, so 1x1 stays 1x1). x: [N, H, W, C]."""
-    n, h, w, c = x.shape
+    """2x2 max-pool, stride 2, ceil mode (odd sizes padded with -inf, so 1x1 stays 1x1). x: [N, H, W, C].
+
+    Max of four strided slices: its gradient is a chain of cheap selects (about 2x faster than a reshape+max
+    and 4x faster than ``nn.max_pool``'s select_and_scatter on this CPU).
+    """
+    h, w = x.shape[1], x.shape[2]
     ph, pw = h % 2, w % 2
     if ph or pw:
         x = jnp.pad(x, ((0, 0), (0, ph), (0, pw), (0, 0)), constant_values=-jnp.inf)
-    return x.reshape(n, (h + ph) // 2, 2, (w + pw) // 2, 2, c).max(axis=(2, 4))
+    return jnp.maximum(
+        jnp.maximum(x[:, 0::2, 0::2], x[:, 0::2, 1::2]), jnp.maximum(x[:, 1::2, 0::2], x[:, 1::2, 1::2])
+    )
 
 
 class SqueezeExcite(nn.Module):

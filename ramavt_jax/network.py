@@ -35,6 +35,7 @@ outputs by design. 'none' skips it.
 from __future__ import annotations
 
 import dataclasses
+import functools
 
 import flax
 import flax.linen as nn
@@ -68,7 +69,8 @@ class NetworkConfig:
     channels: tuple = (32, 64, 128, 128)
     kernels: tuple = (3, 3, 3, 1)
     strides: tuple = (2, 2, 1, 1)
-    pools: tuple = (True, True, True, True)  # 2x2 max-pool after block i
+    pools: tuple = (True, True, True, True)  # 2x2 max-pool in block i
+    pool_first: bool = True  # conv -> pool -> SE -> norm -> ReLU (fast); False: *orig* conv -> SE -> norm -> pool -> ReLU
     norm: str = "layer"
     se_reduction: int = 8
     attention_heads: int = 8
@@ -207,13 +209,15 @@ class Encoder(nn.Module):
         n_blocks = len(cfg.channels)
         for i, (ch, k, s, p) in enumerate(zip(cfg.channels, cfg.kernels, cfg.strides, cfg.pools)):
             x = make_conv(ch, k, s, cfg.conv_impl, dtype, name=f"conv{i}")(x)
+            if p and cfg.pool_first:
+                x = max_pool2(x)
             if cfg.use_se and i < n_blocks - 1:
                 x = SqueezeExcite(cfg.se_reduction, dtype=dtype, name=f"se{i}")(x)
             if cfg.norm == "layer":
                 x = nn.LayerNorm(reduction_axes=(1, 2, 3), feature_axes=-1, dtype=dtype, name=f"norm{i}")(x)
             elif cfg.norm == "batch":
                 x = nn.BatchNorm(use_running_average=not train, momentum=0.99, dtype=dtype, name=f"norm{i}")(x)
-            if p:
+            if p and not cfg.pool_first:
                 x = max_pool2(x)
             x = nn.relu(x)
             self.sow("intermediates", f"block{i + 1}", x)
@@ -265,8 +269,13 @@ def make_network(config: NetworkConfig) -> QNetwork:
 
 
 def init_params(config: NetworkConfig, key: jax.Array, obs_shape: tuple) -> dict:
-    """Initialise variables for frames of shape (H, W, C). Returns the full variable dict
+    """Initialise variables for frames of shape (H, W, C) (jitted). Returns the full variable dict
     (``{'params': ...}`` plus ``'batch_stats'`` for norm='batch')."""
+    return _init_jit(config, tuple(obs_shape), key)
+
+
+@functools.partial(jax.jit, static_argnums=(0, 1))
+def _init_jit(config: NetworkConfig, obs_shape: tuple, key: jax.Array) -> dict:
     net = make_network(config)
     obs = jnp.zeros((1, 1, *obs_shape), jnp.float32)
     reset = jnp.ones((1, 1), bool)

@@ -8,6 +8,11 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+# Compilation (mostly of the random initialisers) dominates this file's run time on a 2-core CPU;
+# a persistent cache makes re-runs fast.
+jax.config.update("jax_compilation_cache_dir", "/tmp/ramavt_jax_test_cache")
+jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.5)
+
 from ramavt_jax.layers import conv2d_im2col
 from ramavt_jax.network import (
     VARIANTS,
@@ -41,13 +46,12 @@ def _random_state(cfg, b, obs_shape, seed=1):
     return jax.tree_util.tree_unflatten(tree, [jax.random.uniform(k, x.shape) for k, x in zip(keys, leaves)])
 
 
-@pytest.mark.parametrize("variant", VARIANTS)
-@pytest.mark.parametrize("res,ch", [(32, 1), (64, 4), (84, 3)])
+@pytest.mark.parametrize("variant,res,ch", [(v, 32, 1) for v in VARIANTS] + [("ramavt", 84, 3), ("drlavt", 64, 4)])
 def test_shapes_small(variant, res, ch):
     cfg = small(variant)
     net, variables, obs = _setup(cfg, (res, res, ch), b=2, t=3)
     state = initial_state(cfg, 2, (res, res, ch))
-    q, new = net.apply(variables, obs, jnp.zeros((2, 3), bool), state)
+    q, new = jax.jit(net.apply)(variables, obs, jnp.zeros((2, 3), bool), state)
     assert q.shape == (2, 3, cfg.num_actions) and q.dtype == jnp.float32
     assert jax.tree_util.tree_map(jnp.shape, new) == jax.tree_util.tree_map(jnp.shape, state)
     assert np.all(np.isfinite(q))
@@ -57,7 +61,7 @@ def test_shapes_small(variant, res, ch):
 def test_default_config_params_and_shapes(variant):
     cfg = NetworkConfig(variant=variant)
     counts = {}
-    for res in (64, 128, 256):
+    for res in (32, 64, 84, 128, 256):
         shapes = jax.eval_shape(lambda k: init_params(cfg, k, (res, res, 1)), jax.random.key(0))
         counts[res] = count_params(shapes)
         net = make_network(cfg)
@@ -73,30 +77,31 @@ def test_default_config_params_and_shapes(variant):
         assert initial_state(cfg, 3).h.shape == (2, 3, 512)
 
 
-@pytest.mark.parametrize("variant", VARIANTS)
+@pytest.mark.parametrize("variant", ["ramavt", "drlavt"])
 def test_reset_equals_fresh_sequence(variant):
     cfg = small(variant)
     b, t, cut = 2, 7, 3
     net, variables, obs = _setup(cfg, b=b, t=t)
     reset = jnp.zeros((b, t), bool).at[:, cut].set(True)
     state = _random_state(cfg, b, obs.shape[2:])  # arbitrary carried state: must not leak past the reset
-    q, _ = net.apply(variables, obs, reset, state)
+    apply = jax.jit(net.apply)
+    q, _ = apply(variables, obs, reset, state)
     fresh_reset = jnp.zeros((b, t - cut), bool).at[:, 0].set(True)
-    q2, _ = net.apply(variables, obs[:, cut:], fresh_reset, _random_state(cfg, b, obs.shape[2:], seed=7))
+    q2, _ = apply(variables, obs[:, cut:], fresh_reset, _random_state(cfg, b, obs.shape[2:], seed=7))
     np.testing.assert_allclose(q[:, cut:], q2, atol=1e-5)
     # and the prefix did depend on the carried state (recurrent / stacked variants)
-    q3, _ = net.apply(variables, obs, reset, initial_state(cfg, b, obs.shape[2:]))
+    q3, _ = apply(variables, obs, reset, initial_state(cfg, b, obs.shape[2:]))
     assert not np.allclose(q[:, :cut], q3[:, :cut], atol=1e-6)
 
 
-@pytest.mark.parametrize("variant", VARIANTS)
+@pytest.mark.parametrize("variant", ["ramavt", "drlavt", "origin"])
 def test_acting_equals_unroll(variant):
     cfg = small(variant)
     b, t = 3, 8
     net, variables, obs = _setup(cfg, b=b, t=t)
     reset = jnp.zeros((b, t), bool).at[:, 0].set(True).at[1, 4].set(True)
     state0 = initial_state(cfg, b, obs.shape[2:])
-    q_seq, s_seq = net.apply(variables, obs, reset, state0)
+    q_seq, s_seq = jax.jit(net.apply)(variables, obs, reset, state0)
     step = jax.jit(lambda o, r, s: net.apply(variables, o, r, s))
     s, qs = state0, []
     for i in range(t):
@@ -107,7 +112,7 @@ def test_acting_equals_unroll(variant):
         np.testing.assert_allclose(a, bb, atol=1e-5)
 
 
-@pytest.mark.parametrize("k,s,size", [(3, 2, 16), (3, 1, 9), (1, 1, 6), (5, 2, 11), (3, 2, 7)])
+@pytest.mark.parametrize("k,s,size", [(3, 2, 16), (3, 1, 9), (1, 1, 6), (5, 2, 7)])
 def test_im2col_equals_lax_conv(k, s, size):
     kx, kk, kg = jax.random.split(jax.random.key(0), 3)
     x = jax.random.normal(kx, (2, size, size, 3))
@@ -131,8 +136,10 @@ def test_im2col_equals_lax_conv(k, s, size):
 def test_network_conv_impls_share_params_and_agree():
     cfg = small("ramavt")
     net, variables, obs = _setup(cfg, (33, 33, 2), t=3)
+    cfg_orig = dataclasses.replace(cfg, pool_first=False, norm="none")
+    assert count_params(jax.eval_shape(lambda k: init_params(cfg_orig, k, (33, 33, 2)), jax.random.key(0))) > 0
     cfg_lax = dataclasses.replace(cfg, conv_impl="lax")
-    v2 = init_params(cfg_lax, jax.random.key(0), (33, 33, 2))
+    v2 = jax.eval_shape(lambda k: init_params(cfg_lax, k, (33, 33, 2)), jax.random.key(0))
     assert jax.tree_util.tree_structure(v2) == jax.tree_util.tree_structure(variables)
     reset = jnp.zeros((2, 3), bool)
     s = initial_state(cfg, 2)
@@ -141,7 +148,7 @@ def test_network_conv_impls_share_params_and_agree():
     np.testing.assert_allclose(q1, q2, atol=1e-4)
 
 
-@pytest.mark.parametrize("variant", ["ramavt", "drlavt"])
+@pytest.mark.parametrize("variant", ["ramavt", "se"])
 def test_attention_maps(variant):
     cfg = small(variant)
     variables = init_params(cfg, jax.random.key(0), (64, 64, 1))
@@ -171,9 +178,8 @@ def test_batchnorm_train_and_eval():
     np.testing.assert_allclose(q_eval[:1], q_one, atol=1e-5)
 
 
-@pytest.mark.parametrize("norm", ["layer", "none"])
-def test_grad_finite_and_bf16(norm):
-    cfg = small("ramavt", norm=norm)
+def test_grad_finite_and_bf16():
+    cfg = small("ramavt")
     net, variables, obs = _setup(cfg, t=4)
     reset = jnp.zeros((2, 4), bool)
     s = initial_state(cfg, 2)
@@ -196,7 +202,7 @@ def test_flops_and_params_positive():
     f64 = flops_per_frame(cfg, (64, 64, 1))
     f128 = flops_per_frame(cfg, (128, 128, 1))
     assert 0 < f64 < f128
-    assert count_params(init_params(cfg, jax.random.key(0), (32, 32, 1))) > 0
+    assert count_params(jax.eval_shape(lambda k: init_params(cfg, k, (32, 32, 1)), jax.random.key(0))) > 0
 
 
 @pytest.mark.parametrize(
