@@ -1,0 +1,206 @@
+"""Evaluation: summary statistics against hand computations, the early-exit episode runner, `ramavt eval` output
+files for baselines, custom MJCF targets and trained runs, and clear errors."""
+
+import dataclasses
+import json
+import os
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from ramavt_jax import baselines, evaluate, render
+from ramavt_jax import env as env_lib
+from ramavt_jax import tables as tables_lib
+
+TINY = dict(resolution=16, speed_steps=5, seed=0)
+
+PROBE_XML = """<mujoco model="probe"><worldbody>
+  <body name="probe">
+    <geom type="box" size="0.6 0.5 0.4" density="250" rgba="0.8 0.6 0.2 1"/>
+    <geom type="sphere" size="0.3" pos="0 0 0.6" density="400"/>
+  </body>
+</worldbody></mujoco>"""
+
+
+def _stats(length, ret, term, trunc=None, target=None):
+    n = len(length)
+    return evaluate.EpisodeStats(
+        length=jnp.array(length, jnp.int32), episode_return=jnp.array(ret, jnp.float32),
+        terminated=jnp.array(term, bool), target_index=jnp.array(target or [0] * n, jnp.int32),
+        truncated=None if trunc is None else jnp.array(trunc, bool))
+
+
+def test_summary_matches_hand_computation():
+    s = evaluate.summarise(_stats([10, 1000, 500, 21], [-50.0, 300.0, 20.5, -80.0], [True, False, False, True],
+                                  [False, True, False, False]))
+    assert s.episodes == 4
+    assert s.length_mean == pytest.approx((10 + 1000 + 500 + 21) / 4)
+    assert (s.length_min, s.length_max) == (10, 1000)
+    assert s.return_mean == pytest.approx((-50 + 300 + 20.5 - 80) / 4)
+    assert (s.return_min, s.return_max) == (pytest.approx(-80.0), pytest.approx(300.0))
+    assert s.length_std == pytest.approx(np.std([10, 1000, 500, 21]))
+    # lost = ended by termination; truncated = reached max_steps; the 500-step one (run cut short) is neither
+    assert s.lost_fraction == pytest.approx(0.5)
+    assert s.truncated_fraction == pytest.approx(0.25)
+    # without truncation flags every episode not lost counts as truncated (the old EpisodeStats)
+    old = evaluate.summarise(_stats([5, 1000], [1.0, 2.0], [True, False]))
+    assert (old.lost_fraction, old.truncated_fraction) == (0.5, 0.5)
+    both = evaluate.concat_stats([_stats([5], [1.0], [True], [False]), _stats([7, 9], [2.0, 3.0], [False, False],
+                                                                              [True, False])])
+    np.testing.assert_array_equal(both.length, [5, 7, 9])
+    np.testing.assert_array_equal(both.truncated, [False, True, False])
+    assert evaluate.summarise(both).length_mean == pytest.approx(7.0)
+
+
+def test_early_exit_runner_matches_recorded_scan():
+    config = env_lib.EnvConfig(camera=render.CameraConfig(resolution=16), targets=("Satellite-v2",))
+    tracking_env = env_lib.TrackingEnv(config)
+    params = tracking_env.eval_params(max_steps=60, lost_patience=3)
+    pol = baselines.random_policy()
+    key = jax.random.PRNGKey(3)
+    fast, _ = evaluate.run_episodes(tracking_env, pol, params, key, 6)
+    full, rec = evaluate.run_episodes(tracking_env, pol, params, key, 6, record=True)
+    for a, b in zip(jax.tree.leaves(fast), jax.tree.leaves(full)):
+        np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-6)
+    np.testing.assert_array_equal(np.asarray(rec.alive).sum(0), np.asarray(fast.length))
+    np.testing.assert_allclose((np.asarray(rec.reward) * np.asarray(rec.alive)).sum(0), fast.episode_return,
+                               rtol=1e-5, atol=1e-4)
+    assert bool(jnp.all(fast.terminated ^ fast.truncated))  # every episode ended exactly one way
+
+
+def test_perturbation_settings():
+    assert evaluate.perturbation_overrides("none") == {}
+    assert evaluate.perturbation_overrides("all") == {"actuator_noise": 0.3, "delay_max": 0.5, "blur_frames": 3}
+    assert evaluate.perturbation_overrides("time_delay", {"delay_max": 0.2}) == {"delay_max": 0.2}
+    with pytest.raises(ValueError, match="unknown perturbation"):
+        evaluate.perturbation_overrides("wind")
+
+
+def test_target_specs_and_unknown_target(tmp_path):
+    from ramavt_jax import targets
+
+    assert evaluate.resolve_targets("test") == targets.TEST_TARGETS
+    assert evaluate.resolve_targets("Satellite-v1, Satellite-v1,Rocket-v0") == ("Satellite-v1", "Rocket-v0")
+    path = tmp_path / "probe.xml"
+    path.write_text(PROBE_XML)
+    assert evaluate.resolve_targets(f"Capsule-v2,{path}") == ("Capsule-v2", str(path))
+    with pytest.raises(ValueError, match="unknown target 'Sputnik-v9'.*catalogue name"):
+        evaluate.resolve_targets("Satellite-v2,Sputnik-v9")
+    with pytest.raises(ValueError, match="unknown target"):
+        evaluate.eval_cmd(policy="random", baselines=False, targets="nope.xml", out=tmp_path / "e")
+    with pytest.raises(ValueError, match="needs at least one --run"):
+        evaluate.eval_cmd(policy="checkpoint", baselines=False, out=tmp_path / "e")
+
+
+def test_eval_random_writes_tables(tmp_path):
+    out = tmp_path / "eval"
+    result = evaluate.eval_cmd(policy="random", baselines=False, targets="Satellite-v2,Asteroid-v4", episodes=3,
+                               max_steps=15, tables=(1,), out=out, **TINY)
+    md, js = (out / "tables.md").read_text(), json.loads((out / "results.json").read_text())
+    assert "## Table I" in md and "## Table II" not in md and "| random |" in md
+    assert js["settings"]["episodes_per_target"] == 3 and js["settings"]["seed"] == 0
+    assert js["settings"]["targets"] == ["Satellite-v2", "Asteroid-v4"]
+    (row,) = js["rows"]
+    overall = row["settings"]["none"]["overall"]
+    assert overall["episodes"] == 6 and overall["length_max"] <= 15
+    per = row["settings"]["none"]["per_target"]
+    assert overall["length_mean"] == pytest.approx((per["Satellite-v2"]["length_mean"] +
+                                                    per["Asteroid-v4"]["length_mean"]) / 2)
+    assert row["speed_hz"] > 0
+    assert result["rows"][0]["name"] == "random"
+
+
+def test_eval_oracle_perturbations_custom_target_and_figures(tmp_path):
+    path = tmp_path / "probe.xml"
+    path.write_text(PROBE_XML)
+    out = tmp_path / "eval"
+    evaluate.eval_cmd(policy="oracle", baselines=False, targets=f"Satellite-v2,{path}", episodes=2, max_steps=12,
+                      tables=(1, 2), out=out, figures=True, resolution=16, speed_steps=0)
+    js = json.loads((out / "results.json").read_text())
+    (row,) = js["rows"]
+    assert set(row["settings"]) == set(evaluate.PERTURBATIONS)
+    assert set(row["settings"]["none"]["per_target"]) == {"Satellite-v2", str(path)}
+    # the oracle never loses a target within 12 steps
+    assert row["settings"]["none"]["overall"]["length_min"] == 12
+    md = (out / "tables.md").read_text()
+    assert "## Table II" in md and md.count("| oracle (true state) |") >= 6
+    assert js["figures"]
+    for p in js["figures"].values():
+        assert os.path.getsize(p) > 0
+    assert any(p.endswith("_frames.png") for p in js["figures"].values())
+
+
+def _fake_run(run_dir, seed=0):
+    """A run folder in train_log.run's layout (config.json, checkpoints/<step>, metrics.jsonl) without training:
+    the initial RunnerState with perturbed params, saved by the trainer's CheckpointStore. Seconds, not minutes."""
+    from ramavt_jax import train
+    from ramavt_jax.checkpoint import CheckpointStore
+
+    from ramavt_jax.network import init_params
+
+    cfg = dataclasses.replace(train.preset("smoke"), eval_episodes=0)
+    # the RunnerState's structure without compiling the trainer: zeros everywhere but the network parameters
+    abstract = jax.eval_shape(train.Trainer(cfg).init, jax.ShapeDtypeStruct((2,), jnp.uint32))
+    state = jax.tree.map(lambda x: np.zeros(x.shape, x.dtype), abstract)
+    params = init_params(cfg.network, jax.random.PRNGKey(seed), cfg.env.obs_shape)["params"]
+    state = state.replace(learner=state.learner.replace(params=params), chunk=np.int32(3))
+    run_dir.mkdir(parents=True)
+    (run_dir / "config.json").write_text(json.dumps({"seed": seed, "config": cfg.to_dict()}, default=str))
+    meta = {"config": cfg.to_dict(), "seed": seed, "chunk": 3, "env_steps": 960, "updates": 5}
+    store = CheckpointStore(run_dir / "checkpoints")
+    store.save(3, state, json.loads(json.dumps(meta, default=str)))
+    store.close()
+    lines = [json.dumps({"chunk": c, "env_steps": 320 * c, "episode_length": 10.0 * c, "episode_return": -c,
+                         "loss": 1.0 / c, "q_mean": 0.1 * c}) for c in (1, 2, 3)]
+    (run_dir / "metrics.jsonl").write_text("\n".join(lines) + "\n")
+    return run_dir, params
+
+
+def test_eval_checkpoint_run(tmp_path):
+    run_dir, params = _fake_run(tmp_path / "runs" / "smoke_s0")
+    loaded = evaluate.load_policy(run_dir)
+    for a, b in zip(jax.tree.leaves(loaded.params), jax.tree.leaves(params)):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    assert loaded.step == 3 and loaded.config.network.variant == "origin" and loaded.meta["env_steps"] == 960
+    out = tmp_path / "eval"
+    evaluate.eval_cmd(policy="checkpoint", run=(run_dir,), baselines=False, targets="Satellite-v2", episodes=1,
+                      max_steps=8, tables=(1, 3), out=out, speed_steps=0)
+    js = json.loads((out / "results.json").read_text())
+    assert js["rows"][0]["info"]["variant"] == "origin" and js["rows"][0]["speed_hz"] is None
+    md = (out / "tables.md").read_text()
+    assert "## Table III" in md and "| smoke_s0 | origin |" in md
+    assert "run `" in md and "checkpoint step 3" in md
+
+
+@pytest.mark.slow
+def test_load_policy_of_a_real_training_run(tmp_path):
+    from ramavt_jax import train
+
+    cfg = dataclasses.replace(train.preset("smoke"), eval_episodes=0)
+    summary = train.run(cfg, tmp_path / "smoke_s0", seed=0, progress=False)
+    loaded = evaluate.load_policy(tmp_path / "smoke_s0")
+    for a, b in zip(jax.tree.leaves(loaded.params), jax.tree.leaves(summary["state"].learner.params)):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    assert loaded.step == summary["chunks_done"]
+    out = tmp_path / "eval"
+    evaluate.eval_cmd(policy="checkpoint", run=(tmp_path / "smoke_s0",), baselines=False, targets="Satellite-v2",
+                      episodes=1, max_steps=8, tables=(1, 3), out=out, figures=True, speed_steps=0)
+    figures = json.loads((out / "results.json").read_text())["figures"]
+    assert any(k.endswith("attention") for k in figures) and "training_curves" in figures
+    for p in figures.values():
+        assert os.path.getsize(p) > 0
+
+
+def test_missing_run_is_a_clear_error(tmp_path):
+    with pytest.raises(FileNotFoundError, match="config.json"):
+        evaluate.load_policy(tmp_path / "no_run")
+
+
+def test_markdown_handles_skipped_tables():
+    result = {"settings": {"seed": 1, "episodes_per_target": 1, "targets": ["X"], "max_steps": 5,
+                           "perturbation_values": evaluate.PERTURBATION_VALUES, "speed_steps": 0, "tables": [1]},
+              "machine": tables_lib.machine_info(), "rows": [], "wall_s": 1.0}
+    md = tables_lib.to_markdown(result)
+    assert "Table I" in md and "959.1" in md  # the paper's numbers are always shown for comparison
