@@ -20,8 +20,9 @@ Every variant takes ONE image per step, obs [B, T, H, W, C]. DRLAVT stacks frame
 current frame where ``reset`` (gym FrameStack behaviour). The trainer can therefore treat DRLAVT exactly like
 the recurrent variants (store the state, burn in, reset at episode starts).
 
-Backbone block i: conv (no bias, padding k//2) -> SE (all blocks but the last) -> norm -> 2x2 max-pool
-(ceil mode) -> ReLU. Shapes follow the input resolution: 64x64 gives a 1x1x128 map, 84 -> 2x2, 128 -> 2x2,
+Backbone block i: conv (no bias, padding k//2) -> 2x2 max-pool (ceil mode) -> SE (all blocks but the last)
+-> norm -> ReLU (``pool_first=True``, default: SE and norm run on 4x fewer positions, ~2x faster encoder
+backward on this CPU). ``pool_first=False`` gives the *orig* order conv -> SE -> norm -> pool -> ReLU. Shapes follow the input resolution: 64x64 gives a 1x1x128 map, 84 -> 2x2, 128 -> 2x2,
 256 -> 4x4 (the MHA's tokens).
 
 Normalisation: 'layer' (default) normalises each frame over (H, W, C) jointly with a per-channel scale and
