@@ -1,6 +1,13 @@
-"""Frames to network observations, and image blur (Gaussian, motion)."""
+"""Frames to network observations, and image blur (Gaussian, motion).
+
+Both blurs are skipped at run time when they are off (sigma / length 0, the default): a single image uses a
+``lax.cond``, and under ``jax.vmap`` a custom batching rule runs the batched blur only when any image of the batch
+needs it (a plain vmapped cond would turn into a select that always pays for the blur).
+"""
 
 from __future__ import annotations
+
+import functools
 
 import jax
 import jax.numpy as jnp
@@ -41,6 +48,30 @@ def _filter_rows_cols(image: jax.Array, k: jax.Array) -> jax.Array:
     return out
 
 
+def _skip_when_off(impl):
+    """f(image, amount, *rest) -> impl(...) where amount > 0 else image; evaluated only when needed (see above)."""
+
+    @jax.custom_batching.custom_vmap
+    def f(image, amount, *rest):
+        return jax.lax.cond(amount > 0, impl, lambda i, *_: i, image, amount, *rest)
+
+    @f.def_vmap
+    def f_batched(axis_size, in_batched, image, amount, *rest):
+        def full(x, b):
+            return x if b else jnp.broadcast_to(x, (axis_size,) + x.shape)
+
+        image = full(image, in_batched[0])
+        axes = tuple(0 if b else None for b in in_batched[1:])
+        out = jax.lax.cond(
+            jnp.any(amount > 0),
+            lambda: jax.vmap(impl, in_axes=(0,) + axes)(image, amount, *rest),
+            lambda: image,
+        )
+        return out, True
+
+    return f
+
+
 def gaussian_blur(image: jax.Array, sigma, max_radius: int = 8) -> jax.Array:
     """Separable Gaussian blur of [H, W, C]; sigma (pixels) may be traced; sigma == 0 returns the image unchanged.
 
@@ -48,7 +79,15 @@ def gaussian_blur(image: jax.Array, sigma, max_radius: int = 8) -> jax.Array:
     normalised over the taps that fall inside the image, so borders do not darken and the mean is kept.
     """
     image = jnp.asarray(image)
-    sigma = jnp.asarray(sigma, jnp.float32)
+    return _gaussian_fn(int(max_radius))(image, jnp.asarray(sigma, jnp.float32))
+
+
+@functools.lru_cache(maxsize=None)
+def _gaussian_fn(max_radius: int):
+    return _skip_when_off(functools.partial(_gaussian_blur, max_radius=max_radius))
+
+
+def _gaussian_blur(image, sigma, max_radius):
     taps = jnp.arange(-max_radius, max_radius + 1, dtype=jnp.float32)
     safe = jnp.maximum(sigma, 1e-6)
     k = jnp.exp(-0.5 * (taps / safe) ** 2)
@@ -64,8 +103,16 @@ def motion_blur(image: jax.Array, length_px, angle_rad, samples: int = 9) -> jax
     length 0 returns the image unchanged.
     """
     image = jnp.asarray(image)
+    return _motion_fn(int(samples))(image, jnp.asarray(length_px, jnp.float32), jnp.asarray(angle_rad, jnp.float32))
+
+
+@functools.lru_cache(maxsize=None)
+def _motion_fn(samples: int):
+    return _skip_when_off(functools.partial(_motion_blur, samples=samples))
+
+
+def _motion_blur(image, length, angle_rad, samples):
     h, w, _ = image.shape
-    length = jnp.asarray(length_px, jnp.float32)
     s = (jnp.arange(samples, dtype=jnp.float32) / max(samples - 1, 1) - 0.5) * length  # [S]
     du, dv = s * jnp.cos(angle_rad), s * jnp.sin(angle_rad)
     vv, uu = jnp.meshgrid(jnp.arange(h, dtype=jnp.float32), jnp.arange(w, dtype=jnp.float32), indexing="ij")
