@@ -4,6 +4,7 @@ each timed as a separately jitted piece; plus single-env greedy inference Hz.
 
     python benchmarks/bench_train.py                      # 64x64, all variants -> benchmarks/results_train.json
     python benchmarks/bench_train.py --resolution 256 --num-envs 4 --batch-size 4 --variants ramavt
+    python benchmarks/bench_train.py --preset quick        # the quick preset's own small network at 32x32
 
 Timings on shared machines vary (~+-30%): each figure is the median of ``repeats`` timed calls after a warm-up.
 """
@@ -132,12 +133,20 @@ def bench_variant(variant: str, resolution: int, num_envs: int, batch_size: int,
 
 def run(variants=VARIANTS, resolution: int = 64, num_envs: int = 64, batch_size: int = 32, burn_in: int = 10,
         train_len: int = 20, rollout_steps: int = 20, repeats: int = 5, out: str | None = "benchmarks/results_train.json",
-        quiet: bool = False) -> dict:
-    """Benchmark each variant; print a table; write JSON to ``out`` (None = don't). Returns the results dict."""
+        quiet: bool = False, preset: str | None = None) -> dict:
+    """Benchmark each variant (the paper's network at ``resolution``); print a table; write JSON to ``out``
+    (None = don't). ``preset``: instead benchmark that training preset's own network and sizes. Returns the results."""
     rows = []
+    network = None
+    if preset is not None:
+        cfg = T.preset(preset)
+        network, variants = cfg.network, (cfg.network.variant,)
+        resolution, num_envs, batch_size = cfg.env.camera.resolution, cfg.num_envs, cfg.batch_size
+        burn_in, train_len, rollout_steps = cfg.burn_in, cfg.train_len, cfg.rollout_steps
     for v in variants:
         t = time.time()
-        row = bench_variant(v, resolution, num_envs, batch_size, burn_in, train_len, rollout_steps, repeats)
+        row = bench_variant(v, resolution, num_envs, batch_size, burn_in, train_len, rollout_steps, repeats, network)
+        row["preset"] = preset
         row["bench_wall_s"] = time.time() - t
         rows.append(row)
         if not quiet:
@@ -154,7 +163,7 @@ def run(variants=VARIANTS, resolution: int = 64, num_envs: int = 64, batch_size:
     if out:
         path = Path(out)
         old = json.loads(path.read_text()) if path.exists() else {}
-        old[f"{resolution}x{resolution}"] = results
+        old[f"preset_{preset}" if preset else f"{resolution}x{resolution}"] = results
         path.parent.mkdir(parents=True, exist_ok=True)
         path.write_text(json.dumps(old, indent=1))
     return results
@@ -186,8 +195,10 @@ def main(argv=None):
     p.add_argument("--rollout-steps", type=int, default=20)
     p.add_argument("--repeats", type=int, default=5)
     p.add_argument("--out", default="benchmarks/results_train.json")
+    p.add_argument("--preset", default=None, choices=sorted(T.PRESETS), help="benchmark a training preset's network")
     a = p.parse_args(argv)
-    run(a.variants, a.resolution, a.num_envs, a.batch_size, a.burn_in, a.train_len, a.rollout_steps, a.repeats, a.out)
+    run(a.variants, a.resolution, a.num_envs, a.batch_size, a.burn_in, a.train_len, a.rollout_steps, a.repeats, a.out,
+        preset=a.preset)
 
 
 if __name__ == "__main__":

@@ -231,7 +231,7 @@ def _quick() -> TrainConfig:
     """~5 min on 2 CPU cores; the DESIGN.md task (default training EnvParams) at 32x32 depth, small net."""
     return TrainConfig(
         env=env_lib.EnvConfig(camera=CameraConfig(resolution=32), autoreset="next_step"),
-        network=NetworkConfig(variant="ramavt", channels=(16, 32, 32), kernels=(3, 3, 3), strides=(1, 1, 1),
+        network=NetworkConfig(variant="ramavt", channels=(16, 32, 32), kernels=(3, 3, 3), strides=(2, 1, 1),
                               pools=(True, True, True), se_reduction=4, attention_heads=4, dense=128, lstm=128,
                               lstm_layers=1, head=128),
         num_envs=64, rollout_steps=20, iterations_per_chunk=25, total_env_steps=384_000,
@@ -441,11 +441,11 @@ class Trainer:
         q_target, _ = self.q_values(target_params, obs, reset, state)
         if burn:
             _, state = self.q_values(params, obs[:, :burn], reset[:, :burn], state)
-        prepared = dict(obs=obs[:, burn:], reset=reset[:, burn:], state=state, q_target=q_target[:, burn:],
-                        action=batch.action[:, burn:-1], reward=batch.reward[:, burn:-1] * c.reward_scale,
-                        terminated=batch.terminated[:, burn:-1], truncated=batch.truncated[:, burn:-1],
-                        mask=masks["loss_mask"][:, burn:])
-        return jax.lax.stop_gradient(prepared)
+        sg = jax.lax.stop_gradient
+        return dict(obs=obs[:, burn:], reset=reset[:, burn:], state=sg(state), q_target=sg(q_target[:, burn:]),
+                    action=batch.action[:, burn:-1], reward=sg(batch.reward[:, burn:-1] * c.reward_scale),
+                    terminated=batch.terminated[:, burn:-1], truncated=batch.truncated[:, burn:-1],
+                    mask=masks["loss_mask"][:, burn:])
 
     def trained_loss(self, params, prepared: dict):
         """TD loss over the trained part of the window (gradient w.r.t. params only). Returns (loss, aux)."""

@@ -200,6 +200,7 @@ def test_stored_recurrent_state_is_the_actors_state():
 
 
 # ------------------------------------------------------------------------------------------ seeds
+@pytest.mark.slow  # two compiles of the whole training function (~2-3 min on 2 cores)
 def test_vmapped_seeds_equal_single_seed_runs():
     cfg = dataclasses.replace(SMOKE, total_env_steps=640)  # 2 chunks, 8 gradient steps... cheap
     train = T.make_train(cfg)
@@ -236,18 +237,21 @@ def test_greedy_policy_matches_the_network_over_a_sequence(trainer, learner):
 # ------------------------------------------------------------------------------------------ learning
 EASY = dataclasses.replace(
     SMOKE,
-    # Easy task: a slow target near r*, a fast chaser (random actions lose it quickly), short episodes.
+    # An easy task: a static, non-spinning target near r*, a fast chaser (random actions lose it quickly: any step out
+    # of view ends the episode), 200-step episodes. The agent must learn from rewards which motions keep it in view.
     env_params=(("init_xy_std", 0.3), ("init_z_max", 6.0), ("init_z_min", 4.0), ("lost_patience", 0),
-                ("max_steps", 100), ("speed", 3.0), ("target_spin_std", 0.0), ("target_vel_std", 0.02)),
+                ("max_steps", 200), ("speed", 3.0), ("target_spin_std", 0.0), ("target_vel_std", 0.0)),
     network=NetworkConfig(variant="origin", channels=(8, 16), kernels=(3, 3), strides=(1, 1), pools=(True, True),
                           dense=64, lstm=64, lstm_layers=1, head=64),
-    num_envs=32, rollout_steps=10, iterations_per_chunk=10, total_env_steps=9600, eps_start=1.0, eps_end=0.05,
-    eps_decay_steps=6000, replay_capacity=9600, burn_in=4, train_len=8, batch_size=20, learning_starts=1600,
-    replay_ratio=1.0, lr=1e-3, gamma=0.9, n_step=3, reward_scale=0.1, polyak_tau=0.05,
+    num_envs=16, rollout_steps=16, iterations_per_chunk=10, total_env_steps=40_960, eps_start=1.0, eps_end=0.05,
+    eps_decay_steps=16_000, replay_capacity=8192, burn_in=2, train_len=8, batch_size=16, learning_starts=1024,
+    replay_ratio=4.0, lr=1e-3, gamma=0.9, n_step=3, reward_scale=0.1, polyak_tau=0.05,
 )
 
 
 def test_learns_an_easy_task():
+    # ~25 s of training on 2 idle cores (plus ~20 s compile); measured: random ~100, untrained greedy ~115,
+    # trained greedy ~195 of 200 steps.
     out = jax.jit(T.make_train(EASY))(jax.random.PRNGKey(0))
     params = out["runner_state"].learner.params
     tracking_env = env_lib.TrackingEnv(EASY.env)
