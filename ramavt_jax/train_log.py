@@ -171,7 +171,9 @@ def run(config: TrainConfig, out_dir, seed: int = 0, resume=True, progress: bool
     out.mkdir(parents=True, exist_ok=True)
     ckpt_dir = out / "checkpoints"
     source = _resolve_resume(resume, ckpt_dir)
-    trainer, init, compiled, compile_s = _compiled(config, tracking_env)
+    if progress:
+        print(f"compiling the training chunk ({config.network.variant}, {config.env.obs_shape}) ...", flush=True)
+    _, init, compiled, compile_s = _compiled(config, tracking_env)
     state = init(jax.random.PRNGKey(seed))
     (out / "config.json").write_text(json.dumps({"seed": seed, "config": config.to_dict()}, indent=1, default=str))
 

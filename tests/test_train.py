@@ -84,6 +84,25 @@ def test_drlavt_with_enough_burn_in_is_accepted():
     assert cfg.burn_in == net.frame_stack - 1
 
 
+@pytest.mark.parametrize(
+    "variant, obs_mode, augment",
+    [("ramavt", "depth", False), ("drlavt", "depth", False), ("se", "rgbd", False), ("mha", "color", True),
+     ("origin", "depth", True)],
+)
+def test_every_variant_observation_and_augmentation_traces(variant, obs_mode, augment):
+    """The whole chunk (acting, replay, burn-in learner) traces for each option (abstractly: nothing compiles)."""
+    net = NetworkConfig(variant=variant, channels=(8, 8), kernels=(3, 3), strides=(1, 1), pools=(True, True),
+                        dense=16, lstm=16, lstm_layers=2, head=16, attention_heads=2, drlavt_dense=(16,))
+    env_cfg = env_lib.EnvConfig(camera=CameraConfig(resolution=16), obs_mode=obs_mode, autoreset="next_step")
+    cfg = dataclasses.replace(SMOKE, network=net, env=env_cfg, augment=augment)
+    tr = T.Trainer(cfg)
+    state = jax.eval_shape(tr.init, jax.ShapeDtypeStruct((2,), jnp.uint32))
+    out, metrics = jax.eval_shape(tr.chunk, state)
+    assert out.actor.obs.shape == (cfg.num_envs, 16, 16, env_lib.OBS_CHANNELS[obs_mode])
+    assert metrics.loss_sum.shape == (cfg.iterations_per_chunk,)
+    assert jax.tree.structure(out) == jax.tree.structure(state)
+
+
 # ------------------------------------------------------------------------------------------ learner plumbing
 def _batch(key, cfg, is_first=None, terminated=None):
     """A hand-made sampled batch [B, L, ...] (random obs/actions/rewards, random stored LSTM state)."""
