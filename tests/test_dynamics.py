@@ -453,8 +453,9 @@ def test_attitude_conservation_hypothesis(moments, w0, seed):
     L0 = _rotm(np.asarray(q0)) @ (inertia.astype(np.float64) * w0)
     E0 = 0.5 * np.sum(inertia.astype(np.float64) * w0.astype(np.float64) ** 2)
     L, E = _invariants(qs, ws, inertia)
-    scale = np.linalg.norm(L0) + 1e-12
-    assert np.abs(L - L0).max() / scale < 1e-4 or np.linalg.norm(L0) < 1e-6
+    # float32 rounding of a nearly-still body is absolute, not relative: floor the scale at 1e-3 kg m^2/s
+    scale = max(np.linalg.norm(L0), 1e-3)
+    assert np.abs(L - L0).max() / scale < 1e-4
     assert np.abs(E - E0).max() <= 1e-4 * E0 + 1e-10
     assert np.abs(np.linalg.norm(qs, axis=1) - 1.0).max() < 1e-6
 
