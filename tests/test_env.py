@@ -22,6 +22,17 @@ def params(small_env):
     return small_env.default_params()
 
 
+@pytest.fixture(scope="module")
+def fast(small_env):
+    """Jitted functions of the shared env, compiled once for the module (eager execution is slow)."""
+    return dict(
+        reset=jax.jit(small_env.reset),
+        step=jax.jit(small_env.step),
+        vreset=jax.jit(jax.vmap(small_env.reset, in_axes=(0, None))),
+        vstep=jax.jit(jax.vmap(small_env.step, in_axes=(0, 0, 0, None))),
+    )
+
+
 def tree_equal(a, b, atol=0.0):
     leaves_a, leaves_b = jax.tree.leaves(a), jax.tree.leaves(b)
     assert len(leaves_a) == len(leaves_b)
@@ -29,10 +40,10 @@ def tree_equal(a, b, atol=0.0):
         np.testing.assert_allclose(np.asarray(x, np.float64), np.asarray(y, np.float64), atol=atol, rtol=0)
 
 
-def rollout(tracking_env, params, key, steps, actions=None, step_fn=None):
+def rollout(tracking_env, params, key, steps, actions=None, step_fn=None, reset_fn=None):
     step_fn = step_fn or tracking_env.step
     k_reset, k_steps = jax.random.split(key)
-    obs, state = tracking_env.reset(k_reset, params)
+    obs, state = (reset_fn or tracking_env.reset)(k_reset, params)
     outs = []
     for t, k in enumerate(jax.random.split(k_steps, steps)):
         a = jnp.asarray(0 if actions is None else actions[t])
@@ -41,11 +52,11 @@ def rollout(tracking_env, params, key, steps, actions=None, step_fn=None):
     return obs, state, outs
 
 
-def test_shapes_and_ranges(small_env, params):
-    obs, state = small_env.reset(jax.random.key(0), params)
+def test_shapes_and_ranges(fast, params):
+    obs, state = fast["reset"](jax.random.key(0), params)
     assert obs.shape == (RES, RES, 1) and obs.dtype == jnp.float32
     assert float(obs.min()) >= 0.0 and float(obs.max()) <= 1.0
-    obs2, state2, r, term, trunc, info = small_env.step(jax.random.key(1), state, jnp.asarray(3), params)
+    obs2, state2, r, term, trunc, info = fast["step"](jax.random.key(1), state, jnp.asarray(3), params)
     assert obs2.shape == obs.shape and r.shape == () and term.dtype == jnp.bool_ and trunc.dtype == jnp.bool_
     for name in ("rel_pos", "tracking_error", "in_view", "final_observation", "episode_return", "episode_length"):
         assert name in info
@@ -65,22 +76,20 @@ def test_observation_modes(mode, channels):
 def test_jit_matches_no_jit(small_env, params):
     key = jax.random.key(3)
     with jax.disable_jit():
-        ref = rollout(small_env, params, key, 2, actions=[1, 5])
-    out = rollout(small_env, params, key, 2, actions=[1, 5], step_fn=jax.jit(small_env.step))
+        ref = rollout(small_env, params, key, 1, actions=[5])
+    out = rollout(small_env, params, key, 1, actions=[5], step_fn=jax.jit(small_env.step), reset_fn=jax.jit(small_env.reset))
     tree_equal(ref[1], out[1], atol=1e-5)
     tree_equal(ref[0], out[0], atol=1e-5)
 
 
-def test_vmap_matches_loop(small_env, params):
+def test_vmap_matches_loop(fast, params):
     keys = jax.random.split(jax.random.key(4), 3)
     actions = jnp.array([2, 6, 9])
-    vreset = jax.vmap(small_env.reset, in_axes=(0, None))
-    vstep = jax.vmap(small_env.step, in_axes=(0, 0, 0, None))
-    obs_b, state_b = vreset(keys, params)
-    out_b = vstep(keys, state_b, actions, params)
+    obs_b, state_b = fast["vreset"](keys, params)
+    out_b = fast["vstep"](keys, state_b, actions, params)
     for i in range(3):
-        obs_i, state_i = small_env.reset(keys[i], params)
-        out_i = small_env.step(keys[i], state_i, actions[i], params)
+        obs_i, state_i = fast["reset"](keys[i], params)
+        out_i = fast["step"](keys[i], state_i, actions[i], params)
         tree_equal(jax.tree.map(lambda x: x[i], out_b[:5]), out_i[:5], atol=1e-5)
 
 
@@ -95,18 +104,19 @@ def test_vmap_over_params_domain_randomisation(small_env, params):
     np.testing.assert_allclose(chaser_cam[:, 2], 0.5 * speeds * 0.1, rtol=1e-5)
 
 
-def test_determinism(small_env, params):
-    a = rollout(small_env, params, jax.random.key(7), 5, actions=[1, 2, 3, 4, 5])
-    b = rollout(small_env, params, jax.random.key(7), 5, actions=[1, 2, 3, 4, 5])
-    c = rollout(small_env, params, jax.random.key(8), 5, actions=[1, 2, 3, 4, 5])
+def test_determinism(small_env, params, fast):
+    kw = dict(actions=[1, 2, 3, 4, 5], step_fn=fast["step"], reset_fn=fast["reset"])
+    a = rollout(small_env, params, jax.random.key(7), 5, **kw)
+    b = rollout(small_env, params, jax.random.key(7), 5, **kw)
+    c = rollout(small_env, params, jax.random.key(8), 5, **kw)
     tree_equal(a[1], b[1])
     assert not np.allclose(np.asarray(a[1].target_pos), np.asarray(c[1].target_pos))
 
 
 def test_no_key_reuse(small_env, params):
-    with jax.debug_key_reuse(True):
-        obs, state = small_env.reset(jax.random.key(0), params)
-        out = small_env.step(jax.random.key(1), state, jnp.asarray(1), params)
+    with jax.debug_key_reuse(True):  # checked while tracing: a jitted step is enough
+        obs, state = jax.jit(small_env.reset)(jax.random.key(0), params)
+        out = jax.jit(small_env.step)(jax.random.key(1), state, jnp.asarray(1), params)
         jax.block_until_ready(out[0])
 
 
@@ -242,8 +252,8 @@ def test_kinematic_mode_is_constant_velocity():
     np.testing.assert_allclose(s1.target_vel, s0.target_vel)
 
 
-def test_batch_mixes_targets(params, small_env):
-    _, states = jax.vmap(small_env.reset, in_axes=(0, None))(jax.random.split(jax.random.key(0), 32), params)
+def test_batch_mixes_targets(params, fast):
+    _, states = fast["vreset"](jax.random.split(jax.random.key(0), 32), params)
     assert set(np.asarray(states.target_index).tolist()) == {0, 1}
 
 
