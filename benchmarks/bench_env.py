@@ -77,6 +77,7 @@ def run(out: str | Path = "benchmarks/results_env.json", quick: bool = False, bu
         for n in env_sweep:
             points.append(bench_env_point(n, 64, mode, budget_s))
             print(_row(points[-1]), flush=True)
+            _write_partial(out, points)
         for res in res_sweep:
             if res == 64 and res_envs in env_sweep:
                 continue
@@ -101,6 +102,12 @@ def run(out: str | Path = "benchmarks/results_env.json", quick: bool = False, bu
     out.write_text(json.dumps(result, indent=2))
     print(f"wrote {out}")
     return result
+
+
+def _write_partial(out, points):
+    """Keep what was measured if a long sweep is stopped."""
+    Path(out).parent.mkdir(parents=True, exist_ok=True)
+    Path(out).write_text(json.dumps(dict(partial=True, env=points), indent=2))
 
 
 def _row(p: dict) -> str:
