@@ -29,7 +29,7 @@ from ramavt_jax import targets as targets_lib
 from ramavt_jax.checkpoint import CheckpointNotFoundError, CheckpointStore, has_checkpoint
 from ramavt_jax.train import ChunkMetrics, TrainConfig, Trainer, TrainingDivergedError, greedy_policy
 
-__all__ = ["run", "aggregate", "plot_curves", "evaluate_policy", "read_metrics"]
+__all__ = ["run", "RunSummary", "aggregate", "plot_curves", "evaluate_policy", "read_metrics"]
 
 
 # ============================================================================================ metrics
@@ -116,6 +116,12 @@ def final_evaluation(config: TrainConfig, params: Any, key: jax.Array) -> dict:
 
 
 # ============================================================================================ driver
+class RunSummary(dict):
+    """The JSON-friendly summary of a run; the final RunnerState (params, replay, ...) is ``.state``."""
+
+    state: Any = None
+
+
 _COMPILED: dict = {}  # (config, env id) -> (trainer, init, compiled chunk, compile seconds); a run's pieces are reused
 
 
@@ -159,7 +165,8 @@ def _resolve_resume(resume, ckpt_dir: Path) -> Path | None:
 
 def run(config: TrainConfig, out_dir, seed: int = 0, resume=True, progress: bool = True,
         max_chunks: int | None = None, evaluate_at_end: bool = True, tracking_env=None) -> dict:
-    """Train ``config`` into ``out_dir``; returns a summary dict (also the last metrics record and eval results).
+    """Train ``config`` into ``out_dir``; returns a :class:`RunSummary` (a JSON-friendly dict: counters, timings,
+    the last metrics record, eval results) whose ``.state`` is the final RunnerState.
 
     resume: True resumes from ``out_dir/checkpoints`` when present; False starts fresh (existing checkpoints are
       overwritten as the run proceeds); a path resumes from that checkpoint folder (error if none is there).
@@ -275,5 +282,6 @@ def run(config: TrainConfig, out_dir, seed: int = 0, resume=True, progress: bool
         results["eval_wall_s"] = time.time() - t
         (out / "eval.json").write_text(json.dumps(results, indent=1))
         summary["eval"] = results
-    summary["state"] = state
+    summary = RunSummary(summary)
+    summary.state = state
     return summary

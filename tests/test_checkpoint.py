@@ -60,7 +60,7 @@ def test_missing_checkpoint_is_a_clear_error(tmp_path):
 
 
 def _params(summary):
-    return summary["state"].learner.params
+    return summary.state.learner.params
 
 
 def test_resume_is_bit_identical(tmp_path):
@@ -72,7 +72,7 @@ def test_resume_is_bit_identical(tmp_path):
     rest = T.run(SMOKE, tmp_path / "split", seed=3, progress=False)
     assert rest["chunks_done"] == SMOKE.num_chunks
     _assert_trees_equal(_params(rest), _params(full))
-    _assert_trees_equal(rest["state"], full["state"])  # optimizer, target net, replay, envs, key: all identical
+    _assert_trees_equal(rest.state, full.state)  # optimizer, target net, replay, envs, key: all identical
     # the metrics log has one record per chunk, none duplicated by the resume
     records = [json.loads(l) for l in (tmp_path / "split" / "metrics.jsonl").read_text().splitlines()]
     assert [r["chunk"] for r in records] == list(range(1, SMOKE.num_chunks + 1))
