@@ -21,14 +21,11 @@ window from the same stored state, also without gradient), then the masked doubl
 
 from __future__ import annotations
 
-import dataclasses
 import functools
-import math
 from typing import Any
 
 import jax
 import jax.numpy as jnp
-import numpy as np
 import optax
 from flax import struct
 
@@ -37,7 +34,7 @@ from ramavt_jax import replay as replay_lib
 from ramavt_jax.baselines import Policy
 from ramavt_jax.losses import TDConfig, sequence_td_loss
 from ramavt_jax.network import NetworkConfig, RecurrentState, init_params, initial_state, make_network
-from ramavt_jax.render import CameraConfig
+from ramavt_jax.train_config import PRESETS, TrainConfig, preset  # noqa: F401 (re-exported: config lives there)
 
 __all__ = [
     "TrainConfig", "preset", "PRESETS", "TrainingDivergedError", "LearnerState", "ActorState", "RunnerState",
@@ -49,239 +46,6 @@ class TrainingDivergedError(RuntimeError):
     """The loss (or mean Q) became NaN/inf; the state that produced it is not checkpointed."""
 
 
-# ============================================================================================ config
-@dataclasses.dataclass(frozen=True)
-class TrainConfig:
-    """Everything a training run needs. Frozen; validated on construction. Sizes in env steps are totals over envs.
-
-    Derived values are properties (nothing is written back): ``sequence_length``, ``env_steps_per_iteration``,
-    ``updates_per_iteration``, ``env_steps_per_chunk``, ``num_chunks``.
-    """
-
-    env: env_lib.EnvConfig = env_lib.EnvConfig(camera=CameraConfig(resolution=64), autoreset="next_step")
-    env_params: tuple = ()  # ((name, value), ...) overrides of EnvParams for TRAINING (evaluation uses eval_params)
-    network: NetworkConfig = NetworkConfig()
-    # ---- acting
-    num_envs: int = 64
-    rollout_steps: int = 20  # env steps per env per iteration
-    iterations_per_chunk: int = 25
-    total_env_steps: int = 1_280_000
-    eps_start: float = 0.9  # DESIGN.md: 0.9 -> 0.1
-    eps_end: float = 0.1
-    eps_decay_steps: int = 800_000  # linear over this many env steps (all envs together)
-    # ---- replay
-    replay_capacity: int = 64_000  # env steps kept (all envs); divisible by num_envs
-    burn_in: int = 10
-    train_len: int = 20  # trained transitions per sampled window (window = burn_in + train_len + 1 observations)
-    sample_period: int = 1  # stride between admissible window starts
-    batch_size: int = 32  # windows per gradient step
-    learning_starts: int = 20_000  # env steps stored before the first update
-    obs_dtype: str = "uint8"  # replay storage of observations
-    replay_ratio: float = 1.0  # trained frames (batch_size * train_len) per env frame
-    # ---- learner
-    lr: float = 5e-4
-    adam_eps: float = 1e-4
-    max_grad_norm: float = 10.0  # 0 = no clipping
-    gamma: float = 0.97
-    n_step: int = 5
-    double_q: bool = True
-    value_rescale: bool = False
-    huber_delta: float | None = None  # None = MSE (DESIGN.md), else Huber
-    reward_scale: float = 0.1
-    target_update: str = "polyak"  # 'polyak' | 'period'
-    polyak_tau: float = 0.01
-    target_period: int = 500  # gradient steps between hard target syncs ('period')
-    augment: bool = False
-    augment_config: Any = None  # augment.AugmentConfig; None = crop + cutout only (flips/rot90 change action meaning)
-    # ---- host driver
-    eval_episodes: int = 32  # per split at the end (0 = no final evaluation)
-    eval_max_steps: int = 1000
-    checkpoint_every_chunks: int = 10  # 0 = only at the end / on interrupt
-    checkpoint_replay: bool = True  # store the replay buffer too: resume is bit-exact
-    keep_checkpoints: int = 2
-    tensorboard: bool = False
-    debug_nan_at_update: int = -1  # tests: the loss becomes NaN from this gradient step on (-1 = off)
-
-    def __post_init__(self):
-        def fail(msg):
-            raise ValueError(f"TrainConfig: {msg}")
-
-        def integer(name, lo=None):
-            v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, (int, np.integer)):
-                fail(f"{name} must be an int, got {v!r}")
-            if lo is not None and v < lo:
-                fail(f"{name} must be >= {lo}, got {v}")
-
-        if not isinstance(self.env, env_lib.EnvConfig):
-            fail(f"env must be an env.EnvConfig, got {type(self.env).__name__}")
-        if self.env.autoreset != "next_step":
-            fail("env.autoreset must be 'next_step' for training (the final observation of every episode is stored "
-                 f"and truncation bootstraps from it), got {self.env.autoreset!r}")
-        if not isinstance(self.network, NetworkConfig):
-            fail(f"network must be a network.NetworkConfig, got {type(self.network).__name__}")
-        if self.network.num_actions != env_lib.NUM_ACTIONS:
-            fail(f"network.num_actions={self.network.num_actions} but the env has {env_lib.NUM_ACTIONS} actions")
-        if self.network.norm == "batch":
-            fail("network.norm='batch' is not supported by the trainer (acting and learning must see the same "
-                 "network); use 'layer' or 'none'")
-        if isinstance(self.env_params, dict):
-            object.__setattr__(self, "env_params", tuple(sorted(self.env_params.items())))
-        known = {f.name for f in dataclasses.fields(env_lib.EnvParams)} - {"catalogue"}
-        for item in self.env_params:
-            if not (isinstance(item, tuple) and len(item) == 2 and item[0] in known):
-                fail(f"env_params must be (name, value) pairs naming EnvParams fields {sorted(known)}, got {item!r}")
-        for name in ("num_envs", "rollout_steps", "iterations_per_chunk", "total_env_steps", "replay_capacity",
-                     "train_len", "sample_period", "batch_size", "n_step", "target_period", "eval_max_steps",
-                     "keep_checkpoints"):
-            integer(name, 1)
-        for name in ("eps_decay_steps", "burn_in", "learning_starts", "eval_episodes", "checkpoint_every_chunks"):
-            integer(name, 0)
-        integer("debug_nan_at_update", -1)
-        for name in ("eps_start", "eps_end"):
-            if not 0.0 <= getattr(self, name) <= 1.0:
-                fail(f"{name} must be in [0, 1], got {getattr(self, name)}")
-        if not 0.0 <= self.gamma <= 1.0:
-            fail(f"gamma must be in [0, 1], got {self.gamma}")
-        if not self.lr > 0 or not self.adam_eps > 0:
-            fail(f"lr and adam_eps must be > 0, got lr={self.lr}, adam_eps={self.adam_eps}")
-        if not self.max_grad_norm >= 0:
-            fail(f"max_grad_norm must be >= 0 (0 = no clipping), got {self.max_grad_norm}")
-        if not self.reward_scale > 0:
-            fail(f"reward_scale must be > 0, got {self.reward_scale}")
-        if self.huber_delta is not None and not self.huber_delta > 0:
-            fail(f"huber_delta must be None (MSE) or > 0, got {self.huber_delta}")
-        if self.target_update not in ("polyak", "period"):
-            fail(f"target_update must be 'polyak' or 'period', got {self.target_update!r}")
-        if not 0.0 < self.polyak_tau <= 1.0:
-            fail(f"polyak_tau must be in (0, 1], got {self.polyak_tau}")
-        if self.n_step > self.train_len:
-            fail(f"n_step={self.n_step} must be <= train_len={self.train_len}")
-        if self.obs_dtype not in ("uint8", "float16", "float32"):
-            fail(f"obs_dtype must be 'uint8', 'float16' or 'float32', got {self.obs_dtype!r}")
-        if self.total_env_steps % self.env_steps_per_chunk:
-            n = self.env_steps_per_chunk
-            fail(f"total_env_steps={self.total_env_steps} must be a multiple of the env steps per chunk "
-                 f"(num_envs * rollout_steps * iterations_per_chunk = {n}); try {max(1, round(self.total_env_steps / n)) * n}")
-        if self.replay_capacity % self.num_envs:
-            fail(f"replay_capacity={self.replay_capacity} must be divisible by num_envs={self.num_envs}")
-        per_env = self.replay_capacity // self.num_envs
-        if per_env < max(self.sequence_length, self.rollout_steps):
-            fail(f"replay_capacity={self.replay_capacity} leaves {per_env} steps per env, fewer than the window "
-                 f"(burn_in + train_len + 1 = {self.sequence_length}) or rollout_steps ({self.rollout_steps})")
-        if self.sample_period > self.sequence_length:
-            fail(f"sample_period={self.sample_period} must be <= the window length {self.sequence_length}")
-        if self.learning_starts > self.replay_capacity:
-            fail(f"learning_starts={self.learning_starts} exceeds replay_capacity={self.replay_capacity}")
-        if self.learning_starts > self.total_env_steps:
-            fail(f"learning_starts={self.learning_starts} exceeds total_env_steps={self.total_env_steps}: nothing would be learned")
-        if not self.replay_ratio > 0:
-            fail(f"replay_ratio must be > 0, got {self.replay_ratio}")
-        exact = self.replay_ratio * self.env_steps_per_iteration / (self.batch_size * self.train_len)
-        if exact < 1 - 1e-9 or abs(exact - round(exact)) > 1e-6:
-            fail(f"replay_ratio={self.replay_ratio} gives {exact:.4g} gradient steps per iteration (replay_ratio * "
-                 f"num_envs * rollout_steps / (batch_size * train_len)); it must be a whole number >= 1")
-        if not self.network.recurrent and self.burn_in < self.network.frame_stack - 1:
-            fail(f"variant 'drlavt' rebuilds its {self.network.frame_stack}-frame stack from the window's own "
-                 f"observations during burn-in: burn_in must be >= frame_stack - 1 = {self.network.frame_stack - 1}, "
-                 f"got {self.burn_in}")
-        if self.augment:
-            try:
-                from ramavt_jax import augment as _aug  # noqa: F401
-            except ImportError as e:  # pragma: no cover
-                fail(f"augment=True needs ramavt_jax.augment ({e})")
-            if self.augment_config is not None and not isinstance(self.augment_config, _aug.AugmentConfig):
-                fail(f"augment_config must be an augment.AugmentConfig, got {type(self.augment_config).__name__}")
-
-    # ---- derived (read-only)
-    @property
-    def sequence_length(self) -> int:
-        return self.burn_in + self.train_len + 1
-
-    @property
-    def env_steps_per_iteration(self) -> int:
-        return self.num_envs * self.rollout_steps
-
-    @property
-    def updates_per_iteration(self) -> int:
-        return int(round(self.replay_ratio * self.env_steps_per_iteration / (self.batch_size * self.train_len)))
-
-    @property
-    def env_steps_per_chunk(self) -> int:
-        return self.env_steps_per_iteration * self.iterations_per_chunk
-
-    @property
-    def num_chunks(self) -> int:
-        return self.total_env_steps // self.env_steps_per_chunk
-
-    def to_dict(self) -> dict:
-        """JSON-friendly nested dict (for config.json and checkpoint metadata)."""
-        def conv(x):
-            if dataclasses.is_dataclass(x):
-                return {f.name: conv(getattr(x, f.name)) for f in dataclasses.fields(x)}
-            if isinstance(x, (tuple, list)):
-                return [conv(v) for v in x]
-            if isinstance(x, (np.integer, np.floating)):
-                return x.item()
-            return x
-        return conv(self)
-
-
-def _quick() -> TrainConfig:
-    """~5 min on 2 CPU cores (4 min training + compile + evaluation); the DESIGN.md task (default training EnvParams)
-    at 32x32 depth with a small RAMAVT (stride-2 first conv, 16-32-32 channels, dense/LSTM 128), replay ratio 2."""
-    return TrainConfig(
-        env=env_lib.EnvConfig(camera=CameraConfig(resolution=32), autoreset="next_step"),
-        network=NetworkConfig(variant="ramavt", channels=(16, 32, 32), kernels=(3, 3, 3), strides=(2, 1, 1),
-                              pools=(True, True, True), se_reduction=4, attention_heads=4, dense=128, lstm=128,
-                              lstm_layers=1, head=128),
-        num_envs=64, rollout_steps=20, iterations_per_chunk=25, total_env_steps=384_000,
-        eps_start=1.0, eps_end=0.05, eps_decay_steps=200_000,
-        replay_capacity=64_000, burn_in=10, train_len=20, batch_size=32, learning_starts=10_240,
-        replay_ratio=2.0, lr=5e-4, gamma=0.97, n_step=5, reward_scale=0.1, target_update="polyak", polyak_tau=0.01,
-        eval_episodes=32, checkpoint_every_chunks=5,
-    )
-
-
-def _paper() -> TrainConfig:
-    """The paper's settings: 256x256 depth, full RAMAVT, batch 64, Adam 1e-4, gamma 0.99, 50,000-step replay, plain
-    1-step DRQN targets with a hard-synced target net, MSE, epsilon 0.9 -> 0.1, *orig* windows of 4 burn-in + 8
-    trained steps. Needs hours on a CPU; meant for a GPU machine."""
-    return TrainConfig(
-        env=env_lib.EnvConfig(camera=CameraConfig(resolution=256), autoreset="next_step"),
-        network=NetworkConfig(variant="ramavt"),
-        num_envs=16, rollout_steps=20, iterations_per_chunk=10, total_env_steps=2_000_000,
-        eps_start=0.9, eps_end=0.1, eps_decay_steps=1_000_000,
-        replay_capacity=50_000, burn_in=4, train_len=8, batch_size=64, learning_starts=10_000,
-        replay_ratio=1.6, lr=1e-4, gamma=0.99, n_step=1, double_q=False, reward_scale=1.0, target_update="period",
-        target_period=1000, checkpoint_every_chunks=20, eval_episodes=32,
-    )
-
-
-def _smoke() -> TrainConfig:
-    """Seconds of compute: plumbing checks (tests, CI). 16x16 depth, a tiny plain DRQN, 4 chunks of 320 steps."""
-    return TrainConfig(
-        env=env_lib.EnvConfig(camera=CameraConfig(resolution=16), autoreset="next_step"),
-        network=NetworkConfig(variant="origin", channels=(8, 8), kernels=(3, 3), strides=(1, 1), pools=(True, True),
-                              dense=32, lstm=32, lstm_layers=1, head=32),
-        num_envs=8, rollout_steps=10, iterations_per_chunk=4, total_env_steps=1280, eps_decay_steps=1280,
-        replay_capacity=800, burn_in=3, train_len=5, batch_size=4, learning_starts=160, replay_ratio=0.5, n_step=2,
-        eval_episodes=4, eval_max_steps=50, checkpoint_every_chunks=2,
-    )
-
-
-PRESETS = {"quick": _quick, "paper": _paper, "smoke": _smoke}
-
-
-def preset(name: str, **overrides: Any) -> TrainConfig:
-    """A named configuration ('quick' | 'paper' | 'smoke'); keyword overrides replace top-level fields."""
-    if name not in PRESETS:
-        raise ValueError(f"unknown preset {name!r}; choose one of {sorted(PRESETS)}")
-    cfg = PRESETS[name]()
-    return dataclasses.replace(cfg, **overrides) if overrides else cfg
-
-
-# ============================================================================================ state containers
 @struct.dataclass
 class LearnerState:
     params: Any

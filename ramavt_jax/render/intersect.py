@@ -24,7 +24,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-from ramavt_jax.targets import BOX, CAPSULE, CYLINDER, ELLIPSOID, SPHERE, TargetModel
+from ramavt_jax.targets import BOX, CAPSULE, CYLINDER, SPHERE, TargetModel
 
 # Rows of the per-geom feature table.
 M0, BQ0, C, Q0, LO0, HI0, O0, CAPHL, W0 = 0, 9, 12, 13, 16, 19, 22, 25, 26

@@ -11,7 +11,6 @@ Results are gathered back into full images at the end (tiles that were not cast 
 from __future__ import annotations
 
 import functools
-import math
 
 import jax
 import jax.numpy as jnp
