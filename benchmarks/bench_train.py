@@ -12,7 +12,6 @@ Timings on shared machines vary (~+-30%): each figure is the median of ``repeats
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 import os
 import platform
@@ -22,7 +21,6 @@ from pathlib import Path
 
 import jax
 import jax.numpy as jnp
-import numpy as np
 
 from ramavt_jax import env as env_lib
 from ramavt_jax import replay as replay_lib
