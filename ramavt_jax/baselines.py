@@ -105,7 +105,7 @@ def depth_tracker_policy(
         desired = target_vel + kp * (position - params.desired_pos)
         action = quantise_velocity(desired, params.speed)
         action = jnp.where(seen, action, quantise_velocity(pstate.last_command, params.speed))
-        command = env_lib.ACTIONS[action] * params.speed
+        command = jnp.asarray(env_lib.ACTIONS)[action] * params.speed
         new_state = DepthTrackerState(
             last_position=jnp.where(seen, position, pstate.last_position),
             target_vel=target_vel,

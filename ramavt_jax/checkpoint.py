@@ -57,7 +57,11 @@ class CheckpointStore:
 
     def save(self, step: int, state: Any, meta: dict, force: bool = True) -> None:
         """Write ``state`` (any pytree of arrays) and ``meta`` (JSON-serialisable) as checkpoint ``step``."""
-        flat, count = _flat(jax.tree.map(np.asarray, jax.device_get(state)))
+        leaves = jax.tree.leaves(state)
+        if all(getattr(x, "is_fully_addressable", True) for x in leaves):
+            state = jax.tree.map(np.asarray, jax.device_get(state))
+        # else: a multi-host run; orbax writes each process's shards of the global arrays itself
+        flat, count = _flat(state)
         meta = dict(meta, _num_leaves=count)
         self.manager.save(int(step), args=ocp.args.Composite(state=ocp.args.StandardSave(flat),
                                                              meta=ocp.args.JsonSave(meta)), force=force)

@@ -104,9 +104,14 @@ def train_cmd(
     out: Path = Path("runs/quick"),
     total_env_steps: int | None = None,
     augment: bool | None = None,
+    eval_episodes: int | None = None,
     resume: bool = True,
     tensorboard: bool = False,
     progress: bool = True,
+    devices: int = 0,
+    coordinator_address: str | None = None,
+    num_processes: int | None = None,
+    process_id: int | None = None,
 ) -> None:
     """Train a tracker (recurrent DQN with burn-in), then evaluate it greedily on the train and held-out targets.
 
@@ -117,15 +122,25 @@ def train_cmd(
             batch 64, lr 1e-4, gamma 0.99, 50,000-step replay), 'smoke' (seconds; plumbing only).
         network: network variant (default: the preset's).
         obs: observation mode (default: the preset's).
-        seeds: number of independent seeds, trained one after another into out/seed_<k>.
+        seeds: number of independent seeds, trained together as ONE jitted program (vmap over seeds, each with
+            its own envs and replay) into out/seed_<k>/ (each a complete run folder).
         seed: first seed.
         out: run directory.
         total_env_steps: override the preset's training length (env steps over all envs).
         augment: use image augmentation (default: the preset's).
+        eval_episodes: episodes per target split in the final evaluation (default: the preset's; 0 = none).
         resume: continue from out/checkpoints when present.
         tensorboard: also log to out/tb with tensorboardX.
         progress: show a progress bar.
+        devices: split the envs and replay over this many devices (0 = all visible; 1 = one device). More CPU
+            devices for testing: XLA_FLAGS=--xla_force_host_platform_device_count=4.
+        coordinator_address: multi-host run: host:port of process 0 (or JAX_COORDINATOR_ADDRESS).
+        num_processes: multi-host run: number of processes (or JAX_NUM_PROCESSES).
+        process_id: multi-host run: this process's index (or JAX_PROCESS_ID).
     """
+    from ramavt_jax import distributed
+
+    distributed.initialize(coordinator_address, num_processes, process_id)
     from ramavt_jax import train
 
     cfg = train.preset(preset)
@@ -138,18 +153,26 @@ def train_cmd(
         overrides["total_env_steps"] = total_env_steps
     if augment is not None:
         overrides["augment"] = augment
+    if eval_episodes is not None:
+        overrides["eval_episodes"] = eval_episodes
     if tensorboard:
         overrides["tensorboard"] = True
     cfg = dataclasses.replace(cfg, **overrides) if overrides else cfg
     if seeds < 1:
         raise ValueError(f"--seeds must be >= 1, got {seeds}")
-    for k in range(seeds):
-        run_dir = out if seeds == 1 else out / f"seed_{seed + k}"
-        summary = train.run(cfg, run_dir, seed=seed + k, resume=resume, progress=progress)
-        print(json.dumps({"run": str(run_dir), **{key: v for key, v in summary.items() if not isinstance(v, dict)}},
+    summary = train.run(cfg, out, seed=seed, resume=resume, progress=progress, num_seeds=seeds,
+                        num_devices=devices or None)
+    if not distributed.is_primary():
+        return
+    for one in summary.get("seeds", [summary]):
+        print(json.dumps({"run": one["out_dir"], **{k: v for k, v in one.items() if not isinstance(v, dict)}},
                          default=str))
-        if isinstance(summary.get("eval"), dict):
-            print(json.dumps(summary["eval"], indent=1, default=str))
+        if isinstance(one.get("eval"), dict):
+            print(json.dumps(one["eval"], indent=1, default=str))
+    mem = summary["memory"]
+    print(f"memory per seed: state {mem['state_bytes_per_seed'] / 2**20:.1f} MiB (replay "
+          f"{mem['replay_bytes_per_seed'] / 2**20:.1f} MiB); chunk working memory {mem['chunk_temp_bytes'] / 2**20:.1f} "
+          f"MiB for {seeds} seed(s) on {summary['devices']} device(s), {summary['processes']} process(es)")
 
 
 def main(argv: list[str] | None = None) -> None:

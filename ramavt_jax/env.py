@@ -26,6 +26,7 @@ from typing import Any
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 from flax import struct
 
 from ramavt_jax import dynamics, render
@@ -33,7 +34,9 @@ from ramavt_jax import targets as targets_lib
 from ramavt_jax.render import CameraConfig, Lighting
 
 # 11 velocity commands in the camera frame (original SNCOAT action set), scaled by EnvParams.speed.
-ACTIONS = jnp.array(
+# Module constants are numpy, not jnp: importing the package must not start a JAX backend (a multi-host run calls
+# jax.distributed.initialize after the imports).
+ACTIONS = np.array(
     [
         [0, 0, 0],
         [1, 0, 0], [-1, 0, 0],
@@ -41,13 +44,13 @@ ACTIONS = jnp.array(
         [0, 0, 1], [0, 0, -1],
         [1, 1, 0], [1, -1, 0], [-1, 1, 0], [-1, -1, 0],
     ],
-    dtype=jnp.float32,
+    dtype=np.float32,
 )
 NUM_ACTIONS = ACTIONS.shape[0]
 OBS_CHANNELS = {"depth": 1, "color": 3, "rgbd": 4}
 
 # Hill coordinates of the camera axes (columns): hill = HILL_FROM_CAM @ cam.
-HILL_FROM_CAM = jnp.array([[0.0, -1.0, 0.0], [0.0, 0.0, 1.0], [-1.0, 0.0, 0.0]], dtype=jnp.float32)
+HILL_FROM_CAM = np.array([[0.0, -1.0, 0.0], [0.0, 0.0, 1.0], [-1.0, 0.0, 0.0]], dtype=np.float32)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -262,7 +265,7 @@ class TrackingEnv:
     def transition(self, key: jax.Array, state: EnvState, action: jax.Array, params: EnvParams) -> EnvState:
         """Physics only: apply the velocity command and advance target and chaser by one (possibly delayed) step."""
         k_noise, k_delay = jax.random.split(key)
-        command_cam = ACTIONS[action] * params.speed
+        command_cam = jnp.asarray(ACTIONS)[action] * params.speed
         command_cam = command_cam * (1.0 + params.actuator_noise * jax.random.normal(k_noise, (3,)))
         duration = params.dt + params.delay_max * jax.random.uniform(k_delay, ())
         command = HILL_FROM_CAM @ command_cam

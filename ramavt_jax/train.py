@@ -29,6 +29,7 @@ import jax.numpy as jnp
 import optax
 from flax import struct
 
+from ramavt_jax import distributed
 from ramavt_jax import env as env_lib
 from ramavt_jax import replay as replay_lib
 from ramavt_jax.baselines import Policy
@@ -97,10 +98,17 @@ def _raw_key(key: jax.Array) -> jax.Array:
 
 # ============================================================================================ trainer
 class Trainer:
-    """Pure pieces of training for one config: ``init(key)``, ``chunk(state)``, ``train(key)`` (vmappable)."""
+    """Pure pieces of training for one config: ``init(key)``, ``chunk(state)``, ``train(key)`` (vmappable).
 
-    def __init__(self, config: TrainConfig, tracking_env: env_lib.TrackingEnv | None = None):
+    ``mesh`` (a 1-D ``jax.sharding.Mesh``, see :mod:`ramavt_jax.distributed`): the program keeps the envs and the
+    sampled learner batch split over its devices (sharding hints only; the maths is unchanged). The caller jits
+    with :func:`distributed.runner_shardings` as in/out shardings.
+    """
+
+    def __init__(self, config: TrainConfig, tracking_env: env_lib.TrackingEnv | None = None, mesh=None):
+        distributed.check_divisible(config.num_envs, mesh)
         self.config = config
+        self.mesh = mesh
         self.env = tracking_env if tracking_env is not None else env_lib.TrackingEnv(config.env)
         self.env_params = self.env.default_params(**dict(config.env_params))
         self.obs_shape = tuple(config.env.obs_shape)
@@ -129,6 +137,16 @@ class Trainer:
             terminated=jnp.zeros((), bool), truncated=jnp.zeros((), bool), is_first=jnp.zeros((), bool),
             recurrent_state=(s.h[:, 0], s.c[:, 0]))
 
+    def _shard_actor(self, actor: ActorState) -> ActorState:
+        if self.mesh is None:
+            return actor
+        m, ns = self.mesh, actor.net_state
+        return actor.replace(
+            env_state=distributed.constrain_envs(actor.env_state, m), obs=distributed.constrain_envs(actor.obs, m),
+            is_first=distributed.constrain_envs(actor.is_first, m),
+            net_state=ns.replace(h=distributed.constrain_envs(ns.h, m, 1), c=distributed.constrain_envs(ns.c, m, 1),
+                                 frames=distributed.constrain_envs(ns.frames, m)))
+
     def epsilon(self, env_steps: jax.Array) -> jax.Array:
         c = self.config
         frac = jnp.clip(env_steps / max(c.eps_decay_steps, 1), 0.0, 1.0) if c.eps_decay_steps else 1.0
@@ -148,8 +166,8 @@ class Trainer:
                                opt_state=self.optimizer.init(params), updates=jnp.zeros((), jnp.int32))
         obs, env_state = jax.vmap(self.env.reset, in_axes=(0, None))(jax.random.split(k_env, c.num_envs),
                                                                      self.env_params)
-        actor = ActorState(env_state=env_state, obs=obs, is_first=jnp.ones((c.num_envs,), bool),
-                           net_state=initial_state(c.network, c.num_envs, self.obs_shape))
+        actor = self._shard_actor(ActorState(env_state=env_state, obs=obs, is_first=jnp.ones((c.num_envs,), bool),
+                                             net_state=initial_state(c.network, c.num_envs, self.obs_shape)))
         return RunnerState(learner=learner, actor=actor, replay=self.replay.init(), key=key,
                            env_steps=jnp.zeros((), jnp.int32), chunk=jnp.zeros((), jnp.int32))
 
@@ -232,7 +250,7 @@ class Trainer:
         """One gradient step on a fresh sample. Returns (learner, (loss, q_mean, grad_norm))."""
         c = self.config
         k_sample, k_aug = jax.random.split(key)
-        batch = self.replay.sample(replay_state, k_sample)
+        batch = distributed.constrain_batch(self.replay.sample(replay_state, k_sample), self.mesh, c.batch_size)
         prepared = self.prepare(learner.params, learner.target_params, batch, k_aug)
         (loss, aux), grads = jax.value_and_grad(self.trained_loss, has_aux=True)(learner.params, prepared)
         if c.debug_nan_at_update >= 0:
@@ -268,6 +286,8 @@ class Trainer:
     def iteration(self, runner: RunnerState) -> tuple[RunnerState, ChunkMetrics]:
         key, k_act, k_learn = jax.random.split(runner.key, 3)
         actor, chunk, stats, eps = self.rollout(runner.learner.params, runner.actor, runner.env_steps, k_act)
+        actor = self._shard_actor(actor)
+        chunk = distributed.constrain_envs(chunk, self.mesh)
         replay_state = self.replay.add(runner.replay, chunk)
         env_steps = runner.env_steps + self.config.env_steps_per_iteration
         learner, (loss, q, gn, n) = self.learn(runner.learner, replay_state, env_steps, k_learn)
@@ -290,9 +310,9 @@ class Trainer:
         return {"runner_state": runner, "metrics": metrics}
 
 
-def make_train(config: TrainConfig, tracking_env: env_lib.TrackingEnv | None = None):
+def make_train(config: TrainConfig, tracking_env: env_lib.TrackingEnv | None = None, mesh=None):
     """purejaxrl-style: returns ``train(key) -> {'runner_state', 'metrics'}``; jit it, vmap it over seeds."""
-    return Trainer(config, tracking_env).train
+    return Trainer(config, tracking_env, mesh).train
 
 
 # ============================================================================================ greedy policy

@@ -1,0 +1,28 @@
+#!/usr/bin/env bash
+# Reproduction runs behind RESULTS.md (Tables I and III), scaled to a 2-core CPU: the 'quick' preset (32x32, small
+# networks, 384k env steps) for every agent / input / ablation, seed 0; plus one longer RAMAVT-depth run.
+# Each run folder gets metrics.jsonl, checkpoints/, training_curves.png, eval.json; `time` lines go to stdout.
+# Usage: bash scripts/reproduce.sh [runs/repro]   (re-running resumes finished/unfinished runs from checkpoints)
+set -euo pipefail
+OUT=${1:-runs/repro}
+mkdir -p "$OUT"
+train() {  # name, then ramavt-train flags
+  local name=$1; shift
+  local t0=$(date +%s)
+  ramavt train --preset quick --seed 0 --out "$OUT/$name" --no-progress "$@" > "$OUT/$name.log" 2>&1
+  echo "$name $(( $(date +%s) - t0 )) s" | tee -a "$OUT/wall_times.txt"
+}
+# Table I: both agents, three input modes (augmentation on, as in the paper's full agents)
+train ramavt_depth --network ramavt --obs depth --augment True
+# the target run: RAMAVT depth, 3x the quick budget, quick-preset recipe (no augmentation)
+train ramavt_depth_long --network ramavt --obs depth --augment False --total-env-steps 1152000
+train drlavt_depth --network drlavt --obs depth --augment True
+train ramavt_rgbd  --network ramavt --obs rgbd  --augment True
+train ramavt_color --network ramavt --obs color --augment True
+train drlavt_rgbd  --network drlavt --obs rgbd  --augment True
+train drlavt_color --network drlavt --obs color --augment True
+# Table III: cumulative ablation on depth (RAMAVT + augment is ramavt_depth above)
+train origin       --network origin --obs depth --augment False
+train origin_aug   --network origin --obs depth --augment True
+train se_aug       --network se     --obs depth --augment True
+train mha_aug      --network mha    --obs depth --augment True
