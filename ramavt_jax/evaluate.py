@@ -422,7 +422,10 @@ def eval_cmd(
         overrides = {k: v for k, v in dict(cfg.env_params).items() if k not in ("dist_weight", "lost_patience")}
         info = {"run_dir": str(run_dir), "variant": cfg.network.variant, "augment": bool(cfg.augment),
                 "seed": lr.seed, "step": lr.step, "env_steps": lr.meta.get("env_steps")}
-        entries.append(tables_lib.Entry(Path(run_dir).name, "checkpoint", lr.policy, cfg.env, overrides,
+        row = Path(run_dir).name
+        if row.startswith("seed_"):  # a folder of `ramavt train --seeds N`: name the sweep too
+            row = f"{Path(run_dir).resolve().parent.name}/{row}"
+        entries.append(tables_lib.Entry(row, "checkpoint", lr.policy, cfg.env, overrides,
                                         cfg.env.obs_mode, info))
     wanted = [policy] if policy != "checkpoint" else []
     if baselines:
