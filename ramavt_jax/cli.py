@@ -71,7 +71,7 @@ def render_cmd(
 
 
 def bench_cmd(
-    what: Annotated[Literal["env", "train", "network"], tyro.conf.Positional],
+    what: Annotated[Literal["env", "train", "network", "scaling"], tyro.conf.Positional],
     out: Path | None = None,
     quick: bool = False,
 ) -> None:
@@ -79,7 +79,10 @@ def bench_cmd(
 
     Args:
         what: 'env' (env steps/s and frames/s vs envs and resolution, beside MuJoCo's mj_multiRay),
-            'train' (trainer throughput per network), 'network' (inference and train-step speed).
+            'train' (trainer throughput per network), 'network' (inference and train-step speed),
+            'scaling' (env steps/s and trained frames/s vs envs per device and devices, one worker process per
+            device count: forced CPU devices, or the real ones where an accelerator is visible; also writes
+            scaling.png beside the JSON).
         out: JSON output path (default benchmarks/results_<what>.json).
         quick: fewer sizes and repeats (a smoke run).
     """

@@ -30,3 +30,27 @@ def test_render_writes_gif(tmp_path, capsys):
 def test_render_unknown_target_is_a_clear_error(tmp_path):
     with pytest.raises(ValueError, match="unknown target"):
         cli.main(["render", "--target", "Enterprise", "--steps", "2", "--out", str(tmp_path / "x.gif")])
+
+
+def test_bench_scaling_offered_and_splits_envs_over_two_forced_cpu_devices(tmp_path, capsys):
+    """`ramavt bench scaling` is a choice; one tiny worker process with 2 forced CPU devices holds the env state
+    split over both (2 envs each) and the parent writes JSON and the plot."""
+    import importlib.util
+    import json
+    from pathlib import Path
+
+    with pytest.raises(SystemExit):
+        cli.main(["bench", "--help"])
+    assert "scaling" in capsys.readouterr().out
+    path = Path(cli.__file__).resolve().parent.parent / "benchmarks" / "bench_scaling.py"
+    spec = importlib.util.spec_from_file_location("bench_scaling", path)
+    bench = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(bench)
+    out = tmp_path / "scaling.json"
+    result = bench.run(out=out, devices=(2,), envs_per_device=(2,), train_envs_per_device=0, real_devices=False,
+                       resolution=16, budget_s=0.05, env_partitions=("shard_map",), timeout_s=150)
+    (point,) = result["points"]
+    assert point["devices"] == 2 and point["state_devices"] == 2 and point["rows_per_shard"] == [2]
+    assert point["env_steps_per_s"] > 0 and point["partition"] == "shard_map"
+    assert json.loads(out.read_text())["partial"] is False
+    assert (tmp_path / "scaling.png").is_file()
