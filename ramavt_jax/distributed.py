@@ -10,7 +10,9 @@ Placement (GSPMD partitions the one jitted program; XLA inserts the collectives)
 
 * the acting envs (``actor``: env state, observation, recurrent state) and the replay rows (``replay.experience``,
   one row per env) are split along the env axis over the ``'data'`` mesh axis, so each device steps, renders and
-  stores ``num_envs / devices`` envs;
+  stores ``num_envs / devices`` envs. The env step itself runs under ``jax.shard_map`` (each device its own envs):
+  left to GSPMD, the renderer's batch-wide work list would be all-gathered and each device would render the
+  whole batch;
 * params, target params, optimiser state, PRNG key and counters are replicated;
 * each sampled learner batch is split along its window axis (when ``batch_size`` divides), so every device
   computes the gradient of its windows and XLA all-reduces (averages) them before the replicated Adam step.
@@ -34,8 +36,9 @@ import numpy as np
 from jax.sharding import Mesh, NamedSharding
 from jax.sharding import PartitionSpec as P
 
-__all__ = ["DATA_AXIS", "initialize", "make_mesh", "replicated", "runner_shardings", "check_divisible",
-           "constrain_envs", "constrain_batch", "local_copy", "is_primary", "ShardingError"]
+__all__ = ["P", "DATA_AXIS", "initialize", "make_mesh", "replicated", "runner_shardings", "check_divisible",
+           "check_seeds_divisible", "constrain_envs", "constrain_batch", "local_copy", "is_primary",
+           "ShardingError"]
 
 DATA_AXIS = "data"
 
@@ -128,11 +131,25 @@ def _env_axis_spec(path: tuple, ndim: int, lead: tuple) -> P:
 
 
 def runner_shardings(abstract_state: Any, mesh: Mesh, seed_axis: bool = False) -> Any:
-    """NamedSharding per RunnerState leaf (``abstract_state`` from ``jax.eval_shape``); ``seed_axis``: every leaf
-    has a leading [seeds] axis (vmapped training), which stays unsplit."""
-    lead = (None,) if seed_axis else ()
+    """NamedSharding per RunnerState leaf (``abstract_state`` from ``jax.eval_shape``).
+
+    One seed: env-axis leaves split over 'data', the rest replicated. ``seed_axis`` (vmapped seeds, every leaf
+    [seeds, ...]): the seeds are split over 'data' instead, so each device trains its own seeds whole and the
+    devices never talk (a sweep needs no gradient averaging)."""
+    if seed_axis:
+        return jax.tree.map(lambda leaf: NamedSharding(mesh, P(DATA_AXIS)), abstract_state)
     return jax.tree_util.tree_map_with_path(
-        lambda path, leaf: NamedSharding(mesh, _env_axis_spec(path, len(leaf.shape), lead)), abstract_state)
+        lambda path, leaf: NamedSharding(mesh, _env_axis_spec(path, len(leaf.shape), ())), abstract_state)
+
+
+def check_seeds_divisible(num_seeds: int, mesh: Mesh | None) -> None:
+    if mesh is None or num_seeds == 1:
+        return
+    n = mesh.devices.size
+    if num_seeds % n:
+        raise ShardingError(f"{num_seeds} seeds on {n} devices: several seeds are split over the devices whole "
+                            f"(each device trains num_seeds / devices seeds), so num_seeds must be a multiple of {n}; "
+                            f"or train one seed over all devices, or pass --devices 1")
 
 
 # ============================================================================================ in-program hints

@@ -137,6 +137,16 @@ class Trainer:
             terminated=jnp.zeros((), bool), truncated=jnp.zeros((), bool), is_first=jnp.zeros((), bool),
             recurrent_state=(s.h[:, 0], s.c[:, 0]))
 
+    def _per_device(self, batched_fn):
+        """Run a function of per-env arrays ([N, ...] in and out) on each device's own envs (``jax.shard_map``).
+        Needed for the env step: left to the automatic partitioner, the renderer's batch-wide work list is
+        all-gathered and every device re-renders the whole batch (measured 0.1-0.7x of one device, see
+        benchmarks/RESULTS.md). The keys are split globally first, so every env draws what it would unsharded."""
+        if self.mesh is None:
+            return batched_fn
+        spec = distributed.P(distributed.DATA_AXIS)
+        return jax.shard_map(batched_fn, mesh=self.mesh, in_specs=spec, out_specs=spec, check_vma=False)
+
     def _shard_actor(self, actor: ActorState) -> ActorState:
         if self.mesh is None:
             return actor
@@ -164,8 +174,8 @@ class Trainer:
         params = init_params(c.network, k_net, self.obs_shape)["params"]
         learner = LearnerState(params=params, target_params=jax.tree.map(jnp.copy, params),
                                opt_state=self.optimizer.init(params), updates=jnp.zeros((), jnp.int32))
-        obs, env_state = jax.vmap(self.env.reset, in_axes=(0, None))(jax.random.split(k_env, c.num_envs),
-                                                                     self.env_params)
+        obs, env_state = self._per_device(jax.vmap(lambda k: self.env.reset(k, self.env_params)))(
+            jax.random.split(k_env, c.num_envs))
         actor = self._shard_actor(ActorState(env_state=env_state, obs=obs, is_first=jnp.ones((c.num_envs,), bool),
                                              net_state=initial_state(c.network, c.num_envs, self.obs_shape)))
         return RunnerState(learner=learner, actor=actor, replay=self.replay.init(), key=key,
@@ -180,8 +190,9 @@ class Trainer:
         greedy = jnp.argmax(q[:, 0], axis=-1).astype(jnp.int32)
         explore = jax.random.uniform(k_eps, (c.num_envs,)) < epsilon
         action = jnp.where(explore, jax.random.randint(k_rand, (c.num_envs,), 0, env_lib.NUM_ACTIONS), greedy)
-        obs, env_state, reward, terminated, truncated, info = jax.vmap(self.env.step, in_axes=(0, 0, 0, None))(
-            jax.random.split(k_env, c.num_envs), actor.env_state, action, self.env_params)
+        obs, env_state, reward, terminated, truncated, info = self._per_device(
+            jax.vmap(lambda k, s, a: self.env.step(k, s, a, self.env_params)))(
+            jax.random.split(k_env, c.num_envs), actor.env_state, action)
         transition = replay_lib.Transition(
             obs=actor.obs, action=action, reward=reward, terminated=terminated, truncated=truncated,
             is_first=actor.is_first, recurrent_state=(actor.net_state.h, actor.net_state.c))

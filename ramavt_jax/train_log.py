@@ -150,7 +150,9 @@ def _compiled(config: TrainConfig, tracking_env, num_seeds: int = 1, mesh=None) 
     key = (dataclasses.replace(config, learning_starts=0, **host_only), config.learning_starts, num_seeds, mesh,
            id(tracking_env))
     if key not in _COMPILED:
-        trainer = Trainer(config, tracking_env, mesh)
+        distributed.check_seeds_divisible(num_seeds, mesh)
+        # several seeds: the seed axis is split over the devices and each seed's program runs whole on one device
+        trainer = Trainer(config, tracking_env, mesh if num_seeds == 1 else None)
         init_fn, chunk_fn = trainer.init, trainer.chunk
         key_shape = (2,)
         if num_seeds > 1:

@@ -54,6 +54,32 @@ def sharded_vs_unsharded(chunks: int) -> dict:
     }
 
 
+def seeds_over_devices() -> dict:
+    """2 seeds in one program on 2 devices (one seed per device) vs the same program on one device."""
+    from ramavt_jax import distributed, train_log
+    from ramavt_jax.train_config import preset
+
+    cfg = preset("smoke")
+    keys = np.stack([np.asarray(jax.random.PRNGKey(s)) for s in (3, 4)])
+    out = {}
+    for name, mesh in (("single", None), ("sharded", distributed.make_mesh())):
+        prog = train_log._compiled(cfg, None, 2, mesh)
+        state = prog.init(keys)
+        for _ in range(2):
+            state, _ = prog.chunk(state)
+        out[name] = state
+    obs = out["sharded"].actor.obs
+    try:
+        train_log._compiled(cfg, None, 3, distributed.make_mesh())
+        error = None
+    except distributed.ShardingError as e:
+        error = str(e)
+    return {"params_max_diff": _max_diff(out["single"].learner.params, out["sharded"].learner.params),
+            "obs_devices": len(obs.sharding.device_set),
+            "obs_shard_shapes": sorted({tuple(s.data.shape) for s in obs.addressable_shards}),
+            "three_seeds_error": error}
+
+
 def indivisible() -> dict:
     from ramavt_jax import distributed, train_log
     from ramavt_jax.train_config import preset
@@ -68,5 +94,10 @@ def indivisible() -> dict:
 
 if __name__ == "__main__":
     mode = sys.argv[1]
-    out = sharded_vs_unsharded(int(sys.argv[2])) if mode == "shard" else indivisible()
+    if mode == "shard":
+        out = sharded_vs_unsharded(int(sys.argv[2]))
+    elif mode == "seeds":
+        out = seeds_over_devices()
+    else:
+        out = indivisible()
     print("RESULT " + json.dumps(out))

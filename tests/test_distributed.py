@@ -62,6 +62,13 @@ def test_env_batch_that_does_not_divide_over_devices_is_a_clear_error():
     assert "num_envs=8 does not divide over 3 devices" in r["error"] and "--devices" in r["error"]
 
 
+def test_seeds_are_split_over_devices_whole():
+    r = _worker("seeds", devices=2)
+    assert r["obs_devices"] == 2 and r["obs_shard_shapes"] == [[1, 8, 16, 16, 1]]  # one whole seed per device
+    assert r["params_max_diff"] < 1e-5, r["params_max_diff"]
+    assert r["three_seeds_error"] is not None and "multiple of 2" in r["three_seeds_error"]
+
+
 def test_single_device_mesh_is_the_plain_program():
     assert distributed.make_mesh() is None  # this test process sees one CPU device
     with pytest.raises(ValueError, match="device"):
