@@ -17,7 +17,10 @@ _SEED_SUFFIX = re.compile(r"[-_.]?(s|seed)\d+$", re.IGNORECASE)
 def group_name(run_dir: str | Path) -> str:
     """Runs of one configuration with different seeds share a group: the folder name without a trailing
     seed suffix (runs/ramavt_s0, runs/ramavt-seed1 -> 'ramavt')."""
-    name = Path(run_dir).name
+    path = Path(run_dir)
+    name = path.name
+    if re.fullmatch(r"seed_\d+", name):  # a folder of `ramavt train --seeds N`: the sweep folder names the group
+        return path.resolve().parent.name
     return _SEED_SUFFIX.sub("", name) or name
 
 

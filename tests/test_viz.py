@@ -51,6 +51,7 @@ def test_training_bands_mean_std(tmp_path):
     _write_run(tmp_path / "origin-seed0", [100, 200], [5.0, 6.0], variant="origin")
     assert viz_train.group_name(tmp_path / "ramavt_s1") == "ramavt"
     assert viz_train.group_name(tmp_path / "origin-seed0") == "origin"
+    assert viz_train.group_name(tmp_path / "sweep" / "seed_3") == "sweep"  # folders of `ramavt train --seeds N`
     runs = [viz_train.read_run(tmp_path / f"ramavt_s{i}") for i in range(2)]
     x, mean, std = viz_train.band([(rx, m["episode_length"]) for rx, m in runs])
     np.testing.assert_array_equal(x, [100, 200, 300])
