@@ -15,7 +15,7 @@ use the first D real devices. Each worker measures
   auto-reset) over N = E * D envs, env state split along the env axis with ``NamedSharding(mesh, P('data'))``
   (in and out shardings, so it stays split); one warm-up call, then the median of >= 3 timed calls (fewer when
   one call outlasts the time budget). With D > 1 the step is split two ways: 'gspmd' (the global vmapped step
-  with sharding constraints on state, keys and actions, split by XLA's partitioner, as the trainer's chunk is) and
+  with sharding constraints on state, keys and actions, split by XLA's partitioner) and
   'shard_map' (each device steps its own E envs, no collectives). The placement of the state (devices holding
   shards, rows per shard) and the number of collectives in the compiled program are recorded;
 * train: the 'quick' preset (32x32 depth, small RAMAVT, replay ratio 2) with 16 (--quick) or 32 envs per device,
@@ -80,7 +80,7 @@ def env_point(envs_per_device: int, mesh, num_devices: int, resolution: int, bud
     """Env steps/s of N = envs_per_device * D envs, state split over ``mesh`` along the env axis.
 
     partition: 'gspmd' jits the vmapped step over the global batch with sharding constraints and lets XLA's
-    partitioner split it (the way the trainer's chunk is partitioned); 'shard_map' runs the same vmapped step on
+    partitioner split it (how the trainer split it before it moved the env step under shard_map); 'shard_map' runs the same vmapped step on
     each device's own N / D envs (``jax.shard_map``, per-device keys from ``fold_in(key, device index)``), no
     collectives but one scalar mean. With one device (mesh None) both are the plain jitted program ('none').
     """
@@ -210,7 +210,7 @@ def train_point(envs_per_device: int, mesh, num_devices: int, iterations_per_chu
     ups = statistics.median(u / w for u, w in zip(updates, walls))
     frames_per_update = cfg.batch_size * cfg.train_len
     return dict(
-        kind="train", partition="none" if mesh is None else "gspmd", devices=num_devices,
+        kind="train", partition="none" if mesh is None else "trainer", devices=num_devices,
         envs_per_device=envs_per_device, num_envs=n, preset="quick",
         resolution=cfg.env.camera.resolution, batch_size=cfg.batch_size, train_len=cfg.train_len,
         rollout_steps=cfg.rollout_steps, iterations_per_chunk=cfg.iterations_per_chunk,
@@ -355,7 +355,7 @@ def table(points: list[dict]) -> str:
             ("efficiency", 10, ">"), ("compile s", 9, ">"), ("on devs", 7, ">"), ("collectives", 11, ">")]
     lines = ["| " + " | ".join(f"{name:{a}{w}}" for name, w, a in cols) + " |",
              "|" + "|".join("-" * (w + 2) for _, w, _ in cols) + "|"]
-    order = {"none": 0, "shard_map": 1, "gspmd": 2}
+    order = {"none": 0, "shard_map": 1, "gspmd": 2, "trainer": 3}
     for p in sorted(points, key=lambda p: (p["kind"], p["envs_per_device"], p["devices"],
                                            order.get(p.get("partition"), 3))):
         train = p["kind"] == "train"
@@ -399,13 +399,13 @@ def plot(points: list[dict], path, title: str = "") -> None:
     if train:
         ds = [p["devices"] for p in train]
         ax_train.plot(ds, [p["trained_frames_per_s"] for p in train], marker="o",
-                      label="measured (trainer chunk, GSPMD)")
+                      label="trainer chunk")
         one = next((p for p in train if p["devices"] == 1), None)
         if one is not None:
             ax_train.plot(ds, [one["trained_frames_per_s"] * d for d in ds], ls="--", color="gray",
                           label="linear from 1 device")
         ax_train.set_xticks(ds)
-        ax_train.legend()
+        ax_train.legend(fontsize=8, loc="upper left")
     ax_train.set_xlabel("devices")
     ax_train.set_ylabel("trained frames/s")
     ax_train.set_title(f"training ('quick' preset, {train[0]['envs_per_device'] if train else '?'} envs/device)")
