@@ -1,21 +1,26 @@
 #!/usr/bin/env bash
 # Evaluation behind RESULTS.md: Tables I-III on the held-out targets from the run folders of scripts/reproduce.sh,
 # with the oracle, depth-tracker and random baselines at the runs' resolution (32x32). Writes results/table{1,2,3}/.
-# Usage: bash scripts/reproduce_eval.sh [runs/repro] [results]
+# Usage: bash scripts/reproduce_eval.sh [runs/repro] [results] [tables, default "1 2 3 seeds"]
 set -euo pipefail
 RUNS=${1:-runs/repro}
 OUT=${2:-results}
+TABLES=${3:-1 2 3 seeds}
+want() { [[ " $TABLES " == *" $1 "* ]]; }
 COMMON=(--targets test --episodes 20 --max-steps 1000 --resolution 32 --seed 0)
 have() { for r in "$@"; do [ -f "$RUNS/$r/eval.json" ] && echo "$RUNS/$r"; done; }
 timed() { local t0=$(date +%s); "$@"; echo "$(( $(date +%s) - t0 )) s: $*" | tee -a "$OUT/eval_wall_times.txt"; }
 mkdir -p "$OUT"
-# Table I: agents x input modes (+ the longer RAMAVT-depth run and extra seeds when present)
-timed ramavt eval --policy checkpoint --tables 1 --obs depth rgbd color "${COMMON[@]}" --out "$OUT/table1" --figures \
-  --run $(have ramavt_depth ramavt_rgbd ramavt_color drlavt_depth drlavt_rgbd drlavt_color ramavt_depth_long \
-               ramavt_depth_seeds/seed_1 ramavt_depth_seeds/seed_2)
+# Table I: agents x input modes (+ the longer RAMAVT-depth run)
+want 1 && timed ramavt eval --policy checkpoint --tables 1 --obs depth rgbd color "${COMMON[@]}" --out "$OUT/table1" --figures \
+  --run $(have ramavt_depth ramavt_rgbd ramavt_color drlavt_depth drlavt_rgbd drlavt_color ramavt_depth_long)
 # Table II: perturbations, depth agents
-timed ramavt eval --policy checkpoint --tables 2 --obs depth "${COMMON[@]}" --out "$OUT/table2" \
+want 2 && timed ramavt eval --policy checkpoint --tables 2 --obs depth "${COMMON[@]}" --out "$OUT/table2" \
   --run $(have ramavt_depth ramavt_depth_long drlavt_depth)
 # Table III: the ablation (cumulative: Origin, +Augment, +SE, +MHA, RAMAVT = all)
-timed ramavt eval --policy checkpoint --tables 3 --obs depth "${COMMON[@]}" --out "$OUT/table3" \
+want 3 && timed ramavt eval --policy checkpoint --tables 3 --obs depth "${COMMON[@]}" --out "$OUT/table3" \
   --run $(have origin origin_aug se_aug mha_aug ramavt_depth)
+# Seeds: the three RAMAVT-depth seeds side by side (Table I settings, no baselines: they are in table1/)
+want seeds && timed ramavt eval --policy checkpoint --tables 1 --obs depth --no-baselines "${COMMON[@]}" \
+  --out "$OUT/seeds" --run $(have ramavt_depth ramavt_depth_seeds/seed_1 ramavt_depth_seeds/seed_2)
+true
