@@ -1,0 +1,140 @@
+"""Static and traced settings of the tracking env: the action set, ``EnvConfig`` (static: shapes and code paths),
+``EnvParams`` (traced: every physical value and the target catalogue) and the host-side ``validate_params``.
+Re-exported by :mod:`ramavt_jax.env`, whose names (``env.EnvConfig`` ...) are the public ones."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from flax import struct
+
+from ramavt_jax import dynamics
+from ramavt_jax import targets as targets_lib
+from ramavt_jax.render import CameraConfig
+
+# 11 velocity commands in the camera frame (original SNCOAT action set), scaled by EnvParams.speed.
+# Module constants are numpy, not jnp: importing the package must not start a JAX backend (a multi-host run calls
+# jax.distributed.initialize after the imports).
+ACTIONS = np.array(
+    [
+        [0, 0, 0],
+        [1, 0, 0], [-1, 0, 0],
+        [0, 1, 0], [0, -1, 0],
+        [0, 0, 1], [0, 0, -1],
+        [1, 1, 0], [1, -1, 0], [-1, 1, 0], [-1, -1, 0],
+    ],
+    dtype=np.float32,
+)
+NUM_ACTIONS = ACTIONS.shape[0]
+OBS_CHANNELS = {"depth": 1, "color": 3, "rgbd": 4}
+
+# Hill coordinates of the camera axes (columns): hill = HILL_FROM_CAM @ cam.
+HILL_FROM_CAM = np.array([[0.0, -1.0, 0.0], [0.0, 0.0, 1.0], [-1.0, 0.0, 0.0]], dtype=np.float32)
+
+
+@dataclasses.dataclass(frozen=True)
+class EnvConfig:
+    """Static settings (shapes and code paths); changing one recompiles. Validated at construction."""
+
+    camera: CameraConfig = CameraConfig()
+    obs_mode: str = "depth"  # 'depth' [H,W,1] | 'color' [H,W,3] | 'rgbd' [H,W,4]
+    dynamics: str = "cw"  # 'cw' (Clohessy-Wiltshire + torque-free attitude) | 'kinematic' (original benchmark)
+    targets: tuple[str, ...] = targets_lib.TRAIN_TARGETS  # catalogue names or MJCF paths
+    frame_history: int = 1  # frames kept for averaging blur (EnvParams.blur_frames <= this)
+    autoreset: str = "same_step"  # 'same_step' | 'next_step'
+    final_obs_in_info: bool = True  # same_step only: render the final frame too
+    attitude_substeps: int = 4
+
+    def __post_init__(self):
+        if not isinstance(self.camera, CameraConfig):
+            raise ValueError(f"camera must be a render.CameraConfig, got {type(self.camera).__name__}")
+        if self.obs_mode not in OBS_CHANNELS:
+            raise ValueError(f"obs_mode must be one of {sorted(OBS_CHANNELS)}, got {self.obs_mode!r}")
+        if self.dynamics not in ("cw", "kinematic"):
+            raise ValueError(f"dynamics must be 'cw' or 'kinematic', got {self.dynamics!r}")
+        if self.autoreset not in ("same_step", "next_step"):
+            raise ValueError(f"autoreset must be 'same_step' or 'next_step', got {self.autoreset!r}")
+        if not (isinstance(self.frame_history, int) and 1 <= self.frame_history <= 16):
+            raise ValueError(f"frame_history must be an int in [1, 16], got {self.frame_history!r}")
+        if isinstance(self.targets, str):
+            object.__setattr__(self, "targets", (self.targets,))
+        if len(self.targets) == 0:
+            raise ValueError("targets must name at least one target")
+        object.__setattr__(self, "targets", tuple(str(t) for t in self.targets))
+        for t in self.targets:
+            targets_lib.resolve(t)  # raises TargetError (a ValueError) for unknown names / missing files
+
+    @property
+    def obs_shape(self) -> tuple[int, int, int]:
+        r = self.camera.resolution
+        return (r, r, OBS_CHANNELS[self.obs_mode])
+
+
+@struct.dataclass
+class EnvParams:
+    """Every physical value of the task (traced: vmap over these for domain randomisation).
+
+    Defaults are the original benchmark's training values; evaluation uses dist_weight=1, lost_patience=20.
+    """
+
+    catalogue: targets_lib.TargetModel  # [N, G, ...] targets an episode draws from
+    target_probs: jax.Array  # [N] probability of each catalogue target at reset (one-hot pins a target)
+    dt: jax.Array = 0.1  # s per step
+    speed: jax.Array = 1.0  # m/s per unit action
+    actuator_tau: jax.Array = 0.0  # s, first-order lag of the chaser velocity (0 = instant)
+    dist_weight: jax.Array = 0.5
+    lost_patience: jax.Array = 10  # terminate after more than this many consecutive lost steps
+    max_steps: jax.Array = 1000  # truncation
+    lost_distance: jax.Array = 15.0  # m from the desired position counts as lost
+    desired_pos: jax.Array = struct.field(default_factory=lambda: jnp.array([0.0, 0.0, 5.0]))
+    init_xy_std: jax.Array = 1.0  # m
+    init_z_min: jax.Array = 2.0  # m
+    init_z_max: jax.Array = 12.0  # m
+    target_vel_std: jax.Array = 0.2  # m/s per axis
+    target_spin_std: jax.Array = 0.1  # rad/s per body axis
+    target_accel_std: jax.Array = 0.0  # m/s^2 per axis, constant thrust of a maneuvering target
+    mean_motion: jax.Array = dynamics.mean_motion(400e3)  # rad/s of the reference orbit
+    # perturbations (0 = off); original values: actuator 0.3, delay 0.5 s, blur 3-frame average
+    actuator_noise: jax.Array = 0.0  # command * (1 + actuator_noise * N(0, 1)) per axis
+    delay_max: jax.Array = 0.0  # each step lasts dt + U(0, delay_max) s
+    blur_frames: jax.Array = 1  # observation = mean of the last blur_frames frames (<= EnvConfig.frame_history)
+    gaussian_blur_sigma: jax.Array = 0.0  # px
+    motion_blur_px: jax.Array = 0.0  # px, along the image-plane direction of the relative motion
+    depth_noise_std: jax.Array = 0.0  # additive noise on target pixels (in observation units)
+    frame_drop_prob: jax.Array = 0.0  # probability that the camera repeats its previous frame
+    sun_dir: jax.Array = struct.field(default_factory=lambda: jnp.array([0.5, -0.6, -0.62]) / 0.9993)
+    ambient: jax.Array = 0.15
+
+
+def validate_params(params: EnvParams, config: EnvConfig) -> EnvParams:
+    """Host-side checks of concrete parameter values (skipped for traced values). Raises ValueError."""
+    import numpy as np
+
+    def check(name, ok, what):
+        value = getattr(params, name)
+        try:
+            arr = np.asarray(value)
+        except Exception:  # traced inside jit: nothing to check
+            return
+        if not np.all(ok(arr)):
+            raise ValueError(f"EnvParams.{name} must be {what}, got {arr}")
+
+    check("dt", lambda v: v > 0, "> 0")
+    check("speed", lambda v: v > 0, "> 0")
+    check("actuator_tau", lambda v: v >= 0, ">= 0")
+    check("lost_patience", lambda v: v >= 0, ">= 0")
+    check("max_steps", lambda v: v >= 1, ">= 1")
+    check("lost_distance", lambda v: v > 0, "> 0")
+    check("init_z_max", lambda v: v > np.asarray(params.init_z_min), "> init_z_min")
+    check("init_z_min", lambda v: v > config.camera.near, f"> camera.near ({config.camera.near})")
+    check("blur_frames", lambda v: (v >= 1) & (v <= config.frame_history), f"in [1, EnvConfig.frame_history={config.frame_history}]")
+    check("target_probs", lambda v: (v >= 0).all() & (abs(v.sum() - 1) < 1e-4) & (v.shape == (len(config.targets),)),
+          f"[{len(config.targets)}] non-negative probabilities summing to 1")
+    check("frame_drop_prob", lambda v: (v >= 0) & (v <= 1), "in [0, 1]")
+    for name in ("actuator_noise", "delay_max", "gaussian_blur_sigma", "motion_blur_px", "depth_noise_std",
+                 "target_vel_std", "target_spin_std", "target_accel_std", "init_xy_std", "mean_motion"):
+        check(name, lambda v: v >= 0, ">= 0")
+    return params
