@@ -346,6 +346,8 @@ def plot_cmd(
     out_paths = {}
     if runs:
         labels = {viz_train.group_name(r): viz_train.run_label(r) for r in runs}
+        if len(set(labels.values())) < len(labels):  # two groups would share a legend entry: name them by folder
+            labels = {g: f"{g} ({lab})" for g, lab in labels.items()}
         out_paths["training_curves"] = str(viz_train.plot_training_runs(runs, out / "training_curves.png", labels=labels))
     if run is not None:
         lr = evaluate.load_policy(run)
