@@ -114,7 +114,14 @@ def check_divisible(num_envs: int, mesh: Mesh | None) -> None:
                             f"(--devices)")
 
 
-def _env_axis_spec(path: tuple, ndim: int, lead: tuple) -> P:
+def _split_axis(ndim: int, axis: int) -> P:
+    """Leaf of rank ``ndim`` split over 'data' along ``axis`` (replicated when it has no such axis)."""
+    if ndim <= axis:
+        return P()
+    return P(*[DATA_AXIS if i == axis else None for i in range(ndim)])
+
+
+def _env_axis_spec(path: tuple, ndim: int) -> P:
     """Partition spec of one RunnerState leaf: env-axis leaves split over 'data', everything else replicated."""
     names = [getattr(p, "name", getattr(p, "key", None)) for p in path]
     if names and names[0] == "actor":
@@ -123,11 +130,7 @@ def _env_axis_spec(path: tuple, ndim: int, lead: tuple) -> P:
         env_axis = 0  # flashbax rows: [num_envs, time, ...]
     else:
         return P()
-    spec = [None] * (ndim - len(lead))
-    if len(spec) <= env_axis:
-        return P()
-    spec[env_axis] = DATA_AXIS
-    return P(*lead, *spec)
+    return _split_axis(ndim, env_axis)
 
 
 def runner_shardings(abstract_state: Any, mesh: Mesh, seed_axis: bool = False) -> Any:
@@ -139,7 +142,7 @@ def runner_shardings(abstract_state: Any, mesh: Mesh, seed_axis: bool = False) -
     if seed_axis:
         return jax.tree.map(lambda leaf: NamedSharding(mesh, P(DATA_AXIS)), abstract_state)
     return jax.tree_util.tree_map_with_path(
-        lambda path, leaf: NamedSharding(mesh, _env_axis_spec(path, len(leaf.shape), ())), abstract_state)
+        lambda path, leaf: NamedSharding(mesh, _env_axis_spec(path, len(leaf.shape))), abstract_state)
 
 
 def check_seeds_divisible(num_seeds: int, mesh: Mesh | None) -> None:
@@ -158,14 +161,8 @@ def constrain_envs(tree: Any, mesh: Mesh | None, env_axis: int = 0) -> Any:
     if mesh is None:
         return tree
 
-    def one(x):
-        if x.ndim <= env_axis:
-            return x
-        spec = [None] * x.ndim
-        spec[env_axis] = DATA_AXIS
-        return jax.lax.with_sharding_constraint(x, NamedSharding(mesh, P(*spec)))
-
-    return jax.tree.map(one, tree)
+    return jax.tree.map(
+        lambda x: jax.lax.with_sharding_constraint(x, NamedSharding(mesh, _split_axis(x.ndim, env_axis))), tree)
 
 
 def constrain_batch(tree: Any, mesh: Mesh | None, batch_size: int) -> Any:

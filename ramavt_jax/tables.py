@@ -134,12 +134,16 @@ def _table(header: list[str], rows: list[list[str]]) -> str:
     return "\n".join(lines)
 
 
+def _rows_in(result: dict, setting: str = "none"):
+    """(row, that setting's results) for every row evaluated in ``setting``."""
+    for r in result["rows"]:
+        if setting in r["settings"]:
+            yield r, r["settings"][setting]
+
+
 def table1_md(result: dict) -> str:
     rows = []
-    for r in result["rows"]:
-        s = r["settings"].get("none")
-        if s is None:
-            continue
+    for r, s in _rows_in(result):
         o = s["overall"]
         rows.append([r["name"], r["input"], _f(o["length_mean"]), _f(o["length_min"], 0), _f(o["length_max"], 0),
                      _f(o["return_mean"]), _f(o["return_min"]), _f(o["return_max"]), _f(100 * o["lost_fraction"], 0),
@@ -164,10 +168,7 @@ def table2_md(result: dict) -> str:
 
 def table3_md(result: dict) -> str:
     rows = []
-    for r in result["rows"]:
-        s = r["settings"].get("none")
-        if s is None:
-            continue
+    for r, s in _rows_in(result):
         info = r.get("info", {})
         o = s["overall"]
         rows.append([r["name"], info.get("variant", r["kind"]), str(info.get("augment", "-")), r["input"],
@@ -177,10 +178,7 @@ def table3_md(result: dict) -> str:
 
 def per_target_md(result: dict) -> str:
     rows = []
-    for r in result["rows"]:
-        s = r["settings"].get("none")
-        if s is None:
-            continue
+    for r, s in _rows_in(result):
         for target, o in s["per_target"].items():
             rows.append([r["name"], r["input"], target, _f(o["length_mean"]), _f(o["length_min"], 0),
                          _f(o["return_mean"]), _f(100 * o["lost_fraction"], 0)])

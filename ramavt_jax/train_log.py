@@ -202,6 +202,11 @@ def _resolve_resume(resume, ckpt_dir: Path, subdir: str | None = None) -> Path |
                                   f"{path / 'checkpoints'}); pass resume=False to start a fresh run")
 
 
+def _host_int(x) -> int:
+    """A counter of the (possibly sharded, possibly [seeds]-stacked) state as a host int (seeds share it: first)."""
+    return int(np.asarray(distributed.local_copy(x)).reshape(-1)[0])
+
+
 def _seed_slice(tree, k: int, num_seeds: int):
     return tree if num_seeds == 1 else jax.tree.map(lambda x: x[k], tree)
 
@@ -260,7 +265,7 @@ def run(config: TrainConfig, out_dir, seed: int = 0, resume=True, progress: bool
                 raise ValueError(f"the checkpoint in {src} was written with a different TrainConfig; resume it with "
                                  f"the same config (see its config.json) or pass resume=False")
             loaded.append(st)
-        if len({int(np.asarray(distributed.local_copy(st.chunk))) for st in loaded}) > 1:
+        if len({_host_int(st.chunk) for st in loaded}) > 1:
             raise ValueError(f"the seed folders in {out} were checkpointed at different chunks; resume=False")
         if num_seeds > 1:
             loaded = [jax.tree.map(lambda *xs: np.stack([np.asarray(x) for x in xs]), *loaded)]
@@ -268,7 +273,7 @@ def run(config: TrainConfig, out_dir, seed: int = 0, resume=True, progress: bool
         if not config.checkpoint_replay:
             restored = restored.replace(replay=state.replay)
         state = restored if prog.shardings is None else jax.device_put(restored, prog.shardings)
-    start = int(np.asarray(distributed.local_copy(state.chunk)).reshape(-1)[0])
+    start = _host_int(state.chunk)
     metrics_paths = [d / "metrics.jsonl" for d in dirs]
     records = [[r for r in read_metrics(p) if r["chunk"] <= start] if resuming else [] for p in metrics_paths]
     if primary:
@@ -282,15 +287,12 @@ def run(config: TrainConfig, out_dir, seed: int = 0, resume=True, progress: bool
 
         writers = [SummaryWriter(str(d / "tb")) for d in dirs]
 
-    def save(st):
-        chunk = int(np.asarray(distributed.local_copy(st.chunk)).reshape(-1)[0])
+    def save(st, chunk: int) -> int:
         for k, (s, store) in enumerate(zip(seeds, stores)):
             one = _seed_slice(st, k, num_seeds)
-            meta = {"config": config.to_dict(), "seed": s, "chunk": chunk,
-                    "env_steps": int(np.asarray(distributed.local_copy(one.env_steps))),
-                    "updates": int(np.asarray(distributed.local_copy(one.learner.updates)))}
-            saved = one if config.checkpoint_replay else one.replace(replay=None)
-            store.save(chunk, saved, json.loads(json.dumps(meta, default=str)))
+            meta = {"config": config_json, "seed": s, "chunk": chunk, "env_steps": _host_int(one.env_steps),
+                    "updates": _host_int(one.learner.updates)}
+            store.save(chunk, one if config.checkpoint_replay else one.replace(replay=None), meta)
         return chunk
 
     end = config.num_chunks if max_chunks is None else min(config.num_chunks, start + max_chunks)
@@ -302,13 +304,14 @@ def run(config: TrainConfig, out_dir, seed: int = 0, resume=True, progress: bool
         bar = tqdm(total=config.total_env_steps * num_seeds, initial=start * config.env_steps_per_chunk * num_seeds,
                    unit="step", unit_scale=True, dynamic_ncols=True, desc="train")
     train_t0 = time.time()
+    chunk_no = start  # host mirror of state.chunk (each compiled chunk adds one): no device read per chunk
     try:
         for _ in range(start, end):
             t = time.time()
             state, m = prog.chunk(state)
-            m = jax.device_get(m) if jax.process_count() == 1 else distributed.local_copy(m)
+            m = distributed.local_copy(m)  # the one host sync per chunk
             wall = time.time() - t
-            chunk_no = int(np.asarray(distributed.local_copy(state.chunk)).reshape(-1)[0])
+            chunk_no += 1
             for k in range(num_seeds):
                 record = {"chunk": chunk_no, **aggregate(_seed_slice(m, k, num_seeds), wall,
                                                          config.env_steps_per_chunk)}
@@ -337,7 +340,7 @@ def run(config: TrainConfig, out_dir, seed: int = 0, resume=True, progress: bool
                 r = records[0][-1]
                 bar.set_postfix(ep_len=f"{r['episode_length']:.0f}", loss=f"{r['loss']:.3g}", eps=f"{r['epsilon']:.2f}")
             if config.checkpoint_every_chunks and chunk_no % config.checkpoint_every_chunks == 0:
-                last_saved = save(state)
+                last_saved = save(state, chunk_no)
     except KeyboardInterrupt:
         if bar is not None:
             bar.close()
@@ -346,9 +349,9 @@ def run(config: TrainConfig, out_dir, seed: int = 0, resume=True, progress: bool
             print(f"\ninterrupted while a chunk was dispatched; last checkpoint: chunk {last_saved} in {out}")
         else:
             jax.block_until_ready(state)  # the chunk in flight finishes (XLA cannot cancel it)
-            chunk_no = int(np.asarray(distributed.local_copy(state.chunk)).reshape(-1)[0])
+            chunk_no = _host_int(state.chunk)  # may be one ahead of the host mirror (interrupted before logging)
             if _finite_params(state) and chunk_no != last_saved:
-                last_saved = save(state)
+                last_saved = save(state, chunk_no)
             print(f"\ninterrupted: checkpoint of chunk {last_saved} saved under {out}; run again to resume")
         raise
     finally:
@@ -358,9 +361,8 @@ def run(config: TrainConfig, out_dir, seed: int = 0, resume=True, progress: bool
     if bar is not None:
         bar.close()
     train_s = time.time() - train_t0
-    chunk_no = int(np.asarray(distributed.local_copy(state.chunk)).reshape(-1)[0])
     if chunk_no != last_saved:
-        last_saved = save(state)
+        last_saved = save(state, chunk_no)
     for store in stores:
         store.close()
 
@@ -368,8 +370,8 @@ def run(config: TrainConfig, out_dir, seed: int = 0, resume=True, progress: bool
     per_seed = []
     for k, (s, d) in enumerate(zip(seeds, dirs)):
         one = {"seed": s, "chunks_done": chunk_no, "num_chunks": config.num_chunks,
-               "env_steps": int(np.asarray(distributed.local_copy(_seed_slice(state.env_steps, k, num_seeds)))),
-               "updates": int(np.asarray(distributed.local_copy(_seed_slice(state.learner.updates, k, num_seeds)))),
+               "env_steps": _host_int(_seed_slice(state.env_steps, k, num_seeds)),
+               "updates": _host_int(_seed_slice(state.learner.updates, k, num_seeds)),
                "train_wall_s": train_s, "compile_s": prog.compile_s, "last": records[k][-1] if records[k] else None,
                "out_dir": str(d)}
         if primary and records[k]:
