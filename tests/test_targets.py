@@ -12,12 +12,13 @@ import pytest
 
 from ramavt_jax import targets
 
-# bound_radius (m) and mass (kg) ranges per class, from the design: a 1-3 m satellite bus with panels, a 10-20 m
-# station, a 6-12 m rocket stage, a 2-4 m capsule, 1-5 m asteroids.
-RADIUS_RANGE = {"asteroid": (0.4, 2.6), "capsule": (1.0, 3.0), "rocket": (3.0, 8.0), "satellite": (1.0, 5.0),
-                "station": (5.0, 12.0)}
-MASS_RANGE = {"asteroid": (100.0, 1e5), "capsule": (1e3, 1.5e4), "rocket": (1e3, 1.5e4), "satellite": (300.0, 6e3),
-              "station": (5e3, 2e5)}
+# bound_radius (m) and mass (kg) ranges per class. The size rule (catalogue_gen) caps every bounding radius at
+# 2.4 m so that the target fits the 60-degree view at the 5 m stand-off; spacecraft classes are scaled down to it
+# with their densities kept (hence the small masses of the scaled rockets, satellites and stations).
+RADIUS_RANGE = {"asteroid": (0.4, 2.401), "capsule": (1.5, 2.401), "rocket": (1.5, 2.401), "satellite": (1.5, 2.401),
+                "station": (1.5, 2.401)}
+MASS_RANGE = {"asteroid": (100.0, 1e5), "capsule": (1e3, 1.5e4), "rocket": (50.0, 1e3), "satellite": (50.0, 1e3),
+              "station": (50.0, 1e3)}
 
 
 @pytest.fixture(scope="module")
@@ -127,6 +128,27 @@ def test_catalogue_loads_with_plausible_sizes_and_masses(catalogue):
         np.testing.assert_allclose(inertia, info.inertia, rtol=1e-5)
         assert float(batch.mass[k]) == pytest.approx(info.mass, rel=1e-6)
         assert float(batch.bound_radius[k]) == pytest.approx(info.bound_radius, rel=1e-6)
+
+
+def test_every_catalogue_target_fits_the_view_at_the_stand_off(catalogue):
+    """Size rule: bounding radius <= 2.4 m, below the 2.89 m half-width of the 60-degree view at 5 m; the
+    largest model of each scaled class sits at the cap."""
+    from ramavt_jax.targets import catalogue_gen
+
+    _, infos = catalogue
+    half_width = 5.0 * np.tan(np.deg2rad(30.0))
+    radii = {i.name: i.bound_radius for i in infos}
+    assert max(radii.values()) <= catalogue_gen.MAX_BOUND_RADIUS + 1e-3 < half_width
+    for cls in ("capsule", "rocket", "satellite", "station"):
+        assert max(r for n, r in radii.items() if targets.CATALOGUE[n] == cls) == pytest.approx(
+            catalogue_gen.MAX_BOUND_RADIUS, abs=1e-3), cls
+
+
+def test_generator_reproduces_the_committed_files():
+    from ramavt_jax.targets import catalogue_gen
+
+    for t in catalogue_gen.all_targets():
+        assert (targets.MODEL_DIR / f"{t.name}.xml").read_text() == t.xml(), t.name
 
 
 def test_held_out_variants_are_similar_in_scale():
