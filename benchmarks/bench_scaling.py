@@ -180,7 +180,7 @@ def train_point(envs_per_device: int, mesh, num_devices: int, iterations_per_chu
     import jax
     import numpy as np
 
-    from ramavt_jax import train_log
+    from ramavt_jax.training import program as train_log
 
     n = envs_per_device * num_devices
     cfg = train_config(n, iterations_per_chunk)

@@ -6,7 +6,7 @@ API (purejaxrl shape)::
     train = make_train(cfg)                             # pure function of a key
     out = jax.jit(train)(jax.random.PRNGKey(0))         # {'runner_state': RunnerState, 'metrics': ChunkMetrics}
     outs = jax.jit(jax.vmap(make_train(cfg)))(keys)     # several seeds at once (small configs)
-    summary = run(cfg, "runs/quick", seed=0)            # host driver: logs, checkpoints, evaluation (train_log.py)
+    summary = training.driver.run(cfg, "runs/quick")    # host driver: logs, checkpoints (ramavt_jax/training/)
 
 One *iteration* = every env acts ``rollout_steps`` steps (epsilon-greedy, next-step auto-reset), the chunk goes to
 the sequence replay, then the learner does ``updates_per_iteration`` gradient steps (none before
@@ -39,7 +39,7 @@ from ramavt_jax.train_config import PRESETS, TrainConfig, preset  # noqa: F401 (
 
 __all__ = [
     "TrainConfig", "preset", "PRESETS", "TrainingDivergedError", "LearnerState", "ActorState", "RunnerState",
-    "ChunkMetrics", "Trainer", "make_train", "greedy_policy", "run",
+    "ChunkMetrics", "Trainer", "make_train", "greedy_policy",
 ]
 
 
@@ -350,10 +350,3 @@ def greedy_policy(network: NetworkConfig, params, obs_shape: tuple, name: str = 
         return jnp.argmax(q[0, 0]).astype(jnp.int32), GreedyState(net_state=new, first=jnp.zeros((), bool))
 
     return Policy(name, init, act)
-
-
-def run(config: TrainConfig, out_dir, seed: int = 0, resume=True, progress: bool = True, **kwargs) -> dict:
-    """Host driver (logging, evaluation, checkpoints); see :func:`ramavt_jax.train_log.run`."""
-    from ramavt_jax.train_log import run as _run
-
-    return _run(config, out_dir, seed=seed, resume=resume, progress=progress, **kwargs)

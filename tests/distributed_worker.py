@@ -14,14 +14,15 @@ def _max_diff(a, b) -> float:
 
 
 def sharded_vs_unsharded(chunks: int) -> dict:
-    from ramavt_jax import distributed, train_log
+    from ramavt_jax import distributed
+    from ramavt_jax.training import program
     from ramavt_jax.train_config import preset
 
     cfg = preset("smoke")
     mesh = distributed.make_mesh()
     states, metrics = {}, {}
     for name, m in (("single", None), ("sharded", mesh)):
-        prog = train_log._compiled(cfg, None, 1, m)
+        prog = program.compiled_program(cfg, None, 1, m)
         state = prog.init(jax.random.PRNGKey(0))
         ms = []
         for _ in range(chunks):
@@ -56,21 +57,22 @@ def sharded_vs_unsharded(chunks: int) -> dict:
 
 def seeds_over_devices() -> dict:
     """2 seeds in one program on 2 devices (one seed per device) vs the same program on one device."""
-    from ramavt_jax import distributed, train_log
+    from ramavt_jax import distributed
+    from ramavt_jax.training import program
     from ramavt_jax.train_config import preset
 
     cfg = preset("smoke")
     keys = np.stack([np.asarray(jax.random.PRNGKey(s)) for s in (3, 4)])
     out = {}
     for name, mesh in (("single", None), ("sharded", distributed.make_mesh())):
-        prog = train_log._compiled(cfg, None, 2, mesh)
+        prog = program.compiled_program(cfg, None, 2, mesh)
         state = prog.init(keys)
         for _ in range(2):
             state, _ = prog.chunk(state)
         out[name] = state
     obs = out["sharded"].actor.obs
     try:
-        train_log._compiled(cfg, None, 3, distributed.make_mesh())
+        program.compiled_program(cfg, None, 3, distributed.make_mesh())
         error = None
     except distributed.ShardingError as e:
         error = str(e)
@@ -81,12 +83,13 @@ def seeds_over_devices() -> dict:
 
 
 def indivisible() -> dict:
-    from ramavt_jax import distributed, train_log
+    from ramavt_jax import distributed
+    from ramavt_jax.training import program
     from ramavt_jax.train_config import preset
 
     cfg = preset("smoke")  # 8 envs; the test starts 3 devices
     try:
-        train_log._compiled(cfg, None, 1, distributed.make_mesh())
+        program.compiled_program(cfg, None, 1, distributed.make_mesh())
     except distributed.ShardingError as e:
         return {"error": str(e)}
     return {"error": None}

@@ -27,9 +27,14 @@ def test_render_writes_gif(tmp_path, capsys):
     assert "6 steps tracked" in capsys.readouterr().out
 
 
-def test_render_unknown_target_is_a_clear_error(tmp_path):
-    with pytest.raises(ValueError, match="unknown target"):
-        cli.main(["render", "--target", "Enterprise", "--steps", "2", "--out", str(tmp_path / "x.gif")])
+def test_render_unknown_target_is_a_clear_error(tmp_path, capsys):
+    with pytest.raises(SystemExit) as e:
+        cli.main(["render", "--target", "Satelite-v1", "--steps", "2", "--out", str(tmp_path / "x.gif")])
+    assert e.value.code == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "unknown target 'Satelite-v1'" in err and "Did you mean Satellite-v1" in err
+    with pytest.raises(ValueError, match="unknown target"):  # --debug: the exception itself, with its traceback
+        cli.main(["--debug", "render", "--target", "Enterprise", "--steps", "2", "--out", str(tmp_path / "x.gif")])
 
 
 def test_bench_scaling_offered_and_splits_envs_over_two_forced_cpu_devices(tmp_path, capsys):
@@ -42,7 +47,7 @@ def test_bench_scaling_offered_and_splits_envs_over_two_forced_cpu_devices(tmp_p
     with pytest.raises(SystemExit):
         cli.main(["bench", "--help"])
     assert "scaling" in capsys.readouterr().out
-    path = Path(cli.__file__).resolve().parent.parent / "benchmarks" / "bench_scaling.py"
+    path = Path(cli.__file__).resolve().parents[2] / "benchmarks" / "bench_scaling.py"
     spec = importlib.util.spec_from_file_location("bench_scaling", path)
     bench = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(bench)

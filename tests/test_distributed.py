@@ -14,7 +14,8 @@ import jax
 import numpy as np
 import pytest
 
-from ramavt_jax import distributed, train_log
+from ramavt_jax import distributed
+from ramavt_jax.training import driver as train_log
 from ramavt_jax.train_config import preset
 
 ROOT = Path(__file__).resolve().parents[1]

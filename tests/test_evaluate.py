@@ -10,9 +10,11 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from ramavt_jax import baselines, evaluate, render
+from ramavt_jax import baselines, render
 from ramavt_jax import env as env_lib
-from ramavt_jax import tables as tables_lib
+from ramavt_jax.cli import evaluate as cli_eval
+from ramavt_jax.evaluation import rollouts, runs
+from ramavt_jax.evaluation import tables as tables_lib
 
 TINY = dict(resolution=16, speed_steps=5, seed=0)
 
@@ -26,14 +28,14 @@ PROBE_XML = """<mujoco model="probe"><worldbody>
 
 def _stats(length, ret, term, trunc=None, target=None):
     n = len(length)
-    return evaluate.EpisodeStats(
+    return rollouts.EpisodeStats(
         length=jnp.array(length, jnp.int32), episode_return=jnp.array(ret, jnp.float32),
         terminated=jnp.array(term, bool), target_index=jnp.array(target or [0] * n, jnp.int32),
         truncated=None if trunc is None else jnp.array(trunc, bool))
 
 
 def test_summary_matches_hand_computation():
-    s = evaluate.summarise(_stats([10, 1000, 500, 21], [-50.0, 300.0, 20.5, -80.0], [True, False, False, True],
+    s = rollouts.summarise(_stats([10, 1000, 500, 21], [-50.0, 300.0, 20.5, -80.0], [True, False, False, True],
                                   [False, True, False, False]))
     assert s.episodes == 4
     assert s.length_mean == pytest.approx((10 + 1000 + 500 + 21) / 4)
@@ -45,13 +47,13 @@ def test_summary_matches_hand_computation():
     assert s.lost_fraction == pytest.approx(0.5)
     assert s.truncated_fraction == pytest.approx(0.25)
     # without truncation flags every episode not lost counts as truncated (the old EpisodeStats)
-    old = evaluate.summarise(_stats([5, 1000], [1.0, 2.0], [True, False]))
+    old = rollouts.summarise(_stats([5, 1000], [1.0, 2.0], [True, False]))
     assert (old.lost_fraction, old.truncated_fraction) == (0.5, 0.5)
-    both = evaluate.concat_stats([_stats([5], [1.0], [True], [False]), _stats([7, 9], [2.0, 3.0], [False, False],
+    both = rollouts.concat_stats([_stats([5], [1.0], [True], [False]), _stats([7, 9], [2.0, 3.0], [False, False],
                                                                               [True, False])])
     np.testing.assert_array_equal(both.length, [5, 7, 9])
     np.testing.assert_array_equal(both.truncated, [False, True, False])
-    assert evaluate.summarise(both).length_mean == pytest.approx(7.0)
+    assert rollouts.summarise(both).length_mean == pytest.approx(7.0)
 
 
 def test_early_exit_runner_matches_recorded_scan():
@@ -60,8 +62,8 @@ def test_early_exit_runner_matches_recorded_scan():
     params = tracking_env.eval_params(max_steps=60, lost_patience=3)
     pol = baselines.random_policy()
     key = jax.random.PRNGKey(3)
-    fast, _ = evaluate.run_episodes(tracking_env, pol, params, key, 6)
-    full, rec = evaluate.run_episodes(tracking_env, pol, params, key, 6, record=True)
+    fast, _ = rollouts.run_episodes(tracking_env, pol, params, key, 6)
+    full, rec = rollouts.run_episodes(tracking_env, pol, params, key, 6, record=True)
     for a, b in zip(jax.tree.leaves(fast), jax.tree.leaves(full)):
         np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-6)
     np.testing.assert_array_equal(np.asarray(rec.alive).sum(0), np.asarray(fast.length))
@@ -71,32 +73,32 @@ def test_early_exit_runner_matches_recorded_scan():
 
 
 def test_perturbation_settings():
-    assert evaluate.perturbation_overrides("none") == {}
-    assert evaluate.perturbation_overrides("all") == {"actuator_noise": 0.3, "delay_max": 0.5, "blur_frames": 3}
-    assert evaluate.perturbation_overrides("time_delay", {"delay_max": 0.2}) == {"delay_max": 0.2}
+    assert rollouts.perturbation_overrides("none") == {}
+    assert rollouts.perturbation_overrides("all") == {"actuator_noise": 0.3, "delay_max": 0.5, "blur_frames": 3}
+    assert rollouts.perturbation_overrides("time_delay", {"delay_max": 0.2}) == {"delay_max": 0.2}
     with pytest.raises(ValueError, match="unknown perturbation"):
-        evaluate.perturbation_overrides("wind")
+        rollouts.perturbation_overrides("wind")
 
 
 def test_target_specs_and_unknown_target(tmp_path):
     from ramavt_jax import targets
 
-    assert evaluate.resolve_targets("test") == targets.TEST_TARGETS
-    assert evaluate.resolve_targets("Satellite-v1, Satellite-v1,Rocket-v0") == ("Satellite-v1", "Rocket-v0")
+    assert rollouts.resolve_targets("test") == targets.TEST_TARGETS
+    assert rollouts.resolve_targets("Satellite-v1, Satellite-v1,Rocket-v0") == ("Satellite-v1", "Rocket-v0")
     path = tmp_path / "probe.xml"
     path.write_text(PROBE_XML)
-    assert evaluate.resolve_targets(f"Capsule-v2,{path}") == ("Capsule-v2", str(path))
+    assert rollouts.resolve_targets(f"Capsule-v2,{path}") == ("Capsule-v2", str(path))
     with pytest.raises(ValueError, match="unknown target 'Sputnik-v9'.*catalogue name"):
-        evaluate.resolve_targets("Satellite-v2,Sputnik-v9")
+        rollouts.resolve_targets("Satellite-v2,Sputnik-v9")
     with pytest.raises(ValueError, match="unknown target"):
-        evaluate.eval_cmd(policy="random", baselines=False, targets="nope.xml", out=tmp_path / "e")
+        cli_eval.eval_cmd(policy="random", baselines=False, targets="nope.xml", out=tmp_path / "e")
     with pytest.raises(ValueError, match="needs at least one --run"):
-        evaluate.eval_cmd(policy="checkpoint", baselines=False, out=tmp_path / "e")
+        cli_eval.eval_cmd(policy="checkpoint", baselines=False, out=tmp_path / "e")
 
 
 def test_eval_random_writes_tables(tmp_path):
     out = tmp_path / "eval"
-    result = evaluate.eval_cmd(policy="random", baselines=False, targets="Satellite-v2,Asteroid-v4", episodes=3,
+    result = cli_eval.eval_cmd(policy="random", baselines=False, targets="Satellite-v2,Asteroid-v4", episodes=3,
                                max_steps=15, tables=(1,), out=out, **TINY)
     md, js = (out / "tables.md").read_text(), json.loads((out / "results.json").read_text())
     assert "## Table I" in md and "## Table II" not in md and "| random |" in md
@@ -116,11 +118,11 @@ def test_eval_oracle_perturbations_custom_target_and_figures(tmp_path):
     path = tmp_path / "probe.xml"
     path.write_text(PROBE_XML)
     out = tmp_path / "eval"
-    evaluate.eval_cmd(policy="oracle", baselines=False, targets=f"Satellite-v2,{path}", episodes=2, max_steps=12,
+    cli_eval.eval_cmd(policy="oracle", baselines=False, targets=f"Satellite-v2,{path}", episodes=2, max_steps=12,
                       tables=(1, 2), out=out, figures=True, resolution=16, speed_steps=0)
     js = json.loads((out / "results.json").read_text())
     (row,) = js["rows"]
-    assert set(row["settings"]) == set(evaluate.PERTURBATIONS)
+    assert set(row["settings"]) == set(rollouts.PERTURBATIONS)
     assert set(row["settings"]["none"]["per_target"]) == {"Satellite-v2", str(path)}
     # the oracle never loses a target within 12 steps
     assert row["settings"]["none"]["overall"]["length_min"] == 12
@@ -133,10 +135,10 @@ def test_eval_oracle_perturbations_custom_target_and_figures(tmp_path):
 
 
 def _fake_run(run_dir, seed=0):
-    """A run folder in train_log.run's layout (config.json, checkpoints/<step>, metrics.jsonl) without training:
+    """A run folder in driver.run's layout (config.json, checkpoints/<step>, metrics.jsonl) without training:
     the initial RunnerState with perturbed params, saved by the trainer's CheckpointStore. Seconds, not minutes."""
     from ramavt_jax import train
-    from ramavt_jax.checkpoint import CheckpointStore
+    from ramavt_jax.training.checkpoint import CheckpointStore
 
     from ramavt_jax.network import init_params
 
@@ -160,12 +162,12 @@ def _fake_run(run_dir, seed=0):
 
 def test_eval_checkpoint_run(tmp_path):
     run_dir, params = _fake_run(tmp_path / "runs" / "smoke_s0")
-    loaded = evaluate.load_policy(run_dir)
+    loaded = runs.load_policy(run_dir)
     for a, b in zip(jax.tree.leaves(loaded.params), jax.tree.leaves(params)):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
     assert loaded.step == 3 and loaded.config.network.variant == "origin" and loaded.meta["env_steps"] == 960
     out = tmp_path / "eval"
-    evaluate.eval_cmd(policy="checkpoint", run=(run_dir,), baselines=False, targets="Satellite-v2", episodes=1,
+    cli_eval.eval_cmd(policy="checkpoint", run=(run_dir,), baselines=False, targets="Satellite-v2", episodes=1,
                       max_steps=8, tables=(1, 3), out=out, speed_steps=0)
     js = json.loads((out / "results.json").read_text())
     assert js["rows"][0]["info"]["variant"] == "origin" and js["rows"][0]["speed_hz"] is None
@@ -177,15 +179,16 @@ def test_eval_checkpoint_run(tmp_path):
 @pytest.mark.slow
 def test_load_policy_of_a_real_training_run(tmp_path):
     from ramavt_jax import train
+    from ramavt_jax.cli.train import train_and_evaluate
 
     cfg = dataclasses.replace(train.preset("smoke"), eval_episodes=0)
-    summary = train.run(cfg, tmp_path / "smoke_s0", seed=0, progress=False)
-    loaded = evaluate.load_policy(tmp_path / "smoke_s0")
-    for a, b in zip(jax.tree.leaves(loaded.params), jax.tree.leaves(summary["state"].learner.params)):
+    summary = train_and_evaluate(cfg, tmp_path / "smoke_s0", seed=0, progress=False)
+    loaded = runs.load_policy(tmp_path / "smoke_s0")
+    for a, b in zip(jax.tree.leaves(loaded.params), jax.tree.leaves(summary.state.learner.params)):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
     assert loaded.step == summary["chunks_done"]
     out = tmp_path / "eval"
-    evaluate.eval_cmd(policy="checkpoint", run=(tmp_path / "smoke_s0",), baselines=False, targets="Satellite-v2",
+    cli_eval.eval_cmd(policy="checkpoint", run=(tmp_path / "smoke_s0",), baselines=False, targets="Satellite-v2",
                       episodes=1, max_steps=8, tables=(1, 3), out=out, figures=True, speed_steps=0)
     figures = json.loads((out / "results.json").read_text())["figures"]
     assert any(k.endswith("attention") for k in figures) and "training_curves" in figures
@@ -195,12 +198,12 @@ def test_load_policy_of_a_real_training_run(tmp_path):
 
 def test_missing_run_is_a_clear_error(tmp_path):
     with pytest.raises(FileNotFoundError, match="config.json"):
-        evaluate.load_policy(tmp_path / "no_run")
+        runs.load_policy(tmp_path / "no_run")
 
 
 def test_markdown_handles_skipped_tables():
     result = {"settings": {"seed": 1, "episodes_per_target": 1, "targets": ["X"], "max_steps": 5,
-                           "perturbation_values": evaluate.PERTURBATION_VALUES, "speed_steps": 0, "tables": [1]},
+                           "perturbation_values": rollouts.PERTURBATION_VALUES, "speed_steps": 0, "tables": [1]},
               "machine": tables_lib.machine_info(), "rows": [], "wall_s": 1.0}
     md = tables_lib.to_markdown(result)
     assert "Table I" in md and "959.1" in md  # the paper's numbers are always shown for comparison

@@ -12,6 +12,7 @@ Targets of different sizes batch together because every array is padded to the s
 from __future__ import annotations
 
 import dataclasses
+import difflib
 import os
 from pathlib import Path
 from typing import Sequence
@@ -99,14 +100,17 @@ def resolve(name_or_path: str | os.PathLike) -> Path:
         if not path.is_file():
             raise TargetError(f"catalogue file {path} for target {text!r} is missing from the installation")
         return path
+    path = Path(text).expanduser()
+    if path.is_dir():
+        raise TargetError(f"target {text!r} is a folder; give an MJCF file (.xml) or a catalogue name")
     if text.lower().endswith(".xml") or os.sep in text:
-        path = Path(text).expanduser()
         if not path.is_file():
             raise TargetError(f"target file {path} does not exist")
         return path
-    close = [n for n in CATALOGUE if n.lower().startswith(text.lower().split("-")[0])]
-    hint = f" Did you mean one of {close}?" if close else ""
-    raise TargetError(f"unknown target {text!r}: not in the catalogue ({', '.join(CATALOGUE)}) and not an .xml file.{hint}")
+    close = difflib.get_close_matches(text, list(CATALOGUE), n=3, cutoff=0.6)
+    hint = f" Did you mean {' or '.join(close)}?" if close else ""
+    raise TargetError(f"unknown target {text!r}: not in the catalogue ({', '.join(CATALOGUE)}) and not an .xml "
+                      f"file.{hint}")
 
 
 def _load_mj_model(path: Path):

@@ -11,7 +11,6 @@ numbers), so differences between rows are not reset luck.
 from __future__ import annotations
 
 import dataclasses
-import json
 import os
 import platform
 import time
@@ -22,7 +21,8 @@ import jax
 import numpy as np
 
 from ramavt_jax import env as env_lib
-from ramavt_jax import evaluate
+from ramavt_jax.evaluation import rollouts
+from ramavt_jax.training.run_folder import dumps
 from ramavt_jax.baselines import Policy
 
 # The paper's numbers (RAMAVT, IEEE TAES; 256x256 renders of the SNCOAT benchmark, 6 held-out targets).
@@ -66,14 +66,14 @@ class Entry:
 
 
 def settings_for(tables: tuple[int, ...]) -> list[str]:
-    return list(evaluate.PERTURBATIONS) if 2 in tables else ["none"]
+    return list(rollouts.PERTURBATIONS) if 2 in tables else ["none"]
 
 
 def run_suite(entries: list[Entry], targets: tuple[str, ...], episodes: int, max_steps: int, seed: int,
               tables: tuple[int, ...] = (1, 2, 3), perturbation_values: dict | None = None, speed_steps: int = 200,
               log: Callable[[str], None] = print) -> dict:
     """Evaluate every entry on every target (vmapped episodes) for each needed setting. Returns a JSON-able dict."""
-    values = {**evaluate.PERTURBATION_VALUES, **(perturbation_values or {})}
+    values = {**rollouts.PERTURBATION_VALUES, **(perturbation_values or {})}
     settings = settings_for(tables)
     root = jax.random.PRNGKey(seed)
     results = []
@@ -88,23 +88,23 @@ def run_suite(entries: list[Entry], targets: tuple[str, ...], episodes: int, max
         for s_index, setting in enumerate(settings):
             t0 = time.time()
             params = tracking_env.eval_params(**{**entry.env_overrides, "max_steps": max_steps,
-                                                 **evaluate.perturbation_overrides(setting, values)})
+                                                 **rollouts.perturbation_overrides(setting, values)})
             per_target, all_stats = {}, []
             for i, target in enumerate(targets):
                 key = jax.random.fold_in(jax.random.fold_in(root, s_index), i)  # same episodes for every policy
-                stats, _ = evaluate.run_episodes(tracking_env, entry.policy, tracking_env.pinned(params, i), key,
+                stats, _ = rollouts.run_episodes(tracking_env, entry.policy, tracking_env.pinned(params, i), key,
                                                  episodes)
                 stats = jax.device_get(stats)
                 all_stats.append(stats)
-                per_target[target] = evaluate.summarise(stats).as_dict()
-            overall = evaluate.summarise(evaluate.concat_stats(all_stats)).as_dict()
+                per_target[target] = rollouts.summarise(stats).as_dict()
+            overall = rollouts.summarise(rollouts.concat_stats(all_stats)).as_dict()
             row["settings"][setting] = {"overall": overall, "per_target": per_target, "wall_s": time.time() - t0}
             log(f"{entry.name:<22} {row['input']:<6} {setting:<15} AEL {overall['length_mean']:7.1f} "
                 f"AER {overall['return_mean']:9.1f} lost {overall['lost_fraction']:.2f} ({time.time() - t0:.0f} s)")
         row["speed_hz"] = None
         if speed_steps > 0:
             params = tracking_env.pinned(tracking_env.eval_params(**entry.env_overrides, max_steps=max_steps), 0)
-            row["speed_hz"] = evaluate.measure_speed(tracking_env, entry.policy, params, jax.random.fold_in(root, 99),
+            row["speed_hz"] = rollouts.measure_speed(tracking_env, entry.policy, params, jax.random.fold_in(root, 99),
                                                      speed_steps)
             log(f"{entry.name:<22} {row['input']:<6} speed {row['speed_hz']:.1f} Hz (single env, {speed_steps} steps)")
         row["wall_s"] = time.time() - t_entry
@@ -155,7 +155,7 @@ def table1_md(result: dict) -> str:
 def table2_md(result: dict) -> str:
     rows = []
     for r in result["rows"]:
-        for setting in evaluate.PERTURBATIONS:
+        for setting in rollouts.PERTURBATIONS:
             s = r["settings"].get(setting)
             if s is None:
                 continue
@@ -237,5 +237,5 @@ def write(result: dict, out: Path, command: str = "") -> tuple[Path, Path]:
     out.mkdir(parents=True, exist_ok=True)
     md, js = out / "tables.md", out / "results.json"
     md.write_text(to_markdown(result, command))
-    js.write_text(json.dumps({**result, "command": command}, indent=1, default=float))
+    js.write_text(dumps({**result, "command": command}, indent=1, default=float))
     return md, js

@@ -16,11 +16,15 @@ import jax
 import numpy as np
 import orbax.checkpoint as ocp
 
-__all__ = ["CheckpointStore", "CheckpointNotFoundError", "has_checkpoint"]
+__all__ = ["CheckpointStore", "CheckpointNotFoundError", "CheckpointError", "has_checkpoint"]
 
 
 class CheckpointNotFoundError(FileNotFoundError):
     """No checkpoint where one was required."""
+
+
+class CheckpointError(ValueError):
+    """A checkpoint exists but cannot be used (no step loads, or it holds another state)."""
 
 
 def has_checkpoint(directory) -> bool:
@@ -31,10 +35,20 @@ def has_checkpoint(directory) -> bool:
     return any(p.is_dir() and p.name.isdigit() for p in directory.iterdir())
 
 
+def _leaf_key(i: int) -> str:
+    """The name of leaf ``i`` (in ``jax.tree.leaves`` order) inside a checkpoint."""
+    return f"{i:05d}"
+
+
 def _flat(tree: Any) -> tuple[dict, int]:
     """Non-empty leaves as {index: array} (orbax refuses zero-size arrays) and the total leaf count."""
     leaves = jax.tree.leaves(tree)
-    return {f"{i:05d}": leaf for i, leaf in enumerate(leaves) if np.size(leaf) > 0}, len(leaves)
+    return {_leaf_key(i): leaf for i, leaf in enumerate(leaves) if np.size(leaf) > 0}, len(leaves)
+
+
+def _first_line(e: BaseException) -> str:
+    text = str(e).strip().splitlines()
+    return f"{type(e).__name__}: {text[0][:160] if text else ''}"
 
 
 class CheckpointStore:
@@ -67,6 +81,12 @@ class CheckpointStore:
                                                              meta=ocp.args.JsonSave(meta)), force=force)
         self.manager.wait_until_finished()
 
+    def _check_leaves(self, step: int, meta: dict, count: int) -> None:
+        if meta.get("_num_leaves") != count:
+            raise CheckpointError(f"checkpoint {step} in {self.directory} holds a state with {meta.get('_num_leaves')} "
+                                  f"arrays, the current code and config expect {count}: it was written by another "
+                                  f"configuration or code version")
+
     def restore(self, like: Any, step: int | None = None) -> tuple[Any, dict]:
         """Restore into the structure/shapes/dtypes of ``like`` (a pytree of arrays). Returns (state, meta)."""
         step = self.latest_step() if step is None else step
@@ -74,17 +94,48 @@ class CheckpointStore:
             raise CheckpointNotFoundError(f"no checkpoint found in {self.directory}")
         leaves, treedef = jax.tree.flatten(like)
         meta = self.read_meta(step)
-        if meta.get("_num_leaves") != len(leaves):
-            raise ValueError(f"checkpoint {step} in {self.directory} holds a state with {meta.get('_num_leaves')} "
-                             f"arrays, the current run expects {len(leaves)}: it was written by a different "
-                             f"configuration or code version")
+        self._check_leaves(step, meta, len(leaves))
         flat, _ = _flat(like)
         abstract = jax.tree.map(ocp.utils.to_shape_dtype_struct, flat)
         restored = self.manager.restore(int(step), args=ocp.args.Composite(state=ocp.args.StandardRestore(abstract)))
         data = restored["state"]
-        out = [data[f"{i:05d}"] if np.size(leaf) > 0 else leaf for i, leaf in enumerate(leaves)]
+        out = [data[_leaf_key(i)] if np.size(leaf) > 0 else leaf for i, leaf in enumerate(leaves)]
         meta.pop("_num_leaves", None)
         return jax.tree.unflatten(treedef, out), meta
+
+    def restore_newest_loadable(self, like: Any, log=print) -> tuple[Any, dict, int]:
+        """Restore the newest step that loads, newest first. A step that fails (a truncated or missing file) is
+        reported in one line and deleted, so the run continues from the older one. Returns (state, meta, step)."""
+        failures = []
+        for step in sorted(self.all_steps(), reverse=True):
+            try:
+                state, meta = self.restore(like, step)
+            except CheckpointError:
+                raise
+            except Exception as e:  # noqa: BLE001 (orbax / tensorstore raise many types for damaged files)
+                failures.append(f"step {step}: {_first_line(e)}")
+                continue
+            for bad in [s for s in self.all_steps() if s > step]:
+                self.manager.delete(bad)
+            if failures:
+                log(f"checkpoint(s) in {self.directory} did not load ({'; '.join(failures)}); resuming from step "
+                    f"{step} (the damaged ones were deleted)")
+            return state, meta, step
+        raise CheckpointError(f"no checkpoint in {self.directory} loads ({'; '.join(failures) or 'none found'}); "
+                              f"start afresh with --no-resume")
+
+    def restore_subtree(self, like: Any, pick, step: int | None = None) -> Any:
+        """Restore only ``pick(like)`` (a sub-tree of the saved state, e.g. the network params) from ``step``
+        (default the latest) without reading the other arrays."""
+        step = self.latest_step() if step is None else step
+        leaves, treedef = jax.tree.flatten(like)
+        self._check_leaves(step, self.read_meta(step), len(leaves))
+        wanted = jax.tree.leaves(pick(jax.tree.unflatten(treedef, list(range(len(leaves))))))
+        abstract = {_leaf_key(i): jax.ShapeDtypeStruct(leaves[i].shape, leaves[i].dtype) for i in wanted}
+        restored = self.manager.restore(
+            int(step), args=ocp.args.Composite(state=ocp.args.PyTreeRestore(abstract, partial_restore=True)))["state"]
+        _, sub_def = jax.tree.flatten(pick(like))
+        return jax.tree.unflatten(sub_def, [restored[_leaf_key(i)] for i in wanted])
 
     def read_meta(self, step: int | None = None) -> dict:
         step = self.latest_step() if step is None else step

@@ -1,4 +1,5 @@
-"""Training-curve figures over several runs: mean ± std bands across seeds (the paper's Figs. 3 and 7)."""
+"""Training-curve figures: one run's curves (``training_curves.png`` of a run folder) and several runs with mean ±
+std bands across seeds (the paper's Figs. 3 and 7); one plotter serves both."""
 
 from __future__ import annotations
 
@@ -9,8 +10,12 @@ from typing import Sequence
 
 import numpy as np
 
+from ramavt_jax.figures import pyplot
+from ramavt_jax.training import run_folder as folders
+
 CURVE_KEYS = (("episode_length", "episode length"), ("episode_return", "episode return"), ("loss", "TD loss"),
               ("q_mean", "mean Q"))
+RUN_CURVE_KEYS = CURVE_KEYS + (("epsilon", "epsilon"),)  # one run's own training_curves.png
 _SEED_SUFFIX = re.compile(r"[-_.]?(s|seed)\d+$", re.IGNORECASE)
 
 
@@ -19,21 +24,19 @@ def group_name(run_dir: str | Path) -> str:
     seed suffix (runs/ramavt_s0, runs/ramavt-seed1 -> 'ramavt')."""
     path = Path(run_dir)
     name = path.name
-    if re.fullmatch(r"seed_\d+", name):  # a folder of `ramavt train --seeds N`: the sweep folder names the group
+    if folders.is_seed_dir(path):  # a folder of `ramavt train --seeds N`: the sweep folder names the group
         return path.resolve().parent.name
     return _SEED_SUFFIX.sub("", name) or name
 
 
-def read_run(run_dir: str | Path) -> tuple[np.ndarray, dict[str, np.ndarray]]:
-    """(env_steps [K], {metric: [K]}) from a run folder's metrics.jsonl (see train_log.read_metrics)."""
-    from ramavt_jax.train_log import read_metrics
-
-    path = Path(run_dir) / "metrics.jsonl"
-    records = read_metrics(path)
+def read_run(run_dir: str | Path, keys=RUN_CURVE_KEYS) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    """(env_steps [K], {metric: [K]}) from a run folder's metrics.jsonl (missing values are NaN)."""
+    path = Path(run_dir) / folders.METRICS_FILE
+    records = folders.read_metrics(path)
     if not records:
         raise FileNotFoundError(f"no training metrics in {path}: is {run_dir} a folder written by `ramavt train`?")
     x = np.array([r["env_steps"] for r in records], float)
-    return x, {k: np.array([r.get(k, np.nan) for r in records], float) for k, _ in CURVE_KEYS}
+    return x, {k: np.array([r.get(k, np.nan) for r in records], float) for k, _ in keys}
 
 
 def band(curves: Sequence[tuple[np.ndarray, np.ndarray]]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -54,30 +57,28 @@ def band(curves: Sequence[tuple[np.ndarray, np.ndarray]]) -> tuple[np.ndarray, n
 
 
 def plot_training_runs(run_dirs: Sequence[str | Path], out: str | Path, keys=CURVE_KEYS,
-                       labels: dict[str, str] | None = None) -> Path:
+                       labels: dict[str, str] | None = None, title: str = "") -> Path:
     """One panel per metric; one line per group of runs (seeds) with a ±1 std band. Returns the PNG path."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt = pyplot()
     if not run_dirs:
         raise ValueError("plot_training_runs: no run folders given")
     groups: dict[str, list] = {}
     for d in run_dirs:
-        groups.setdefault(group_name(d), []).append(read_run(d))
+        groups.setdefault(group_name(d), []).append(read_run(d, keys))
     fig, axes = plt.subplots(1, len(keys), figsize=(4.2 * len(keys), 3.3), squeeze=False)
     for ax, (key, title) in zip(axes[0], keys):
         for name, runs in groups.items():
             x, mean, std = band([(rx, m[key]) for rx, m in runs])
             label = (labels or {}).get(name, name) + (f" ({len(runs)} seeds)" if len(runs) > 1 else "")
-            (line,) = ax.plot(x, mean, lw=1.5, label=label)
+            (line,) = ax.plot(x, mean, lw=1.5, label=label, marker="." if len(x) < 50 else None)
             if len(runs) > 1:
                 ax.fill_between(x, mean - std, mean + std, color=line.get_color(), alpha=0.25, lw=0)
         ax.set_title(title, fontsize=10)
         ax.set_xlabel("env steps")
         ax.grid(alpha=0.3)
     axes[0][0].legend(fontsize=8)
+    if title:
+        fig.suptitle(title)
     fig.tight_layout()
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
@@ -93,3 +94,8 @@ def run_label(run_dir: str | Path) -> str:
         return f"{cfg['network']['variant']} {cfg['env']['obs_mode']}"
     except (OSError, KeyError, ValueError):
         return Path(run_dir).name
+
+
+def plot_run(run_dir: str | Path, title: str = "") -> Path:
+    """A run folder's own ``training_curves.png`` (episode length and return, loss, mean Q, epsilon)."""
+    return plot_training_runs([run_dir], Path(run_dir) / folders.CURVES_FILE, keys=RUN_CURVE_KEYS, title=title)

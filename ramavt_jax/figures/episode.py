@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import dataclasses
 from pathlib import Path
-from typing import Literal
 
 import jax
 import jax.numpy as jnp
@@ -12,8 +11,10 @@ import numpy as np
 from flax import struct
 
 from ramavt_jax import env as env_lib
-from ramavt_jax import render
+from ramavt_jax import network, render
 from ramavt_jax.baselines import Policy
+from ramavt_jax.figures import pyplot
+from ramavt_jax.figures.training import plot_training_runs
 
 
 @struct.dataclass
@@ -72,11 +73,7 @@ def _to_uint8(image: np.ndarray, size: int) -> np.ndarray:
 
 def _trajectory_panel(frames: EpisodeFrames, t: int, size: int, desired_z: float = 5.0) -> np.ndarray:
     """Top view (x-z in the camera frame) of the target track and tracking error up to step t, as uint8 RGB."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt = pyplot()
     fig, (ax_top, ax_err) = plt.subplots(2, 1, figsize=(size / 100, size / 100), dpi=100)
     rel = frames.rel_pos[: t + 1]
     ax_top.plot(rel[:, 0], rel[:, 2], color="tab:blue", lw=1)
@@ -128,11 +125,7 @@ def episode_video(frames: EpisodeFrames, out: str | Path, size: int = 256, fps: 
 
 def plot_tracking_error(frames: EpisodeFrames, out: str | Path, desired_z: float = 5.0) -> Path:
     """Tracking error x/y/z over one episode (the paper's Fig. 5b)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt = pyplot()
     alive = np.asarray(frames.alive)
     rel = np.asarray(frames.rel_pos)[alive]
     err = rel - np.array([0.0, 0.0, desired_z])
@@ -149,11 +142,7 @@ def plot_tracking_error(frames: EpisodeFrames, out: str | Path, desired_z: float
 
 def plot_trajectory_3d(frames: EpisodeFrames, out: str | Path) -> Path:
     """3-D paths of chaser and target in the Hill frame (the paper's Fig. 5a)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt = pyplot()
     alive = np.asarray(frames.alive)
     chaser = np.asarray(frames.chaser_pos)[alive]
     target = np.asarray(frames.target_pos)[alive]
@@ -172,7 +161,7 @@ def plot_trajectory_3d(frames: EpisodeFrames, out: str | Path) -> Path:
 
 # ============================================================================================ paper figures
 def _save(fig, out: str | Path, dpi: int = 120) -> Path:
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
@@ -200,11 +189,7 @@ def strip_indices(length: int, count: int) -> np.ndarray:
 
 def plot_frame_strip(frames: EpisodeFrames, out: str | Path, count: int = 8) -> Path:
     """The observations the policy saw at `count` steps across the episode (the paper's Fig. 5c)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt = pyplot()
     length = max(int(np.asarray(frames.alive).sum()), 1)
     idx = strip_indices(length, count)
     fig, axes = plt.subplots(1, len(idx), figsize=(1.6 * len(idx), 1.9), squeeze=False)
@@ -219,8 +204,6 @@ def plot_frame_strip(frames: EpisodeFrames, out: str | Path, count: int = 8) -> 
 
 def attention_panels(params, network_config, observations: np.ndarray) -> list[dict]:
     """network.attention_maps for each frame of `observations` [K, H, W, C]: a list of {name: [h, w]} dicts."""
-    from ramavt_jax import network
-
     fn = jax.jit(lambda o: network.attention_maps(params, network_config, o))
     return [jax.device_get(fn(jnp.asarray(o))) for o in np.asarray(observations)]
 
@@ -228,11 +211,7 @@ def attention_panels(params, network_config, observations: np.ndarray) -> list[d
 def plot_attention(observations: np.ndarray, maps: list[dict], out: str | Path, alpha: float = 0.55) -> Path:
     """The paper's Fig. 6: per frame (row) the input image, then each conv block's map and the MHA output's map
     (each a softmax over positions, summing to 1), upsampled to the image and overlaid on it."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt = pyplot()
     observations = np.asarray(observations)
     names = list(maps[0])
     rows, cols = len(maps), 1 + len(names)
@@ -283,15 +262,13 @@ def _mkdir(path: Path) -> Path:
     return path
 
 
-def _slug(name: str) -> str:
+def slug(name: str) -> str:
     return "".join(c if c.isalnum() or c in "-_" else "_" for c in name).strip("_") or "policy"
 
 
 def eval_figures(entries, loaded, target: str, out_dir: str | Path, seed: int = 0, steps: int = 1000) -> dict:
     """Figures for `ramavt eval --figures`: one recorded episode on `target` per evaluated policy, attention maps
     of the trained runs and their training curves. Returns {figure: path}."""
-    from ramavt_jax import viz_train
-
     out_dir = Path(out_dir)
     runs = {lr.run_dir: lr for lr in loaded}
     out = {}
@@ -301,66 +278,11 @@ def eval_figures(entries, loaded, target: str, out_dir: str | Path, seed: int = 
         params = tracking_env.eval_params(**e.env_overrides, max_steps=steps)
         lr = runs.get(e.info.get("run_dir"))
         network = (lr.config.network, lr.params) if lr is not None else None
-        prefix = _slug(f"{e.name}_{config.obs_mode}")
+        prefix = slug(f"{e.name}_{config.obs_mode}")
         for k, v in episode_figures(tracking_env, e.policy, params, jax.random.PRNGKey(seed), steps, out_dir, prefix,
                                     network=network).items():
             out[f"{prefix}/{k}"] = v
     if loaded:
-        out["training_curves"] = str(viz_train.plot_training_runs([lr.run_dir for lr in loaded],
+        out["training_curves"] = str(plot_training_runs([lr.run_dir for lr in loaded],
                                                                   out_dir / "training_curves.png"))
     return out
-
-
-# ============================================================================================ `ramavt plot`
-def plot_cmd(
-    runs: tuple[Path, ...] = (),
-    run: Path | None = None,
-    policy: Literal["oracle", "depth", "random"] = "oracle",
-    target: str = "Satellite-v2",
-    steps: int = 1000,
-    resolution: int = 64,
-    obs: Literal["depth", "color", "rgbd"] = "depth",
-    seed: int = 0,
-    frames: int = 8,
-    out: Path = Path("figures"),
-) -> dict:
-    """Paper figures as PNGs: training curves (mean ± std over seeds), and for one episode the tracking error x/y/z,
-    3-D trajectories, a strip of observed frames and (for a trained run) attention maps.
-
-    Args:
-        runs: training run folders for the curves; folders differing only by a seed suffix (_s0, -seed1) form one
-            band.
-        run: a trained run folder whose greedy policy flies the episode (attention maps included); else --policy.
-        policy: baseline flying the episode when no --run is given.
-        target: catalogue name or MJCF file of the episode's target.
-        steps: episode length cap.
-        resolution: camera resolution for a baseline (a trained run uses its own).
-        obs: observation mode for a baseline (a trained run uses its own).
-        seed: episode seed.
-        frames: frames in the strip.
-        out: output folder.
-    """
-    from ramavt_jax import baselines, evaluate, viz_train
-
-    names = evaluate.resolve_targets(target)
-    out_paths = {}
-    if runs:
-        labels = {viz_train.group_name(r): viz_train.run_label(r) for r in runs}
-        if len(set(labels.values())) < len(labels):  # two groups would share a legend entry: name them by folder
-            labels = {g: f"{g} ({lab})" for g, lab in labels.items()}
-        out_paths["training_curves"] = str(viz_train.plot_training_runs(runs, out / "training_curves.png", labels=labels))
-    if run is not None:
-        lr = evaluate.load_policy(run)
-        config = dataclasses.replace(lr.config.env, targets=names[:1])
-        overrides = {k: v for k, v in dict(lr.config.env_params).items() if k not in ("dist_weight", "lost_patience")}
-        pol, network, prefix = lr.policy, (lr.config.network, lr.params), _slug(Path(run).name)
-    else:
-        config = env_lib.EnvConfig(camera=render.CameraConfig(resolution=resolution), obs_mode=obs, targets=names[:1])
-        overrides, pol, network, prefix = {}, baselines.make_policy(policy, config.camera), None, policy
-    tracking_env = env_lib.TrackingEnv(config)
-    params = tracking_env.eval_params(**overrides, max_steps=steps)
-    out_paths.update(episode_figures(tracking_env, pol, params, jax.random.PRNGKey(seed), steps, out, prefix,
-                                     strip=frames, network=network))
-    for k, v in out_paths.items():
-        print(f"{k}: {v}")
-    return out_paths

@@ -1,11 +1,12 @@
-"""Running policies for whole episodes and summarising them (episode length / reward tables)."""
+"""Running policies for whole episodes and summarising them (episode length / reward tables), the perturbation
+settings of Table II and the target specs accepted by ``ramavt eval``."""
 
 from __future__ import annotations
 
 import dataclasses
 import functools
-from pathlib import Path
-from typing import Literal, Sequence
+import time
+from typing import Sequence
 
 import jax
 import jax.numpy as jnp
@@ -13,8 +14,17 @@ import numpy as np
 from flax import struct
 
 from ramavt_jax import env as env_lib
+from ramavt_jax import targets as targets_lib
 from ramavt_jax.baselines import Policy
-from ramavt_jax.runs import LoadedRun, load_policy  # re-exported: eval rows come from run folders
+
+# EnvParams fields whose evaluation values (env.eval_params) replace a run's training values
+EVAL_FIELDS = ("dist_weight", "lost_patience")
+
+
+def run_env_overrides(env_params) -> dict:
+    """A training run's EnvParams overrides (TrainConfig.env_params) that also hold in evaluation: all but the
+    EVAL_FIELDS, which evaluation sets to the reported-table values."""
+    return {k: v for k, v in dict(env_params).items() if k not in EVAL_FIELDS}
 
 
 @struct.dataclass
@@ -197,7 +207,7 @@ def evaluate_per_target(
 
 
 # ============================================================================================ perturbations
-# Table II of the paper; the original values (DESIGN.md): command * (1 + 0.3 N(0, 1)), step duration dt + U(0, 0.5) s,
+# Table II of the paper; the original benchmark's values: command * (1 + 0.3 N(0, 1)), step duration dt + U(0, 0.5) s,
 # observation = mean of the last 3 frames (the paper gives no frame count; 3 is our choice).
 PERTURBATION_VALUES = {"actuator_noise": 0.3, "delay_max": 0.5, "blur_frames": 3}
 PERTURBATIONS: dict[str, tuple[str, ...]] = {
@@ -222,8 +232,6 @@ def resolve_targets(spec: str | Sequence[str]) -> tuple[str, ...]:
     """'test' (held-out split) | 'train' | 'all' | comma-separated catalogue names and/or MJCF file paths.
 
     Raises ValueError naming the entry that is neither a catalogue name nor a readable MJCF file."""
-    from ramavt_jax import targets as targets_lib
-
     items = [s.strip() for s in spec.split(",")] if isinstance(spec, str) else [str(s).strip() for s in spec]
     items = [s for s in items if s]
     if not items:
@@ -236,8 +244,7 @@ def resolve_targets(spec: str | Sequence[str]) -> tuple[str, ...]:
         try:
             targets_lib.resolve(item)
         except (ValueError, OSError) as e:
-            raise ValueError(f"unknown target {item!r}: not a split (test/train/all), not a catalogue name "
-                             f"({', '.join(targets_lib.CATALOGUE)}) and not a readable MJCF file ({e})") from None
+            raise targets_lib.TargetError(f"{e} (the splits test, train and all are accepted too)") from None
         out.append(item)
     return tuple(dict.fromkeys(out))  # keep order, drop repeats
 
@@ -247,8 +254,6 @@ def measure_speed(tracking_env: env_lib.TrackingEnv, policy: Policy, params: env
                   steps: int = 200) -> float:
     """Control-loop rate in Hz of one env: policy.act + env.step as one jitted call per step (greedy, batch 1),
     timed over `steps` calls after a warm-up call. Includes dispatch overhead, as a real control loop would."""
-    import time
-
     @jax.jit
     def step(carry, k):
         obs, state, pstate = carry
@@ -267,102 +272,3 @@ def measure_speed(tracking_env: env_lib.TrackingEnv, policy: Policy, params: env
         carry = step(carry, k)
     jax.block_until_ready(carry)
     return steps / (time.perf_counter() - t0)
-
-
-# ============================================================================================ `ramavt eval`
-def eval_cmd(
-    policy: Literal["checkpoint", "oracle", "depth", "random"] = "checkpoint",
-    run: tuple[Path, ...] = (),
-    baselines: bool = True,
-    targets: str = "test",
-    episodes: int = 20,
-    max_steps: int = 1000,
-    tables: tuple[int, ...] = (1, 2, 3),
-    obs: tuple[Literal["depth", "rgbd", "color"], ...] = ("depth",),
-    resolution: int = 64,
-    dynamics: Literal["cw", "kinematic"] = "cw",
-    actuator_noise: float = 0.3,
-    delay_max: float = 0.5,
-    blur_frames: int = 3,
-    speed_steps: int = 200,
-    seed: int = 0,
-    out: Path = Path("eval"),
-    figures: bool = False,
-) -> dict:
-    """Evaluate policies greedily and write the paper's tables (Markdown + JSON) to --out.
-
-    Args:
-        policy: 'checkpoint' (trained runs given by --run) or a baseline: 'oracle' (true state, an upper bound),
-            'depth' (classical depth-image tracker) or 'random'.
-        run: training run folders (written by `ramavt train`); each is one row of Tables I-III.
-        baselines: also evaluate oracle, depth tracker and random in every table.
-        targets: 'test' (held-out split), 'train', 'all', or comma-separated catalogue names / MJCF files.
-        episodes: episodes per target (run side by side).
-        max_steps: episode length cap (the paper: 1000).
-        tables: which tables to produce (2 runs the five perturbation settings, 5x the episodes).
-        obs: input modes of the baselines (the depth tracker skips 'color'; oracle and random run once).
-        resolution: camera resolution of the baselines (trained runs use their own).
-        dynamics: target motion model of the baselines (trained runs use their own).
-        actuator_noise: Table II actuator noise (command x (1 + a N(0, 1))).
-        delay_max: Table II time delay: each step lasts dt + U(0, delay_max) s.
-        blur_frames: Table II image blur: observation = mean of the last n frames.
-        speed_steps: single-env steps timed for the speed column (0 = skip).
-        seed: evaluation seed (the same episodes for every policy).
-        out: output folder (tables.md, results.json, figures/).
-        figures: also plot one episode per policy (tracking error, 3-D trajectory, frame strip), attention maps and
-            training curves of the runs.
-    """
-    import shlex
-    import sys
-    import time
-
-    from ramavt_jax import baselines as baselines_lib
-    from ramavt_jax import render, tables as tables_lib
-
-    t0 = time.time()
-    names = resolve_targets(targets)
-    if episodes < 1 or max_steps < 1:
-        raise ValueError(f"episodes and max_steps must be >= 1, got {episodes} and {max_steps}")
-    bad = [t for t in tables if t not in (1, 2, 3)]
-    if bad:
-        raise ValueError(f"tables must be among 1, 2, 3, got {bad}")
-    if policy == "checkpoint" and not run:
-        raise ValueError("--policy checkpoint needs at least one --run folder (or pick a baseline policy)")
-    entries: list[tables_lib.Entry] = []
-    loaded: list[LoadedRun] = []
-    for run_dir in run:
-        lr = load_policy(run_dir)
-        loaded.append(lr)
-        cfg = lr.config
-        overrides = {k: v for k, v in dict(cfg.env_params).items() if k not in ("dist_weight", "lost_patience")}
-        info = {"run_dir": str(run_dir), "variant": cfg.network.variant, "augment": bool(cfg.augment),
-                "seed": lr.seed, "step": lr.step, "env_steps": lr.meta.get("env_steps")}
-        row = Path(run_dir).name
-        if row.startswith("seed_"):  # a folder of `ramavt train --seeds N`: name the sweep too
-            row = f"{Path(run_dir).resolve().parent.name}/{row}"
-        entries.append(tables_lib.Entry(row, "checkpoint", lr.policy, cfg.env, overrides,
-                                        cfg.env.obs_mode, info))
-    wanted = [policy] if policy != "checkpoint" else []
-    if baselines:
-        wanted += [p for p in ("oracle", "depth", "random") if p not in wanted]
-    camera = render.CameraConfig(resolution=resolution)
-    labels = {"oracle": "oracle (true state)", "depth": "depth tracker", "random": "random"}
-    for name in wanted:
-        pol = baselines_lib.make_policy(name, camera)  # one object per baseline: one compile for all its runs
-        modes = [m for m in obs if not (name == "depth" and m == "color")] if name == "depth" else list(obs[:1])
-        for mode in modes:
-            config = env_lib.EnvConfig(camera=camera, obs_mode=mode, targets=names, dynamics=dynamics)
-            label = mode if name == "depth" else f"any ({mode})"
-            entries.append(tables_lib.Entry(labels[name], "baseline", pol, config, {}, label, {"variant": name}))
-    values = {"actuator_noise": actuator_noise, "delay_max": delay_max, "blur_frames": blur_frames}
-    result = tables_lib.run_suite(entries, names, episodes, max_steps, seed, tuple(tables), values, speed_steps)
-    if figures:
-        from ramavt_jax import viz
-
-        result["figures"] = viz.eval_figures(entries, loaded, names[0], Path(out) / "figures", seed=seed,
-                                             steps=max_steps)
-    result["wall_s"] = time.time() - t0
-    command = "ramavt " + " ".join(shlex.quote(a) for a in sys.argv[1:]) if sys.argv[1:2] == ["eval"] else ""
-    md, js = tables_lib.write(result, out, command)
-    print(f"wrote {md} and {js} ({result['wall_s']:.0f} s)")
-    return result

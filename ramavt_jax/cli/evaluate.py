@@ -1,0 +1,181 @@
+"""`ramavt eval`: the paper's tables for trained run folders and baselines, and `ramavt plot`: figures."""
+
+from __future__ import annotations
+
+import dataclasses
+import shlex
+import sys
+import time
+from pathlib import Path
+from typing import Literal
+
+import jax
+
+from ramavt_jax import baselines as baselines_lib
+from ramavt_jax import env as env_lib
+from ramavt_jax import render
+from ramavt_jax.cli.checks import UsageError, output_folder, positive
+from ramavt_jax.evaluation import rollouts
+from ramavt_jax.evaluation import tables as tables_lib
+from ramavt_jax.evaluation.runs import LoadedRun, load_policy, row_name
+from ramavt_jax.figures import episode, training
+
+LABELS = {"oracle": "oracle (true state)", "depth": "depth tracker", "random": "random"}
+
+
+def _run_entries(runs: tuple[Path, ...]) -> tuple[list[tables_lib.Entry], list[LoadedRun]]:
+    entries, loaded = [], []
+    for run_dir in runs:
+        lr = load_policy(run_dir)
+        loaded.append(lr)
+        cfg = lr.config
+        info = {"run_dir": str(run_dir), "variant": cfg.network.variant, "augment": bool(cfg.augment),
+                "seed": lr.seed, "step": lr.step, "env_steps": lr.meta.get("env_steps")}
+        entries.append(tables_lib.Entry(row_name(run_dir), "checkpoint", lr.policy, cfg.env,
+                                    rollouts.run_env_overrides(cfg.env_params), cfg.env.obs_mode, info))
+    return entries, loaded
+
+
+def _baseline_entries(names: list[str], obs: tuple[str, ...], resolution: int, dynamics: str,
+                      targets: tuple[str, ...]) -> list[tables_lib.Entry]:
+    camera = render.CameraConfig(resolution=resolution)
+    entries = []
+    for name in names:
+        pol = baselines_lib.make_policy(name, camera)  # one object per baseline: one compile for all its runs
+        modes = [m for m in obs if m != "color"] if name == "depth" else list(obs[:1])
+        for mode in modes:
+            config = env_lib.EnvConfig(camera=camera, obs_mode=mode, targets=targets, dynamics=dynamics)
+            label = mode if name == "depth" else f"any ({mode})"
+            entries.append(tables_lib.Entry(LABELS[name], "baseline", pol, config, {}, label, {"variant": name}))
+    return entries
+
+
+def eval_cmd(
+    policy: Literal["checkpoint", "oracle", "depth", "random"] = "checkpoint",
+    run: tuple[Path, ...] = (),
+    baselines: bool = True,
+    targets: str = "test",
+    episodes: int = 20,
+    max_steps: int = 1000,
+    tables: tuple[int, ...] = (1, 2, 3),
+    obs: tuple[Literal["depth", "rgbd", "color"], ...] = ("depth",),
+    resolution: int = 64,
+    dynamics: Literal["cw", "kinematic"] = "cw",
+    actuator_noise: float = 0.3,
+    delay_max: float = 0.5,
+    blur_frames: int = 3,
+    speed_steps: int = 200,
+    seed: int = 0,
+    out: Path = Path("eval"),
+    figures: bool = False,
+) -> dict:
+    """Evaluate policies greedily and write the paper's tables (Markdown + JSON) to --out.
+
+    Args:
+        policy: 'checkpoint' (trained runs given by --run) or a baseline: 'oracle' (true state, an upper bound),
+            'depth' (classical depth-image tracker) or 'random'.
+        run: training run folders (written by `ramavt train`); each is one row of Tables I-III.
+        baselines: with --policy checkpoint, also evaluate oracle, depth tracker and random in every table (a
+            baseline given as --policy is evaluated alone).
+        targets: 'test' (held-out split), 'train', 'all', or comma-separated catalogue names / MJCF files.
+        episodes: episodes per target (run side by side).
+        max_steps: episode length cap (the paper: 1000).
+        tables: which tables to produce (2 runs the five perturbation settings, 5x the episodes).
+        obs: input modes of the baselines (the depth tracker skips 'color'; oracle and random run once).
+        resolution: camera resolution of the baselines (trained runs use their own).
+        dynamics: target motion model of the baselines (trained runs use their own).
+        actuator_noise: Table II actuator noise (command x (1 + a N(0, 1))).
+        delay_max: Table II time delay: each step lasts dt + U(0, delay_max) s.
+        blur_frames: Table II image blur: observation = mean of the last n frames.
+        speed_steps: single-env steps timed for the speed column (0 = skip).
+        seed: evaluation seed (the same episodes for every policy).
+        out: output folder (tables.md, results.json, figures/).
+        figures: also plot one episode per policy (tracking error, 3-D trajectory, frame strip), attention maps and
+            training curves of the runs.
+    """
+    t0 = time.time()
+    positive("--episodes", episodes)
+    positive("--max-steps", max_steps)
+    positive("--blur-frames", blur_frames)
+    if any(t not in (1, 2, 3) for t in tables):
+        raise UsageError(f"--tables must be among 1 2 3, got {' '.join(map(str, tables))}")
+    if policy == "checkpoint" and not run:
+        raise UsageError("--policy checkpoint needs at least one --run folder (or pick a baseline policy)")
+    names = rollouts.resolve_targets(targets)
+    output_folder(out)
+    entries, loaded = _run_entries(run)
+    wanted = [policy] if policy != "checkpoint" else []
+    if baselines and policy == "checkpoint":
+        wanted += [p for p in ("oracle", "depth", "random") if p not in wanted]
+    entries += _baseline_entries(wanted, obs, resolution, dynamics, names)
+    settings = tables_lib.settings_for(tuple(tables))
+    print(f"evaluating {len(entries)} policies x {len(settings)} setting(s) x {len(names)} targets x {episodes} "
+          f"episodes (each policy compiles first) ...", flush=True)
+    values = {"actuator_noise": actuator_noise, "delay_max": delay_max, "blur_frames": blur_frames}
+    result = tables_lib.run_suite(entries, names, episodes, max_steps, seed, tuple(tables), values, speed_steps)
+    if figures:
+        print("plotting one episode per policy ...", flush=True)
+        result["figures"] = episode.eval_figures(entries, loaded, names[0], Path(out) / "figures", seed=seed,
+                                                 steps=max_steps)
+    result["wall_s"] = time.time() - t0
+    command = "ramavt " + " ".join(shlex.quote(a) for a in sys.argv[1:]) if sys.argv[1:2] == ["eval"] else ""
+    md, js = tables_lib.write(result, out, command)
+    print(f"wrote {md} and {js} ({result['wall_s']:.0f} s)")
+    return result
+
+
+def plot_cmd(
+    runs: tuple[Path, ...] = (),
+    run: Path | None = None,
+    policy: Literal["oracle", "depth", "random"] = "oracle",
+    target: str = "Satellite-v2",
+    steps: int = 1000,
+    resolution: int = 64,
+    obs: Literal["depth", "color", "rgbd"] = "depth",
+    seed: int = 0,
+    frames: int = 8,
+    out: Path = Path("figures"),
+) -> dict:
+    """Paper figures as PNGs: training curves (mean ± std over seeds), and for one episode the tracking error x/y/z,
+    3-D trajectories, a strip of observed frames and (for a trained run) attention maps.
+
+    Args:
+        runs: training run folders for the curves; folders differing only by a seed suffix (_s0, -seed1) form one
+            band.
+        run: a trained run folder whose greedy policy flies the episode (attention maps included); else --policy.
+        policy: baseline flying the episode when no --run is given.
+        target: catalogue name or MJCF file of the episode's target.
+        steps: episode length cap.
+        resolution: camera resolution for a baseline (a trained run uses its own).
+        obs: observation mode for a baseline (a trained run uses its own).
+        seed: episode seed.
+        frames: frames in the strip.
+        out: output folder.
+    """
+    positive("--steps", steps)
+    positive("--frames", frames)
+    names = rollouts.resolve_targets(target)
+    output_folder(out)
+    out_paths = {}
+    if runs:
+        labels = {training.group_name(r): training.run_label(r) for r in runs}
+        if len(set(labels.values())) < len(labels):  # two groups would share a legend entry: name them by folder
+            labels = {g: f"{g} ({lab})" for g, lab in labels.items()}
+        out_paths["training_curves"] = str(training.plot_training_runs(runs, out / "training_curves.png",
+                                                                       labels=labels))
+    if run is not None:
+        lr = load_policy(run)
+        config = dataclasses.replace(lr.config.env, targets=names[:1])
+        overrides = rollouts.run_env_overrides(lr.config.env_params)
+        pol, network, prefix = lr.policy, (lr.config.network, lr.params), episode.slug(Path(run).name)
+    else:
+        config = env_lib.EnvConfig(camera=render.CameraConfig(resolution=resolution), obs_mode=obs, targets=names[:1])
+        overrides, pol, network, prefix = {}, baselines_lib.make_policy(policy, config.camera), None, policy
+    tracking_env = env_lib.TrackingEnv(config)
+    params = tracking_env.eval_params(**overrides, max_steps=steps)
+    print(f"recording one episode of {pol.name} on {names[0]} ...", flush=True)
+    out_paths.update(episode.episode_figures(tracking_env, pol, params, jax.random.PRNGKey(seed), steps, out, prefix,
+                                             strip=frames, network=network))
+    for k, v in out_paths.items():
+        print(f"{k}: {v}")
+    return out_paths

@@ -1,0 +1,58 @@
+"""The end-of-training evaluation of a run folder: the greedy policy and a random agent on the training and the
+held-out targets, with the evaluation settings (``env.eval_params``), written to ``eval.json``."""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from pathlib import Path
+from typing import Any, Callable
+
+import jax
+
+from ramavt_jax import baselines
+from ramavt_jax import env as env_lib
+from ramavt_jax import targets as targets_lib
+from ramavt_jax.evaluation import rollouts
+from ramavt_jax.train import TrainConfig, greedy_policy
+from ramavt_jax.training import run_folder as folders
+
+__all__ = ["evaluate_policy", "final_evaluation", "evaluate_run"]
+
+
+def evaluate_policy(config: TrainConfig, policy: baselines.Policy, key: jax.Array, targets: tuple[str, ...],
+                    num_episodes: int, max_steps: int) -> dict:
+    """``num_episodes`` episodes over ``targets`` with the evaluation settings and the run's other EnvParams
+    overrides; returns a rollouts.Summary dict."""
+    tracking_env = env_lib.TrackingEnv(dataclasses.replace(config.env, targets=tuple(targets)))
+    params = tracking_env.eval_params(**rollouts.run_env_overrides(config.env_params), max_steps=max_steps)
+    stats, _ = rollouts.run_episodes(tracking_env, policy, params, key, num_episodes, num_steps=max_steps)
+    return rollouts.summarise(stats).as_dict()
+
+
+def final_evaluation(config: TrainConfig, params: Any, key: jax.Array, log: Callable[[str], None] = print) -> dict:
+    """{split: {'greedy' | 'random': Summary dict}} on the run's training targets and the held-out split."""
+    policy = greedy_policy(config.network, params, tuple(config.env.obs_shape))
+    splits = {"train": tuple(config.env.targets), "test": targets_lib.TEST_TARGETS}
+    out = {}
+    for i, (split, names) in enumerate(splits.items()):
+        for j, (name, pol) in enumerate((("greedy", policy), ("random", baselines.random_policy()))):
+            t = time.time()
+            k = jax.random.fold_in(key, 2 * i + j)
+            out.setdefault(split, {})[name] = res = evaluate_policy(config, pol, k, names, config.eval_episodes,
+                                                                    config.eval_max_steps)
+            log(f"final evaluation: {name:<6} on {split:<5} targets ({len(names)}): mean episode length "
+                f"{res['length_mean']:.0f}, return {res['return_mean']:.1f} ({time.time() - t:.0f} s)")
+    return out
+
+
+def evaluate_run(config: TrainConfig, run_dir: str | Path, seed: int, params: Any,
+                 log: Callable[[str], None] = print) -> dict:
+    """Evaluate a finished run's params (key: seed + 10,000) and write ``run_dir/eval.json``; returns the results."""
+    t = time.time()
+    log(f"final evaluation of {run_dir}: {config.eval_episodes} episodes per split and policy, up to "
+        f"{config.eval_max_steps} steps ...")
+    results = final_evaluation(config, params, jax.random.PRNGKey(seed + 10_000), log)
+    results["eval_wall_s"] = time.time() - t
+    (Path(run_dir) / folders.EVAL_FILE).write_text(folders.dumps(results, indent=1))
+    return results

@@ -1,0 +1,395 @@
+"""Host-side training driver: runs the jitted chunks of :class:`ramavt_jax.train.Trainer`, logs one record per
+chunk (strict JSONL, optional TensorBoard, tqdm), checkpoints (orbax) and stops cleanly on SIGINT / SIGTERM.
+
+The run folder's layout, lock and config check are in :mod:`ramavt_jax.training.run_folder`. The final greedy
+evaluation (``eval.json``) and the curves (``training_curves.png``) are written by the layers above (the
+``ramavt train`` command runs :func:`run`, then :func:`ramavt_jax.evaluation.final.evaluate_run`, then the plot).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import shutil
+import time
+from pathlib import Path
+from typing import Any
+
+import jax
+import numpy as np
+
+from ramavt_jax import distributed
+from ramavt_jax.train import ChunkMetrics, TrainConfig, Trainer, TrainingDivergedError
+from ramavt_jax.training import run_folder as folders
+from ramavt_jax.training.program import _compiled, _Program
+from ramavt_jax.training.checkpoint import CheckpointError, CheckpointNotFoundError, CheckpointStore, has_checkpoint
+from ramavt_jax.training.interrupts import StopSignals, TrainingInterrupted
+
+__all__ = ["run", "RunSummary", "aggregate", "read_metrics", "TrainingInterrupted"]
+
+read_metrics = folders.read_metrics
+
+
+# ============================================================================================ metrics
+def aggregate(m: ChunkMetrics, wall_s: float, env_steps: int) -> dict:
+    """Per-chunk record from the per-iteration sums of one chunk (host numpy); ``env_steps`` taken in the chunk."""
+    m = jax.tree.map(np.asarray, m)
+    episodes = int(m.episodes.sum())
+    updates = int(m.updates.sum())
+
+    def ratio(a, b):
+        return float(a) / b if b else float("nan")
+
+    return {
+        "env_steps": int(m.env_steps[-1]),
+        "episodes": episodes,
+        "episode_length": ratio(m.episode_length_sum.sum(), episodes),
+        "episode_return": ratio(m.episode_return_sum.sum(), episodes),
+        "updates": updates,
+        "loss": ratio(m.loss_sum.sum(), updates),
+        "q_mean": ratio(m.q_sum.sum(), updates),
+        "grad_norm": ratio(m.grad_norm_sum.sum(), updates),
+        "epsilon": float(m.epsilon[-1]),
+        "wall_s": wall_s,
+        "env_steps_per_s": env_steps / wall_s,
+        "updates_per_s": updates / wall_s,
+    }
+
+
+def _diverged(record: dict) -> bool:
+    return record["updates"] > 0 and not (math.isfinite(record["loss"]) and math.isfinite(record["q_mean"]))
+
+
+# ============================================================================================ summary
+class RunSummary(dict):
+    """The JSON-friendly summary of a run; the final RunnerState (params, replay, ...) is ``.state`` (with a leading
+    [seeds] axis when several seeds were trained together)."""
+
+    state: Any = None
+
+
+# ============================================================================================ folders and resume
+def _host_int(x) -> int:
+    """A counter of the (possibly sharded, possibly [seeds]-stacked) state as a host int (seeds share it: first)."""
+    return int(np.asarray(distributed.local_copy(x)).reshape(-1)[0])
+
+
+def _seed_slice(tree, k: int, num_seeds: int):
+    return tree if num_seeds == 1 else jax.tree.map(lambda x: x[k], tree)
+
+
+def _resolve_resume(resume, ckpt_dir: Path, subdir: str | None = None) -> Path | None:
+    """True: the run folder's checkpoints if any; False: fresh; a path: that checkpoint folder (must exist; for
+    several seeds its ``seed_<k>`` sub-folders)."""
+    if resume is True:
+        return ckpt_dir if has_checkpoint(ckpt_dir) else None
+    if resume is False or resume is None:
+        return None
+    path = Path(resume) / subdir if subdir else Path(resume)
+    for cand in (path, path / folders.CHECKPOINTS):
+        if has_checkpoint(cand):
+            return cand
+    raise CheckpointNotFoundError(f"resume={str(resume)!r}: no checkpoint there (looked in {path} and "
+                                  f"{path / folders.CHECKPOINTS}); start afresh with --no-resume")
+
+
+@dataclasses.dataclass
+class _Folders:
+    out: Path
+    seeds: list[int]
+    dirs: list[Path]
+    sources: list[Path | None]  # checkpoint folder to resume each seed from
+    lock: Any  # RunLock of the primary process, or None
+
+    @property
+    def resuming(self) -> bool:
+        return self.sources[0] is not None
+
+
+def _open_folders(config_json: dict, out: Path, seed: int, num_seeds: int, resume, primary: bool) -> _Folders:
+    """Check ``out`` (writable, not locked, same config when resuming) before anything is written into it."""
+    seeds = [seed + k for k in range(num_seeds)]
+    dirs = folders.seed_folders(out, seeds)
+    folders.check_writable(out)
+    lock = folders.RunLock(out) if primary else None
+    try:
+        sources = [_resolve_resume(resume, d / folders.CHECKPOINTS, None if num_seeds == 1 else d.name)
+                   for d in dirs]
+        if any(s is None for s in sources) and any(s is not None for s in sources):
+            raise CheckpointNotFoundError(f"only some seed folders in {out} have checkpoints "
+                                          f"({[str(s) for s in sources]}); resume them together or use --no-resume")
+        for s, d, src in zip(seeds, dirs, sources):
+            if src is not None and (d / folders.CONFIG_FILE).is_file():
+                folders.check_config(d, config_json, s)
+    except BaseException:
+        if lock is not None:
+            lock.close()
+        raise
+    return _Folders(out, seeds, dirs, sources, lock)
+
+
+def _restore(prog: _Program, state, config: TrainConfig, config_json: dict, f: _Folders, log):
+    """The checkpointed RunnerState of every seed (newest loadable step), placed like ``state``."""
+    num_seeds = len(f.seeds)
+    loaded = []
+    for k, src in enumerate(f.sources):
+        like = _seed_slice(state, k, num_seeds)
+        like = like if config.checkpoint_replay else like.replace(replay=None)
+        st, meta, _ = CheckpointStore(src, create=False).restore_newest_loadable(like, log)
+        diff = {k: v for k, v in folders.config_differences(meta.get("config", {}), config_json).items()
+                if k not in folders.RESUMABLE_FIELDS}
+        if diff:
+            raise CheckpointError(f"the checkpoint in {src} was written with another config (differs in "
+                                  f"{', '.join(diff)}); train into a new --out or start afresh with --no-resume")
+        loaded.append(st)
+    if len({_host_int(st.chunk) for st in loaded}) > 1:
+        raise CheckpointError(f"the seed folders in {f.out} were checkpointed at different chunks; resume them "
+                              f"with --no-resume")
+    if num_seeds > 1:
+        loaded = [jax.tree.map(lambda *xs: np.stack([np.asarray(x) for x in xs]), *loaded)]
+    restored = loaded[0]
+    if not config.checkpoint_replay:
+        restored = restored.replace(replay=state.replay)
+    return restored if prog.shardings is None else jax.device_put(restored, prog.shardings)
+
+
+class _Log:
+    """Per-seed metric files and TensorBoard writers, and the progress bar (primary process only)."""
+
+    def __init__(self, config: TrainConfig, f: _Folders, start: int, primary: bool, progress: bool):
+        self.primary = primary
+        self.paths = [d / folders.METRICS_FILE for d in f.dirs]
+        self.records = [[r for r in folders.read_metrics(p) if r["chunk"] <= start] if f.resuming else []
+                        for p in self.paths]
+        self.writers = [None] * len(f.dirs)
+        self.bar = None
+        if not primary:
+            return
+        for p, recs in zip(self.paths, self.records):
+            folders.write_metrics(p, recs)
+        if config.tensorboard:
+            from tensorboardX import SummaryWriter
+
+            self.writers = [SummaryWriter(str(d / "tb")) for d in f.dirs]
+        if progress:
+            from tqdm.auto import tqdm
+
+            n = len(f.dirs)
+            self.bar = tqdm(total=config.total_env_steps * n, initial=start * config.env_steps_per_chunk * n,
+                            unit="step", unit_scale=True, dynamic_ncols=True, desc="train")
+
+    def add(self, k: int, record: dict) -> None:
+        self.records[k].append(record)
+        if self.primary:
+            folders.append_metrics(self.paths[k], record)
+        if self.writers[k] is not None:
+            for name, v in record.items():
+                if isinstance(v, (int, float)) and math.isfinite(v):
+                    self.writers[k].add_scalar(f"train/{name}", v, record["env_steps"])
+
+    def advance(self, steps: int) -> None:
+        if self.bar is not None:
+            self.bar.update(steps)
+            r = self.records[0][-1]
+            self.bar.set_postfix(ep_len=f"{r['episode_length']:.0f}", loss=f"{r['loss']:.3g}", eps=f"{r['epsilon']:.2f}")
+
+    def close(self) -> None:
+        if self.bar is not None:
+            self.bar.close()
+            self.bar = None
+        for w in self.writers:
+            if w is not None:
+                w.close()
+
+
+@dataclasses.dataclass
+class _Loop:
+    """What the chunk loop needs and updates."""
+
+    config: TrainConfig
+    prog: _Program
+    f: _Folders
+    log: _Log
+    stores: list
+    config_json: dict
+    chunk_no: int  # host mirror of state.chunk (each compiled chunk adds one): no device read per chunk
+    last_saved: int | None
+
+    def save(self, state) -> None:
+        num_seeds = len(self.f.seeds)
+        for k, (s, store) in enumerate(zip(self.f.seeds, self.stores)):
+            one = _seed_slice(state, k, num_seeds)
+            meta = {"config": self.config_json, "seed": s, "chunk": self.chunk_no,
+                    "env_steps": _host_int(one.env_steps), "updates": _host_int(one.learner.updates)}
+            store.save(self.chunk_no, one if self.config.checkpoint_replay else one.replace(replay=None), meta)
+        self.last_saved = self.chunk_no
+
+    def record(self, m, wall: float) -> None:
+        """Log the metrics of the chunk just finished (raises TrainingDivergedError on a NaN/inf loss)."""
+        c, num_seeds = self.config, len(self.f.seeds)
+        for k in range(num_seeds):
+            record = {"chunk": self.chunk_no, **aggregate(_seed_slice(m, k, num_seeds), wall, c.env_steps_per_chunk)}
+            record["trained_frames_per_s"] = record["updates_per_s"] * c.batch_size * c.train_len
+            record["compile_s"] = self.prog.compile_s
+            if num_seeds > 1:
+                record["seeds_in_program"] = num_seeds
+            if _diverged(record):
+                where = (f"the last good checkpoint is chunk {self.last_saved} in {self.f.dirs[k] / folders.CHECKPOINTS}"
+                         if self.last_saved is not None else "no checkpoint was saved yet")
+                raise TrainingDivergedError(
+                    f"training diverged at chunk {record['chunk']} (seed {self.f.seeds[k]}, env step "
+                    f"{record['env_steps']}): loss={record['loss']}, mean Q={record['q_mean']}. The diverged state "
+                    f"was NOT saved; {where}. Try a lower lr (now {c.lr}), gradient clipping (max_grad_norm) or a "
+                    f"smaller reward_scale.")
+            self.log.add(k, record)
+        self.log.advance(c.env_steps_per_chunk * num_seeds)
+
+
+def _finite_params(state) -> bool:
+    return all(bool(np.isfinite(np.asarray(x)).all()) for x in jax.tree.leaves(distributed.local_copy(
+        state.learner.params)))
+
+
+def _train_chunks(loop: _Loop, state, end: int, stop: StopSignals, say):
+    """Run chunks until ``end`` or a stop signal (then the chunk in flight is logged and saved first)."""
+    every = loop.config.checkpoint_every_chunks
+    try:
+        while loop.chunk_no < end:
+            t = time.time()
+            state, m = loop.prog.chunk(state)
+            m = distributed.local_copy(m)  # the one host sync per chunk
+            loop.chunk_no += 1
+            loop.record(m, time.time() - t)
+            if (every and loop.chunk_no % every == 0) or stop.signum is not None:
+                loop.save(state)
+            if stop.signum is not None:
+                raise TrainingInterrupted(f"{stop.name}: checkpoint of chunk {loop.chunk_no} saved under "
+                                          f"{loop.f.out}; run the same command again to resume", stop.signum)
+    except TrainingInterrupted:
+        loop.log.close()
+        raise
+    except KeyboardInterrupt:  # a second Ctrl-C (or one outside the main thread): save what is complete
+        loop.log.close()
+        if any(getattr(x, "is_deleted", lambda: False)() for x in jax.tree.leaves(state)):
+            say(f"\ninterrupted while a chunk was dispatched; last checkpoint: chunk {loop.last_saved} in {loop.f.out}")
+        else:
+            jax.block_until_ready(state)  # the chunk in flight finishes (XLA cannot cancel it)
+            loop.chunk_no = _host_int(state.chunk)  # may be one ahead of the host mirror (not logged)
+            if _finite_params(state) and loop.chunk_no != loop.last_saved:
+                loop.save(state)
+            say(f"\ninterrupted: checkpoint of chunk {loop.last_saved} saved under {loop.f.out}; run again to resume")
+        raise
+    return state
+
+
+def _start(config: TrainConfig, f: _Folders, num_devices, tracking_env, progress: bool, say):
+    """Compile (or reuse) the program and build the initial or restored state; (program, state, mesh)."""
+    mesh = distributed.make_mesh(num_devices)
+    if mesh is not None and len(f.seeds) == 1:
+        distributed.check_divisible(config.num_envs, mesh)
+    distributed.check_seeds_divisible(len(f.seeds), mesh)
+    t = time.time()
+    where = "1 device" if mesh is None else f"{mesh.devices.size} devices"
+    say(f"compiling the training chunk ({config.network.variant}, {config.env.obs_shape}, {len(f.seeds)} seed(s), "
+        f"{where}) ...")
+    prog = _compiled(config, tracking_env, len(f.seeds), mesh)
+    say(f"compiled in {time.time() - t:.1f} s")
+    keys = (np.stack([np.asarray(jax.random.PRNGKey(s)) for s in f.seeds]) if len(f.seeds) > 1
+            else jax.random.PRNGKey(f.seeds[0]))
+    return prog, prog.init(keys), mesh
+
+
+def run(config: TrainConfig, out_dir, seed: int = 0, resume=True, progress: bool = True,
+        max_chunks: int | None = None, tracking_env=None, num_seeds: int = 1,
+        num_devices: int | None = None) -> RunSummary:
+    """Train ``config`` into ``out_dir``; returns a :class:`RunSummary` (a JSON-friendly dict: counters, timings,
+    memory, the last metrics record) whose ``.state`` is the final RunnerState.
+
+    num_seeds: > 1 trains seeds ``seed .. seed + num_seeds - 1`` as ONE jitted program (vmap over seeds, each
+      with its own envs and replay) into ``out_dir/seed_<k>/`` (each folder is a complete single-seed run folder).
+      The summary's ``seeds`` lists the per-seed summaries.
+    num_devices: devices to split the envs and replay over (default: all visible, every process's in a
+      multi-host run); 1 = the plain single-device program.
+    resume: True resumes from the run folder's checkpoints when present (the config must match config.json except
+      for ``run_folder.RESUMABLE_FIELDS``: a larger total_env_steps extends the run; a damaged newest checkpoint
+      falls back to the newest that loads); False starts fresh (existing checkpoints are deleted); a path resumes
+      from that checkpoint folder (error if none is there).
+    max_chunks: stop after this many chunks in this call (a checkpoint is saved), e.g. to split a run.
+    Raises TrainingDivergedError on a NaN/inf loss (the last good checkpoint is kept), RunFolderError when the
+    folder is locked by another process, not writable or holds another config. SIGINT / SIGTERM: the chunk in
+    flight is logged and checkpointed, then TrainingInterrupted (a KeyboardInterrupt) is raised. In a multi-host
+    run only process 0 writes logs; every process takes part in checkpointing.
+    """
+    if isinstance(num_seeds, bool) or not isinstance(num_seeds, int) or num_seeds < 1:
+        raise ValueError(f"num_seeds must be an int >= 1, got {num_seeds!r}")
+    primary = distributed.is_primary()
+    say = (lambda msg: print(msg, flush=True)) if (progress and primary) else (lambda msg: None)
+    config_json = json.loads(json.dumps(config.to_dict(), default=str))
+    distributed.make_mesh(num_devices)  # a bad device count fails before the folder is touched
+    f = _open_folders(config_json, Path(out_dir), seed, num_seeds, resume, primary)
+    try:
+        with StopSignals(say if primary else (lambda msg: None)) as stop:
+            return _run_locked(config, f, config_json, resume, max_chunks, tracking_env, num_devices, progress,
+                               primary, stop, say)
+    finally:
+        if f.lock is not None:
+            f.lock.close()
+
+
+def _run_locked(config, f: _Folders, config_json, resume, max_chunks, tracking_env, num_devices, progress, primary,
+                stop: StopSignals, say) -> RunSummary:
+    prog, state, mesh = _start(config, f, num_devices, tracking_env, progress, say)
+    if stop.signum is not None:
+        raise TrainingInterrupted(f"{stop.name} while compiling: nothing was trained or written", stop.signum)
+    if f.resuming:
+        state = _restore(prog, state, config, config_json, f, say if primary else (lambda msg: None))
+    elif resume is False and primary:
+        for d in f.dirs:
+            if (d / folders.CHECKPOINTS).is_dir():
+                shutil.rmtree(d / folders.CHECKPOINTS)
+    if primary:
+        for s, d in zip(f.seeds, f.dirs):
+            d.mkdir(parents=True, exist_ok=True)
+            (d / folders.CONFIG_FILE).write_text(json.dumps({"seed": s, "config": config_json}, indent=1))
+    start = _host_int(state.chunk)
+    log = _Log(config, f, start, primary, progress)
+    stores = [CheckpointStore(d / folders.CHECKPOINTS, keep=config.keep_checkpoints) for d in f.dirs]
+    loop = _Loop(config, prog, f, log, stores, config_json, start, start if f.resuming else None)
+    end = config.num_chunks if max_chunks is None else min(config.num_chunks, start + max_chunks)
+    train_t0 = time.time()
+    state = _train_chunks(loop, state, end, stop, say)
+    log.close()
+    train_s = time.time() - train_t0
+    if loop.chunk_no != loop.last_saved:
+        loop.save(state)
+    for store in stores:
+        store.close()
+    return _summary(config, f, loop, state, prog, mesh, train_s)
+
+
+def _summary(config, f: _Folders, loop: _Loop, state, prog: _Program, mesh, train_s: float) -> RunSummary:
+    num_seeds = len(f.seeds)
+    per_seed = []
+    for k, (s, d) in enumerate(zip(f.seeds, f.dirs)):
+        per_seed.append({"seed": s, "chunks_done": loop.chunk_no, "num_chunks": config.num_chunks,
+                         "env_steps": _host_int(_seed_slice(state.env_steps, k, num_seeds)),
+                         "updates": _host_int(_seed_slice(state.learner.updates, k, num_seeds)),
+                         "train_wall_s": train_s, "compile_s": prog.compile_s,
+                         "last": loop.log.records[k][-1] if loop.log.records[k] else None, "out_dir": str(d)})
+    if num_seeds == 1:
+        summary = per_seed[0]
+    else:
+        summary = {k: v for k, v in per_seed[0].items() if k in ("chunks_done", "num_chunks", "train_wall_s",
+                                                                 "compile_s")}
+        summary.update(out_dir=str(f.out), seeds=per_seed)
+    summary.update(memory=prog.memory, devices=1 if mesh is None else int(mesh.devices.size),
+                   processes=jax.process_count(), finished=loop.chunk_no >= config.num_chunks)
+    summary = RunSummary(summary)
+    summary.state = state
+    return summary
+
+
+def seed_params(state, k: int, num_seeds: int):
+    """Host copy of seed ``k``'s online network params from a (possibly [seeds]-stacked) RunnerState."""
+    return distributed.local_copy(_seed_slice(state.learner.params, k, num_seeds))

@@ -1,0 +1,80 @@
+"""The compiled training program of one config: the Trainer, its jitted ``init`` and the AOT-compiled ``chunk``,
+vmapped over seeds and/or split over a device mesh, cached in-process so repeated runs and resumes compile once."""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from typing import Any
+
+import jax
+import numpy as np
+
+from ramavt_jax import distributed
+from ramavt_jax.train import TrainConfig, Trainer
+
+__all__ = ["compiled_program"]
+
+
+@dataclasses.dataclass
+class _Program:
+    trainer: Trainer
+    init: Any  # key [2] (or [S, 2]) -> RunnerState
+    chunk: Any  # AOT-compiled: RunnerState -> (RunnerState, ChunkMetrics)
+    compile_s: float
+    shardings: Any  # RunnerState pytree of NamedSharding, or None (one device)
+    memory: dict  # bytes: state per seed, replay per seed, XLA temp of the chunk
+
+
+_COMPILED: dict = {}  # (config, seeds, mesh, env id) -> _Program; repeated runs, resumes and tests compile once
+# fields that do not change the compiled chunk (learning_starts does; it is kept in the key separately because the
+# shortened total_env_steps would fail validation with it)
+_HOST_ONLY = dict(eval_episodes=0, eval_max_steps=1, checkpoint_every_chunks=0, checkpoint_replay=True,
+                  keep_checkpoints=1, tensorboard=False)
+
+
+def _tree_bytes(tree) -> int:
+    return int(sum(np.prod(x.shape) * np.dtype(x.dtype).itemsize for x in jax.tree.leaves(tree)))
+
+
+def _jit_pair(trainer: Trainer, num_seeds: int, mesh):
+    """(init, chunk, abstract state, shardings) of one program: vmapped over seeds when > 1, split over ``mesh``."""
+    init_fn, chunk_fn, key_shape = trainer.init, trainer.chunk, (2,)
+    if num_seeds > 1:
+        init_fn, chunk_fn, key_shape = jax.vmap(init_fn), jax.vmap(chunk_fn), (num_seeds, 2)
+    abstract = jax.eval_shape(init_fn, jax.ShapeDtypeStruct(key_shape, np.uint32))
+    if mesh is None:
+        return jax.jit(init_fn), jax.jit(chunk_fn, donate_argnums=0), abstract, None
+    shardings = distributed.runner_shardings(abstract, mesh, seed_axis=num_seeds > 1)
+    rep = distributed.replicated(mesh)
+    init = jax.jit(init_fn, in_shardings=rep, out_shardings=shardings)
+    chunk = jax.jit(chunk_fn, in_shardings=(shardings,), out_shardings=(shardings, rep), donate_argnums=0)
+    return init, chunk, abstract, shardings
+
+
+def _compiled(config: TrainConfig, tracking_env, num_seeds: int = 1, mesh=None) -> _Program:
+    """Trainer, jitted init and AOT-compiled chunk for a config: one program for ``num_seeds`` seeds (vmapped when
+    > 1), with the envs and replay split over ``mesh`` when given. Cached per (config, seeds, mesh)."""
+    key = (dataclasses.replace(config, learning_starts=0, total_env_steps=config.env_steps_per_chunk, **_HOST_ONLY),
+           config.learning_starts, num_seeds, mesh, id(tracking_env))
+    if key not in _COMPILED:
+        distributed.check_seeds_divisible(num_seeds, mesh)
+        # several seeds: the seed axis is split over the devices and each seed's program runs whole on one device
+        trainer = Trainer(config, tracking_env, mesh if num_seeds == 1 else None)
+        t0 = time.time()
+        init, chunk, abstract, shardings = _jit_pair(trainer, num_seeds, mesh)
+        compiled = chunk.lower(abstract).compile()
+        try:
+            temp = int(compiled.memory_analysis().temp_size_in_bytes)
+        except Exception:  # noqa: BLE001 (not every backend reports it)
+            temp = -1
+        memory = {"state_bytes_per_seed": _tree_bytes(abstract) // num_seeds,
+                  "replay_bytes_per_seed": _tree_bytes(abstract.replay) // num_seeds,
+                  "chunk_temp_bytes": temp}
+        if len(_COMPILED) >= 4:
+            _COMPILED.pop(next(iter(_COMPILED)))
+        _COMPILED[key] = _Program(trainer, init, compiled, time.time() - t0, shardings, memory)
+    return _COMPILED[key]
+
+
+compiled_program = _compiled

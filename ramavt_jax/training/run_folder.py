@@ -1,0 +1,175 @@
+"""The run folder written by ``ramavt train``: its layout, strict-JSON files, the lock and the config check.
+
+Layout (one seed; ``--seeds N`` writes one such folder per seed, ``out/seed_<k>/``)::
+
+    out/config.json          {"seed": k, "config": TrainConfig.to_dict()}
+    out/metrics.jsonl        one strict-JSON record per chunk (NaN written as null)
+    out/checkpoints/<chunk>/ orbax checkpoints (the last ``keep_checkpoints``)
+    out/eval.json            final greedy and random-agent evaluation (written by the evaluation layer)
+    out/training_curves.png  (written by the figures layer)
+    out/tb/                  TensorBoard events (config.tensorboard)
+    out/.lock                held by the process training into the folder
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import re
+import socket
+from pathlib import Path
+from typing import Any
+
+__all__ = ["CONFIG_FILE", "METRICS_FILE", "CHECKPOINTS", "EVAL_FILE", "CURVES_FILE", "RESUMABLE_FIELDS",
+           "seed_dir", "seed_folders", "is_seed_dir", "to_strict_json", "dumps", "read_metrics", "append_metrics",
+           "write_metrics", "config_differences", "check_config", "RunFolderError", "RunLock", "check_writable"]
+
+CONFIG_FILE, METRICS_FILE, CHECKPOINTS, EVAL_FILE = "config.json", "metrics.jsonl", "checkpoints", "eval.json"
+CURVES_FILE = "training_curves.png"
+LOCK_FILE = ".lock"
+# TrainConfig fields that may change when a run is resumed: they do not change the compiled chunk or the
+# checkpointed state (a larger total_env_steps extends the run)
+RESUMABLE_FIELDS = ("total_env_steps", "eval_episodes", "eval_max_steps", "checkpoint_every_chunks",
+                    "keep_checkpoints", "tensorboard")
+_SEED_DIR = re.compile(r"seed_\d+")
+
+
+class RunFolderError(ValueError):
+    """A run folder cannot be used as asked (config mismatch, locked, not writable)."""
+
+
+# ============================================================================================ layout
+def seed_dir(out: str | os.PathLike, seed: int) -> Path:
+    """The folder of one seed of a ``--seeds N`` run."""
+    return Path(out) / f"seed_{seed}"
+
+
+def seed_folders(out: str | os.PathLike, seeds: list[int]) -> list[Path]:
+    """The run folders of ``seeds``: ``out`` itself for one seed, ``out/seed_<k>`` for several."""
+    return [Path(out)] if len(seeds) == 1 else [seed_dir(out, s) for s in seeds]
+
+
+def is_seed_dir(path: str | os.PathLike) -> bool:
+    """Whether ``path`` is one seed's folder of a ``--seeds N`` sweep (its parent names the sweep)."""
+    return bool(_SEED_DIR.fullmatch(Path(path).name))
+
+
+# ============================================================================================ strict JSON
+def to_strict_json(x: Any) -> Any:
+    """``x`` with every non-finite float replaced by None (JSON null), recursively."""
+    if isinstance(x, float) and not math.isfinite(x):
+        return None
+    if isinstance(x, dict):
+        return {k: to_strict_json(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [to_strict_json(v) for v in x]
+    return x
+
+
+def dumps(x: Any, **kwargs) -> str:
+    """Strict JSON text (no NaN / Infinity tokens, which jq and browsers reject)."""
+    return json.dumps(to_strict_json(x), allow_nan=False, **kwargs)
+
+
+def read_metrics(path: str | os.PathLike) -> list[dict]:
+    """The records of a metrics.jsonl ([] when missing); null numbers come back as NaN."""
+    path = Path(path)
+    if not path.exists():
+        return []
+    records = [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
+    return [{k: float("nan") if v is None else v for k, v in r.items()} for r in records]
+
+
+def write_metrics(path: Path, records: list[dict]) -> None:
+    path.write_text("".join(dumps(r) + "\n" for r in records))
+
+
+def append_metrics(path: Path, record: dict) -> None:
+    with path.open("a") as f:
+        f.write(dumps(record) + "\n")
+
+
+# ============================================================================================ config check
+def _flatten(d: Any, prefix: str = "") -> dict:
+    if not isinstance(d, dict):
+        return {prefix: d}
+    out = {}
+    for k, v in d.items():
+        out.update(_flatten(v, f"{prefix}.{k}" if prefix else k))
+    return out
+
+
+def config_differences(saved: dict, current: dict) -> dict[str, tuple]:
+    """{dotted field: (saved value, current value)} for every field that differs between two config dicts."""
+    a, b = _flatten(saved), _flatten(current)
+    return {k: (a.get(k), b.get(k)) for k in sorted(set(a) | set(b)) if a.get(k) != b.get(k)}
+
+
+def check_config(run_dir: Path, config_json: dict, seed: int) -> None:
+    """Refuse (one line, nothing written) to resume ``run_dir`` with a config that differs from its config.json in
+    more than the resumable fields; call before anything is written."""
+    path = run_dir / CONFIG_FILE
+    try:
+        saved = json.loads(path.read_text())
+    except (OSError, ValueError) as e:
+        raise RunFolderError(f"cannot read {path} ({e}); resume with --no-resume or train into a new --out") from None
+    diff = config_differences(saved.get("config", {}), config_json)
+    fixed = {k: v for k, v in diff.items() if k not in RESUMABLE_FIELDS}
+    if saved.get("seed") != seed:
+        fixed["seed"] = (saved.get("seed"), seed)
+    if fixed:
+        shown = ", ".join(f"{k} {a!r} -> {b!r}" for k, (a, b) in list(fixed.items())[:6])
+        more = f" (and {len(fixed) - 6} more)" if len(fixed) > 6 else ""
+        raise RunFolderError(
+            f"{run_dir} holds a run with another config: {shown}{more}. Train into a new --out, or pass --no-resume "
+            f"to start this folder afresh (its checkpoints are replaced); on resume only "
+            f"{', '.join(RESUMABLE_FIELDS)} may change")
+
+
+# ============================================================================================ lock and paths
+def check_writable(path: str | os.PathLike, what: str = "--out") -> Path:
+    """Create the folder ``path`` if needed and check it can be written; one-line error otherwise."""
+    path = Path(path)
+    if path.exists() and not path.is_dir():
+        raise RunFolderError(f"{what} {path} is a file, not a folder; choose a folder path")
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise RunFolderError(f"cannot create {what} folder {path}: {e.strerror}") from None
+    if not os.access(path, os.W_OK | os.X_OK):
+        raise RunFolderError(f"{what} folder {path} is not writable; choose another folder")
+    return path
+
+
+class RunLock:
+    """An exclusive ``fcntl.flock`` on ``folder/.lock`` naming the holder (pid, host); released on close or when
+    the process dies."""
+
+    def __init__(self, folder: Path):
+        import fcntl
+
+        self.path = Path(folder) / LOCK_FILE
+        self._file = open(self.path, "a+")  # noqa: SIM115 (held for the whole run)
+        try:
+            fcntl.flock(self._file.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            self._file.seek(0)
+            holder = self._file.read().strip() or "another process"
+            self._file.close()
+            raise RunFolderError(f"{folder} is in use by {holder} (lock file {self.path}); wait for that run to "
+                                 f"finish, stop it, or train into another --out") from None
+        self._file.seek(0)
+        self._file.truncate()
+        self._file.write(f"process {os.getpid()} on {socket.gethostname()}\n")
+        self._file.flush()
+
+    def close(self) -> None:
+        if not self._file.closed:
+            self._file.close()
+
+    def __enter__(self) -> "RunLock":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
