@@ -1,7 +1,13 @@
 """Gymnasium adapters: a single `gymnasium.Env` and a `gymnasium.vector.VectorEnv` over the vmapped batch.
 
 For users of the gymnasium API; the functional API in `ramavt_jax.env` is what the trainer uses. Observations are
-float32 arrays in [0, 1] of shape [H, W, C] (vector: [N, H, W, C]); actions are 0..10.
+float32 arrays in [0, 1] of shape [H, W, C] (vector: [N, H, W, C]); actions are integers 0..10.
+
+Registered ids (importing this module registers them; ``gymnasium.make("ramavt_jax.gym_adapter:Tracking-v0")``
+imports it itself)::
+
+    env = gymnasium.make("ramavt_jax/Tracking-v0", config=EnvConfig(...))          # TrackingGymEnv
+    vec = gymnasium.make_vec("ramavt_jax/Tracking-v0", num_envs=8, vectorization_mode="vector_entry_point")
 """
 
 from __future__ import annotations
@@ -19,8 +25,29 @@ from ramavt_jax import env as env_lib
 from ramavt_jax import render
 
 
+ENV_ID = "ramavt_jax/Tracking-v0"
+
+
 def _info_to_numpy(info: dict) -> dict[str, Any]:
     return {k: np.asarray(v) for k, v in info.items()}
+
+
+def _is_integer(x) -> bool:
+    """A Python or numpy integer (0-d integer arrays too); bools, floats and strings are not actions."""
+    if isinstance(x, (bool, np.bool_)):
+        return False
+    if isinstance(x, (int, np.integer)):
+        return True
+    return isinstance(x, (np.ndarray, jax.Array)) and x.shape == () and np.issubdtype(x.dtype, np.integer)
+
+
+def check_actions(actions: np.ndarray) -> None:
+    """Integer actions in [0, NUM_ACTIONS); a clear ValueError naming the bad value otherwise."""
+    n = env_lib.NUM_ACTIONS
+    if not np.issubdtype(actions.dtype, np.integer) or actions.dtype == np.bool_:
+        raise ValueError(f"actions must be integers in [0, {n - 1}], got dtype {actions.dtype}: {actions!r}")
+    if actions.size and (actions.min() < 0 or actions.max() >= n):
+        raise ValueError(f"actions must be integers in [0, {n - 1}], got {actions!r}")
 
 
 class TrackingGymEnv(gymnasium.Env):
@@ -59,8 +86,8 @@ class TrackingGymEnv(gymnasium.Env):
     def step(self, action):
         if self._state is None:
             raise RuntimeError("call reset() before step()")
-        if not self.action_space.contains(int(action)):
-            raise ValueError(f"action must be an int in [0, {env_lib.NUM_ACTIONS - 1}], got {action!r}")
+        if not _is_integer(action) or not 0 <= int(action) < env_lib.NUM_ACTIONS:
+            raise ValueError(f"action must be an integer in [0, {env_lib.NUM_ACTIONS - 1}], got {action!r}")
         obs, self._state, reward, terminated, truncated, info = self._step(
             self._next_key(), self._state, jnp.asarray(int(action)), self.params
         )
@@ -111,9 +138,19 @@ class TrackingVectorEnv(gymnasium.vector.VectorEnv):
         actions = np.asarray(actions)
         if actions.shape != (self.num_envs,):
             raise ValueError(f"actions must have shape ({self.num_envs},), got {actions.shape}")
+        check_actions(actions)
         self._key, key = jax.random.split(self._key)
         obs, self._state, reward, terminated, truncated, info = self._step(
             jax.random.split(key, self.num_envs), self._state, jnp.asarray(actions, jnp.int32), self.params
         )
         return (np.asarray(obs, np.float32), np.asarray(reward, np.float64), np.asarray(terminated),
                 np.asarray(truncated), _info_to_numpy(info))
+
+
+def _register() -> None:
+    if ENV_ID not in gymnasium.registry:
+        gymnasium.register(id=ENV_ID, entry_point=f"{__name__}:TrackingGymEnv",
+                           vector_entry_point=f"{__name__}:TrackingVectorEnv", disable_env_checker=True)
+
+
+_register()

@@ -1,5 +1,7 @@
 """Gymnasium adapters pass gymnasium's own checker and agree with the functional env."""
 
+import warnings
+
 import numpy as np
 import pytest
 from gymnasium.utils.env_checker import check_env
@@ -11,8 +13,12 @@ CONFIG = env.EnvConfig(camera=render.CameraConfig(resolution=16), targets=("Sate
 
 
 def test_check_env_passes():
-    gym_env = TrackingGymEnv(CONFIG, render_mode="rgb_array")
-    check_env(gym_env, skip_render_check=False)
+    import gymnasium
+
+    gym_env = gymnasium.make("ramavt_jax/Tracking-v0", config=CONFIG, render_mode="rgb_array").unwrapped
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no checker warning either (e.g. "the environment has no spec")
+        check_env(gym_env, skip_render_check=False)
 
 
 def test_episode_loop_and_render():
@@ -22,8 +28,30 @@ def test_episode_loop_and_render():
     obs, reward, terminated, truncated, info = gym_env.step(5)
     assert isinstance(reward, float) and isinstance(terminated, bool) and isinstance(truncated, bool)
     assert gym_env.render().shape == (16, 16, 3)
-    with pytest.raises(ValueError, match="action"):
-        gym_env.step(11)
+    gym_env.step(np.int64(2))
+    gym_env.step(np.array(3))
+
+
+@pytest.mark.parametrize("action", [11, -1, 2.7, "3", True, np.float32(1.0), np.array([1])])
+def test_non_integer_or_out_of_range_actions_are_rejected(action):
+    gym_env = TrackingGymEnv(CONFIG)
+    gym_env.reset(seed=0)
+    with pytest.raises(ValueError, match=r"action must be an integer in \[0, 10\]"):
+        gym_env.step(action)
+
+
+def test_registered_id_makes_the_env_and_the_vector_env():
+    import gymnasium
+
+    gym_env = gymnasium.make("ramavt_jax/Tracking-v0", config=CONFIG)
+    assert gym_env.spec is not None and gym_env.spec.id == "ramavt_jax/Tracking-v0"
+    obs, _ = gym_env.reset(seed=1)
+    assert obs.shape == (16, 16, 1)
+    vec = gymnasium.make_vec("ramavt_jax/Tracking-v0", num_envs=2, vectorization_mode="vector_entry_point",
+                             config=CONFIG)
+    assert vec.reset(seed=0)[0].shape == (2, 16, 16, 1)
+    with pytest.raises(ValueError, match="integers"):
+        vec.step(np.array([0.5, 1.0]))
 
 
 def test_seeded_reset_is_deterministic():
