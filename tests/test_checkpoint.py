@@ -3,6 +3,7 @@ clear errors for missing checkpoints and mismatched configs."""
 
 import dataclasses
 import json
+from pathlib import Path
 
 import jax
 import jax.numpy as jnp
@@ -113,3 +114,101 @@ def test_keyboard_interrupt_saves_a_checkpoint(tmp_path, monkeypatch):
     assert store.latest_step() == 2  # the chunk in flight completed and was saved
     rest = driver.run(cfg, tmp_path / "ctrlc", progress=False)
     assert rest["chunks_done"] == cfg.num_chunks
+
+
+# ============================================================================================ run-folder safety
+@pytest.fixture(scope="module")
+def full_run(tmp_path_factory):
+    """The uninterrupted reference run (seed 3) every resume below must reproduce bit for bit."""
+    return driver.run(SMOKE, tmp_path_factory.mktemp("ref") / "full", seed=3, progress=False)
+
+
+def _rows(path):
+    skip = {"wall_s", "env_steps_per_s", "updates_per_s", "trained_frames_per_s", "compile_s"}
+    return [{k: v for k, v in r.items() if k not in skip} for r in run_folder.read_metrics(path)]
+
+
+def test_metrics_are_strict_json(full_run):
+    text = (Path(full_run["out_dir"]) / "metrics.jsonl").read_text()
+    assert "NaN" not in text and "Infinity" not in text
+    for line in text.splitlines():
+        json.loads(line, parse_constant=lambda c: pytest.fail(f"non-standard JSON constant {c}"))
+    assert any(line.count("null") for line in text.splitlines())  # chunks without finished episodes
+
+
+def test_other_config_is_refused_before_writing_and_a_run_can_be_extended(tmp_path, full_run):
+    out = tmp_path / "run"
+    driver.run(SMOKE, out, seed=3, progress=False, max_chunks=2)
+    before = (out / "config.json").read_bytes()
+    with pytest.raises(run_folder.RunFolderError, match=r"another config: lr 0.0005 -> 0.001.*--no-resume") as e:
+        driver.run(dataclasses.replace(SMOKE, lr=1e-3), out, seed=3, progress=False)
+    assert len(str(e.value).splitlines()) == 1
+    assert (out / "config.json").read_bytes() == before  # nothing was overwritten
+    longer = dataclasses.replace(SMOKE, total_env_steps=2 * SMOKE.total_env_steps)
+    done = driver.run(longer, out, seed=3, progress=False)
+    assert done["chunks_done"] == 2 * SMOKE.num_chunks
+    assert json.loads((out / "config.json").read_text())["config"]["total_env_steps"] == longer.total_env_steps
+    rows = _rows(out / "metrics.jsonl")
+    assert [r["chunk"] for r in rows] == list(range(1, 2 * SMOKE.num_chunks + 1))
+    ref = _rows(Path(full_run["out_dir"]) / "metrics.jsonl")
+    assert json.dumps(rows[:SMOKE.num_chunks]) == json.dumps(ref)  # the first half is the reference run
+
+
+def test_damaged_newest_checkpoint_falls_back_to_the_older_one(tmp_path, full_run, capsys):
+    out = tmp_path / "run"
+    cfg = dataclasses.replace(SMOKE, keep_checkpoints=2)
+    driver.run(cfg, out, seed=3, progress=False, max_chunks=3)  # checkpoints 2 and 3
+    biggest = max((p for p in (out / "checkpoints" / "3").rglob("*") if p.is_file()), key=lambda p: p.stat().st_size)
+    biggest.write_bytes(biggest.read_bytes()[: biggest.stat().st_size // 2])  # a truncated data file
+    rest = driver.run(cfg, out, seed=3, progress=False)
+    err = capsys.readouterr().out
+    assert "did not load" in err and "resuming from step 2" in err
+    assert len([line for line in err.splitlines() if "did not load" in line]) == 1
+    _assert_trees_equal(rest.state, full_run.state)
+
+
+def test_second_process_on_a_locked_folder_gets_a_clear_error(tmp_path):
+    import subprocess
+    import sys
+
+    out = tmp_path / "run"
+    out.mkdir()
+    holder = subprocess.Popen([sys.executable, "-c", "import sys, time; from pathlib import Path; "
+                               "from ramavt_jax.training.run_folder import RunLock; lock = RunLock(Path(sys.argv[1])); "
+                               "print('locked', flush=True); time.sleep(120)", str(out)],
+                              stdout=subprocess.PIPE, text=True)
+    try:
+        assert holder.stdout.readline().strip() == "locked"
+        with pytest.raises(run_folder.RunFolderError, match=f"in use by process {holder.pid} on"):
+            driver.run(SMOKE, out, progress=False)
+        assert not (out / "config.json").exists() and not (out / "metrics.jsonl").exists()
+    finally:
+        holder.kill()
+        holder.wait()
+
+
+def test_sigterm_saves_the_chunk_in_flight_and_resume_is_bit_identical(tmp_path, monkeypatch, full_run):
+    import os
+    import signal
+
+    real = driver.distributed.local_copy
+    calls = {"n": 0}
+
+    def sigterm_during_second_chunk(x):
+        if isinstance(x, T.ChunkMetrics):
+            calls["n"] += 1
+            if calls["n"] == 2:
+                os.kill(os.getpid(), signal.SIGTERM)  # what a scheduler sends; handled between chunks
+        return real(x)
+
+    cfg = dataclasses.replace(SMOKE, checkpoint_every_chunks=0)  # only the signal makes a checkpoint
+    monkeypatch.setattr(driver.distributed, "local_copy", sigterm_during_second_chunk)
+    with pytest.raises(driver.TrainingInterrupted) as e:
+        driver.run(cfg, tmp_path / "term", seed=3, progress=False)
+    monkeypatch.setattr(driver.distributed, "local_copy", real)
+    assert e.value.exit_code == 143 and "SIGTERM" in str(e.value)
+    assert signal.getsignal(signal.SIGTERM) is signal.SIG_DFL  # the handler is removed again
+    assert [r["chunk"] for r in run_folder.read_metrics(tmp_path / "term" / "metrics.jsonl")] == [1, 2]
+    assert CheckpointStore(tmp_path / "term" / "checkpoints", create=False).latest_step() == 2
+    rest = driver.run(cfg, tmp_path / "term", seed=3, progress=False)
+    _assert_trees_equal(rest.state, full_run.state)

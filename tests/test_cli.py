@@ -59,3 +59,143 @@ def test_bench_scaling_offered_and_splits_envs_over_two_forced_cpu_devices(tmp_p
     assert point["env_steps_per_s"] > 0 and point["partition"] == "shard_map"
     assert json.loads(out.read_text())["partial"] is False
     assert (tmp_path / "scaling.png").is_file()
+
+
+# ============================================================================================ bad inputs
+MESH_XML = """<mujoco><asset><mesh name="m" vertex="0 0 0 1 0 0 0 1 0 0 0 1"/></asset>
+<worldbody><body><geom type="mesh" mesh="m"/></body></worldbody></mujoco>"""
+PLANE_XML = '<mujoco><worldbody><body><geom type="plane" size="1 1 0.1"/></body></worldbody></mujoco>'
+EMPTY_XML = "<mujoco><worldbody/></mujoco>"
+TRUNCATED_XML = '<mujoco><worldbody><body><geom type="sphere" size="1"'
+
+
+def _files(tmp_path):
+    for name, text in (("mesh.xml", MESH_XML), ("plane.xml", PLANE_XML), ("empty.xml", EMPTY_XML),
+                       ("truncated.xml", TRUNCATED_XML)):
+        (tmp_path / name).write_text(text)
+    (tmp_path / "a_file").write_text("x")
+    (tmp_path / "a_folder").mkdir()
+    return tmp_path
+
+
+TRAIN = ["train", "--preset", "smoke", "--no-progress"]
+BAD_INPUTS = {  # id: (arguments, {tmp} filled in, what the one-line message must say)
+    "unknown target": (["render", "--target", "Satelite-v1"], "Did you mean Satellite-v1"),
+    "target is a folder": (["render", "--target", "{tmp}/a_folder"], "is a folder"),
+    "truncated MJCF": (["render", "--target", "{tmp}/truncated.xml"], "cannot parse MJCF"),
+    "mesh geom": (["render", "--target", "{tmp}/mesh.xml"], "mesh"),
+    "plane geom": (["render", "--target", "{tmp}/plane.xml"], "plane"),
+    "empty model": (["render", "--target", "{tmp}/empty.xml"], "no geoms"),
+    "render steps negative": (["render", "--steps", "-5"], "--steps must be an integer >= 1"),
+    "render steps zero": (["render", "--steps", "0"], "--steps must be an integer >= 1"),
+    "render out is a folder": (["render", "--steps", "2", "--out", "{tmp}/a_folder"], "must end in .gif or .mp4"),
+    "render out under a file": (["render", "--steps", "2", "--out", "{tmp}/a_file/x.gif"], "is a file"),
+    "total steps negative": (TRAIN + ["--total-env-steps", "-320"], "total_env_steps must be >= 1"),
+    "total steps not a multiple": (TRAIN + ["--total-env-steps", "1000"], "must be a multiple"),
+    "bad learning rate": (TRAIN + ["--lr", "-1"], "lr and adam_eps must be > 0"),
+    "seeds zero": (TRAIN + ["--seeds", "0"], "--seeds must be an integer >= 1"),
+    "more devices than visible": (TRAIN + ["--devices", "3", "--out", "{tmp}/three"], "device(s) are visible"),
+    "train out is a file": (TRAIN + ["--out", "{tmp}/a_file"], "is a file, not a folder"),
+    "unknown preset": (["train", "--preset", "fast"], "unknown preset 'fast'"),
+    "eval episodes zero": (["eval", "--policy", "random", "--episodes", "0"], "--episodes must be an integer >= 1"),
+    "eval run missing": (["eval", "--run", "{tmp}/no_run"], "config.json not found"),
+    "eval out is a file": (["eval", "--policy", "random", "--out", "{tmp}/a_file"], "is a file"),
+    "plot run missing": (["plot", "--run", "{tmp}/no_run", "--out", "{tmp}/fig"], "config.json not found"),
+}
+
+
+@pytest.mark.parametrize("name", list(BAD_INPUTS))
+def test_bad_input_is_one_line_and_exit_code_2(name, tmp_path, capsys):
+    args, expected = BAD_INPUTS[name]
+    tmp = _files(tmp_path)
+    args = [a.replace("{tmp}", str(tmp)) for a in args]
+    if args[0] == "render" and "--out" not in args:
+        args += ["--out", str(tmp / "x.gif")]
+    with pytest.raises(SystemExit) as e:
+        cli.main(args)
+    assert e.value.code == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1, err
+    assert err.startswith("ramavt: error: ") and expected in err, err
+    assert not (tmp / "three").exists()  # a bad device count leaves no run folder behind
+
+
+def test_read_only_out_is_one_line(tmp_path, capsys):
+    import os
+
+    if os.geteuid() == 0:
+        pytest.skip("root can write into read-only folders")
+    ro = tmp_path / "ro"
+    ro.mkdir()
+    ro.chmod(0o500)
+    with pytest.raises(SystemExit) as e:
+        cli.main(TRAIN + ["--out", str(ro / "run")])
+    assert e.value.code == 2 and "ro" in capsys.readouterr().err
+
+
+# ============================================================================================ train flags
+def test_every_training_field_is_a_flag_and_preset_picks_the_defaults(monkeypatch, capsys):
+    import dataclasses
+
+    from ramavt_jax.cli import train as cli_train
+    from ramavt_jax.train_config import TrainConfig, preset
+
+    seen = {}
+
+    def fake(config, out, **kwargs):
+        seen.update(config=config, out=out, **kwargs)
+        raise SystemExit(0)
+
+    monkeypatch.setattr(cli_train, "train_and_evaluate", fake)
+    with pytest.raises(SystemExit):
+        cli.main(["train", "--preset", "smoke", "--lr", "3e-4", "--network.lstm", "48", "--env.camera.resolution",
+                  "24", "--gamma", "0.9", "--network", "drlavt", "--obs", "rgbd", "--augment", "True",
+                  "--no-double-q", "--total-env-steps", "2560", "--env-params", "dist_weight=0.5", "lost_patience=10",
+                  "--out", "somewhere"])
+    cfg = seen["config"]
+    smoke = preset("smoke")
+    assert (cfg.lr, cfg.network.lstm, cfg.env.camera.resolution, cfg.gamma) == (3e-4, 48, 24, 0.9)
+    assert (cfg.network.variant, cfg.env.obs_mode, cfg.augment, cfg.double_q) == ("drlavt", "rgbd", True, False)
+    assert cfg.total_env_steps == 2560 and str(seen["out"]) == "somewhere"
+    assert dict(cfg.env_params) == {"dist_weight": 0.5, "lost_patience": 10}
+    assert cfg.batch_size == smoke.batch_size and cfg.network.dense == smoke.network.dense  # the preset's values
+    with pytest.raises(SystemExit):
+        cli.main(["train", "--help"])
+    text = capsys.readouterr().out
+    for f in dataclasses.fields(TrainConfig):
+        if dataclasses.is_dataclass(f.default):
+            for g in dataclasses.fields(f.default):
+                assert f"--{f.name}.{g.name.replace('_', '-')}" in text, g.name
+        elif f.name not in ("augment_config", "debug_nan_at_update"):
+            assert f"--{f.name.replace('_', '-')}" in text, f.name
+
+
+@pytest.mark.slow
+def test_sigterm_to_ramavt_train_exits_143_and_the_rerun_resumes(tmp_path):
+    """A real `ramavt train` process gets SIGTERM after its first metrics row: it saves, exits with 143, keeps
+    every row it logged, and the same command resumes from the saved chunk to the end."""
+    import json
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    out = tmp_path / "run"
+    cmd = [sys.executable, "-m", "ramavt_jax.cli", "train", "--preset", "smoke", "--out", str(out), "--no-progress",
+           "--eval-episodes", "0", "--checkpoint-every-chunks", "0"]
+    env = {**__import__("os").environ, "RAMAVT_COMPILE_CACHE": str(tmp_path / "cache")}
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+    metrics = out / "metrics.jsonl"
+    deadline = time.time() + 600
+    while not (metrics.exists() and metrics.read_text().strip()) and time.time() < deadline:
+        time.sleep(0.05)
+    proc.send_signal(signal.SIGTERM)
+    _, err = proc.communicate(timeout=300)
+    assert proc.returncode == 143, err
+    assert err.strip().splitlines()[-1].startswith("ramavt: SIGTERM")
+    rows = [json.loads(line)["chunk"] for line in metrics.read_text().splitlines()]
+    saved = max(int(p.name) for p in (out / "checkpoints").iterdir())
+    assert rows == list(range(1, saved + 1))  # the chunk in flight was logged and checkpointed
+    again = subprocess.run(cmd, capture_output=True, text=True, env=env, timeout=900)
+    assert again.returncode == 0, again.stderr[-2000:]
+    assert [json.loads(line)["chunk"] for line in metrics.read_text().splitlines()] == [1, 2, 3, 4]

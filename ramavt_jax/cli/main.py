@@ -67,7 +67,8 @@ def _dispatch(argv: list[str]) -> None:
         "plot": evaluate.plot_cmd,
         "bench": commands.bench_main,  # listed for --help; dispatched above
     }
-    tyro.extras.subcommand_cli_from_dict(cmds, prog="ramavt", args=argv)
+    with train.FLAG_TYPES:
+        tyro.extras.subcommand_cli_from_dict(cmds, prog="ramavt", args=argv)
 
 
 def main(argv: list[str] | None = None) -> None:

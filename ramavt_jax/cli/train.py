@@ -6,11 +6,13 @@ training curves (figures layer) and, when the run is complete, the final evaluat
 
 from __future__ import annotations
 
+import ast
 import json
 from pathlib import Path
 from typing import Callable, Literal
 
 import tyro
+from tyro import constructors
 from typing_extensions import Annotated
 
 from ramavt_jax import distributed
@@ -23,6 +25,31 @@ from ramavt_jax.training import driver
 # short flags kept from earlier versions (scripts use them): --network VARIANT, --obs MODE
 ALIASES = {"--network": "--network.variant", "--obs": "--env.obs-mode"}
 DEFAULT_PRESET = "quick"
+# How tyro parses the one untyped-tuple field, TrainConfig.env_params: --env-params dist_weight=0.5 lost_patience=10
+FLAG_TYPES = constructors.ConstructorRegistry()
+
+
+def _name_value_pairs(args: list[str]) -> tuple:
+    pairs = []
+    for arg in args:
+        name, eq, text = arg.partition("=")
+        if not eq:
+            raise ValueError(f"--env-params takes NAME=VALUE pairs, got {arg!r}")
+        try:
+            value = ast.literal_eval(text)
+        except (ValueError, SyntaxError):
+            value = text
+        pairs.append((name, value))
+    return tuple(pairs)
+
+
+@FLAG_TYPES.primitive_rule
+def _pairs_rule(info: constructors.PrimitiveTypeInfo) -> constructors.PrimitiveConstructorSpec | None:
+    if info.type is not tuple:
+        return None
+    return constructors.PrimitiveConstructorSpec(
+        nargs="*", metavar="NAME=VALUE", instance_from_str=_name_value_pairs, is_instance=lambda x: isinstance(x, tuple),
+        str_from_instance=lambda x: [f"{k}={v}" for k, v in x])
 
 
 def train_and_evaluate(config: TrainConfig, out: Path, seed: int = 0, seeds: int = 1, resume=True,

@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import math
 import shutil
 import time
 from pathlib import Path
@@ -20,45 +19,16 @@ import jax
 import numpy as np
 
 from ramavt_jax import distributed
-from ramavt_jax.train import ChunkMetrics, TrainConfig, Trainer, TrainingDivergedError
+from ramavt_jax.train import TrainConfig, TrainingDivergedError
 from ramavt_jax.training import run_folder as folders
 from ramavt_jax.training.program import _compiled, _Program
 from ramavt_jax.training.checkpoint import CheckpointError, CheckpointNotFoundError, CheckpointStore, has_checkpoint
 from ramavt_jax.training.interrupts import StopSignals, TrainingInterrupted
+from ramavt_jax.training.metrics import Log, aggregate, diverged
 
 __all__ = ["run", "RunSummary", "aggregate", "read_metrics", "TrainingInterrupted"]
 
 read_metrics = folders.read_metrics
-
-
-# ============================================================================================ metrics
-def aggregate(m: ChunkMetrics, wall_s: float, env_steps: int) -> dict:
-    """Per-chunk record from the per-iteration sums of one chunk (host numpy); ``env_steps`` taken in the chunk."""
-    m = jax.tree.map(np.asarray, m)
-    episodes = int(m.episodes.sum())
-    updates = int(m.updates.sum())
-
-    def ratio(a, b):
-        return float(a) / b if b else float("nan")
-
-    return {
-        "env_steps": int(m.env_steps[-1]),
-        "episodes": episodes,
-        "episode_length": ratio(m.episode_length_sum.sum(), episodes),
-        "episode_return": ratio(m.episode_return_sum.sum(), episodes),
-        "updates": updates,
-        "loss": ratio(m.loss_sum.sum(), updates),
-        "q_mean": ratio(m.q_sum.sum(), updates),
-        "grad_norm": ratio(m.grad_norm_sum.sum(), updates),
-        "epsilon": float(m.epsilon[-1]),
-        "wall_s": wall_s,
-        "env_steps_per_s": env_steps / wall_s,
-        "updates_per_s": updates / wall_s,
-    }
-
-
-def _diverged(record: dict) -> bool:
-    return record["updates"] > 0 and not (math.isfinite(record["loss"]) and math.isfinite(record["q_mean"]))
 
 
 # ============================================================================================ summary
@@ -94,6 +64,11 @@ def _resolve_resume(resume, ckpt_dir: Path, subdir: str | None = None) -> Path |
                                   f"{path / folders.CHECKPOINTS}); start afresh with --no-resume")
 
 
+def _default_json() -> dict:
+    """TrainConfig's default values as a config dict (fields missing from an older config.json take these)."""
+    return json.loads(json.dumps(TrainConfig().to_dict(), default=str))
+
+
 @dataclasses.dataclass
 class _Folders:
     out: Path
@@ -121,7 +96,7 @@ def _open_folders(config_json: dict, out: Path, seed: int, num_seeds: int, resum
                                           f"({[str(s) for s in sources]}); resume them together or use --no-resume")
         for s, d, src in zip(seeds, dirs, sources):
             if src is not None and (d / folders.CONFIG_FILE).is_file():
-                folders.check_config(d, config_json, s)
+                folders.check_config(d, config_json, s, _default_json())
     except BaseException:
         if lock is not None:
             lock.close()
@@ -137,7 +112,8 @@ def _restore(prog: _Program, state, config: TrainConfig, config_json: dict, f: _
         like = _seed_slice(state, k, num_seeds)
         like = like if config.checkpoint_replay else like.replace(replay=None)
         st, meta, _ = CheckpointStore(src, create=False).restore_newest_loadable(like, log)
-        diff = {k: v for k, v in folders.config_differences(meta.get("config", {}), config_json).items()
+        diff = {k: v for k, v in folders.config_differences(meta.get("config", {}), config_json,
+                                                           _default_json()).items()
                 if k not in folders.RESUMABLE_FIELDS}
         if diff:
             raise CheckpointError(f"the checkpoint in {src} was written with another config (differs in "
@@ -154,55 +130,6 @@ def _restore(prog: _Program, state, config: TrainConfig, config_json: dict, f: _
     return restored if prog.shardings is None else jax.device_put(restored, prog.shardings)
 
 
-class _Log:
-    """Per-seed metric files and TensorBoard writers, and the progress bar (primary process only)."""
-
-    def __init__(self, config: TrainConfig, f: _Folders, start: int, primary: bool, progress: bool):
-        self.primary = primary
-        self.paths = [d / folders.METRICS_FILE for d in f.dirs]
-        self.records = [[r for r in folders.read_metrics(p) if r["chunk"] <= start] if f.resuming else []
-                        for p in self.paths]
-        self.writers = [None] * len(f.dirs)
-        self.bar = None
-        if not primary:
-            return
-        for p, recs in zip(self.paths, self.records):
-            folders.write_metrics(p, recs)
-        if config.tensorboard:
-            from tensorboardX import SummaryWriter
-
-            self.writers = [SummaryWriter(str(d / "tb")) for d in f.dirs]
-        if progress:
-            from tqdm.auto import tqdm
-
-            n = len(f.dirs)
-            self.bar = tqdm(total=config.total_env_steps * n, initial=start * config.env_steps_per_chunk * n,
-                            unit="step", unit_scale=True, dynamic_ncols=True, desc="train")
-
-    def add(self, k: int, record: dict) -> None:
-        self.records[k].append(record)
-        if self.primary:
-            folders.append_metrics(self.paths[k], record)
-        if self.writers[k] is not None:
-            for name, v in record.items():
-                if isinstance(v, (int, float)) and math.isfinite(v):
-                    self.writers[k].add_scalar(f"train/{name}", v, record["env_steps"])
-
-    def advance(self, steps: int) -> None:
-        if self.bar is not None:
-            self.bar.update(steps)
-            r = self.records[0][-1]
-            self.bar.set_postfix(ep_len=f"{r['episode_length']:.0f}", loss=f"{r['loss']:.3g}", eps=f"{r['epsilon']:.2f}")
-
-    def close(self) -> None:
-        if self.bar is not None:
-            self.bar.close()
-            self.bar = None
-        for w in self.writers:
-            if w is not None:
-                w.close()
-
-
 @dataclasses.dataclass
 class _Loop:
     """What the chunk loop needs and updates."""
@@ -210,7 +137,7 @@ class _Loop:
     config: TrainConfig
     prog: _Program
     f: _Folders
-    log: _Log
+    log: Log
     stores: list
     config_json: dict
     chunk_no: int  # host mirror of state.chunk (each compiled chunk adds one): no device read per chunk
@@ -234,7 +161,7 @@ class _Loop:
             record["compile_s"] = self.prog.compile_s
             if num_seeds > 1:
                 record["seeds_in_program"] = num_seeds
-            if _diverged(record):
+            if diverged(record):
                 where = (f"the last good checkpoint is chunk {self.last_saved} in {self.f.dirs[k] / folders.CHECKPOINTS}"
                          if self.last_saved is not None else "no checkpoint was saved yet")
                 raise TrainingDivergedError(
@@ -343,7 +270,7 @@ def _run_locked(config, f: _Folders, config_json, resume, max_chunks, tracking_e
     if stop.signum is not None:
         raise TrainingInterrupted(f"{stop.name} while compiling: nothing was trained or written", stop.signum)
     if f.resuming:
-        state = _restore(prog, state, config, config_json, f, say if primary else (lambda msg: None))
+        state = _restore(prog, state, config, config_json, f, print if primary else (lambda msg: None))
     elif resume is False and primary:
         for d in f.dirs:
             if (d / folders.CHECKPOINTS).is_dir():
@@ -353,13 +280,15 @@ def _run_locked(config, f: _Folders, config_json, resume, max_chunks, tracking_e
             d.mkdir(parents=True, exist_ok=True)
             (d / folders.CONFIG_FILE).write_text(json.dumps({"seed": s, "config": config_json}, indent=1))
     start = _host_int(state.chunk)
-    log = _Log(config, f, start, primary, progress)
+    log = Log(config, f.dirs, start if f.resuming else None, primary, progress)
     stores = [CheckpointStore(d / folders.CHECKPOINTS, keep=config.keep_checkpoints) for d in f.dirs]
     loop = _Loop(config, prog, f, log, stores, config_json, start, start if f.resuming else None)
     end = config.num_chunks if max_chunks is None else min(config.num_chunks, start + max_chunks)
     train_t0 = time.time()
-    state = _train_chunks(loop, state, end, stop, say)
-    log.close()
+    try:
+        state = _train_chunks(loop, state, end, stop, say)
+    finally:
+        log.close()
     train_s = time.time() - train_t0
     if loop.chunk_no != loop.last_saved:
         loop.save(state)

@@ -100,13 +100,17 @@ def _flatten(d: Any, prefix: str = "") -> dict:
     return out
 
 
-def config_differences(saved: dict, current: dict) -> dict[str, tuple]:
-    """{dotted field: (saved value, current value)} for every field that differs between two config dicts."""
+def config_differences(saved: dict, current: dict, defaults: dict | None = None) -> dict[str, tuple]:
+    """{dotted field: (saved value, current value)} for every field that differs between two config dicts. A field
+    the saved config lacks (written before the field existed) counts as its value in ``defaults`` (a config dict
+    of the defaults), so a new field left at its default does not block a resume."""
     a, b = _flatten(saved), _flatten(current)
+    d = _flatten(defaults or {})
+    a.update({k: d[k] for k in d if k not in a})
     return {k: (a.get(k), b.get(k)) for k in sorted(set(a) | set(b)) if a.get(k) != b.get(k)}
 
 
-def check_config(run_dir: Path, config_json: dict, seed: int) -> None:
+def check_config(run_dir: Path, config_json: dict, seed: int, defaults: dict | None = None) -> None:
     """Refuse (one line, nothing written) to resume ``run_dir`` with a config that differs from its config.json in
     more than the resumable fields; call before anything is written."""
     path = run_dir / CONFIG_FILE
@@ -114,7 +118,7 @@ def check_config(run_dir: Path, config_json: dict, seed: int) -> None:
         saved = json.loads(path.read_text())
     except (OSError, ValueError) as e:
         raise RunFolderError(f"cannot read {path} ({e}); resume with --no-resume or train into a new --out") from None
-    diff = config_differences(saved.get("config", {}), config_json)
+    diff = config_differences(saved.get("config", {}), config_json, defaults)
     fixed = {k: v for k, v in diff.items() if k not in RESUMABLE_FIELDS}
     if saved.get("seed") != seed:
         fixed["seed"] = (saved.get("seed"), seed)

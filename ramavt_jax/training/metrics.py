@@ -1,0 +1,94 @@
+"""Per-chunk training records: aggregated from the chunk's metrics, appended to each seed's metrics.jsonl (strict
+JSON), mirrored to TensorBoard and a progress bar."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import jax
+import numpy as np
+
+from ramavt_jax.train import ChunkMetrics, TrainConfig
+from ramavt_jax.training import run_folder as folders
+
+__all__ = ["aggregate", "diverged", "Log"]
+
+
+def aggregate(m: ChunkMetrics, wall_s: float, env_steps: int) -> dict:
+    """Per-chunk record from the per-iteration sums of one chunk (host numpy); ``env_steps`` taken in the chunk."""
+    m = jax.tree.map(np.asarray, m)
+    episodes = int(m.episodes.sum())
+    updates = int(m.updates.sum())
+
+    def ratio(a, b):
+        return float(a) / b if b else float("nan")
+
+    return {
+        "env_steps": int(m.env_steps[-1]),
+        "episodes": episodes,
+        "episode_length": ratio(m.episode_length_sum.sum(), episodes),
+        "episode_return": ratio(m.episode_return_sum.sum(), episodes),
+        "updates": updates,
+        "loss": ratio(m.loss_sum.sum(), updates),
+        "q_mean": ratio(m.q_sum.sum(), updates),
+        "grad_norm": ratio(m.grad_norm_sum.sum(), updates),
+        "epsilon": float(m.epsilon[-1]),
+        "wall_s": wall_s,
+        "env_steps_per_s": env_steps / wall_s,
+        "updates_per_s": updates / wall_s,
+    }
+
+
+def diverged(record: dict) -> bool:
+    return record["updates"] > 0 and not (math.isfinite(record["loss"]) and math.isfinite(record["q_mean"]))
+
+
+class Log:
+    """Per-seed metric files and TensorBoard writers, and the progress bar (primary process only)."""
+
+    def __init__(self, config: TrainConfig, dirs: list[Path], resumed_at: int | None, primary: bool, progress: bool):
+        """``resumed_at``: the restored chunk (its earlier records are kept, later ones dropped), None = fresh."""
+        self.primary = primary
+        self.paths = [d / folders.METRICS_FILE for d in dirs]
+        self.records = [[r for r in folders.read_metrics(p) if r["chunk"] <= resumed_at] if resumed_at is not None
+                        else [] for p in self.paths]
+        self.writers = [None] * len(dirs)
+        self.bar = None
+        if not primary:
+            return
+        for p, recs in zip(self.paths, self.records):
+            folders.write_metrics(p, recs)
+        if config.tensorboard:
+            from tensorboardX import SummaryWriter
+
+            self.writers = [SummaryWriter(str(d / "tb")) for d in dirs]
+        if progress:
+            from tqdm.auto import tqdm
+
+            n, start = len(dirs), resumed_at or 0
+            self.bar = tqdm(total=config.total_env_steps * n, initial=start * config.env_steps_per_chunk * n,
+                            unit="step", unit_scale=True, dynamic_ncols=True, desc="train")
+
+    def add(self, k: int, record: dict) -> None:
+        self.records[k].append(record)
+        if self.primary:
+            folders.append_metrics(self.paths[k], record)
+        if self.writers[k] is not None:
+            for name, v in record.items():
+                if isinstance(v, (int, float)) and math.isfinite(v):
+                    self.writers[k].add_scalar(f"train/{name}", v, record["env_steps"])
+
+    def advance(self, steps: int) -> None:
+        if self.bar is not None:
+            self.bar.update(steps)
+            r = self.records[0][-1]
+            self.bar.set_postfix(ep_len=f"{r['episode_length']:.0f}", loss=f"{r['loss']:.3g}", eps=f"{r['epsilon']:.2f}")
+
+    def close(self) -> None:
+        if self.bar is not None:
+            self.bar.close()
+            self.bar = None
+        for w in self.writers:
+            if w is not None:
+                w.close()

@@ -1,0 +1,54 @@
+"""The package's import layers (pyproject.toml [tool.importlinter]) hold, and no module grows past 400 lines."""
+
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def _lint_imports(cwd: Path) -> subprocess.CompletedProcess:
+    exe = shutil.which("lint-imports") or str(Path(sys.executable).with_name("lint-imports"))
+    return subprocess.run([exe, "--no-cache"], cwd=cwd, capture_output=True, text=True, timeout=300)
+
+
+def test_import_contracts_are_kept():
+    result = _lint_imports(ROOT)
+    assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-2000:]
+    assert "0 broken" in result.stdout
+
+
+def test_a_back_import_breaks_the_contracts(tmp_path):
+    """The same contracts on a copy of the package with one import up a layer (env -> train) fail."""
+    shutil.copytree(ROOT / "ramavt_jax", tmp_path / "ramavt_jax", ignore=shutil.ignore_patterns("__pycache__"))
+    shutil.copy(ROOT / "pyproject.toml", tmp_path / "pyproject.toml")
+    env_py = tmp_path / "ramavt_jax" / "env.py"
+    env_py.write_text(env_py.read_text() + "\n\ndef _back():\n    from ramavt_jax import train  # noqa\n")
+    result = subprocess.run([sys.executable, "-c", "import sys; from importlinter.cli import lint_imports_command; "
+                             "sys.exit(lint_imports_command(['--no-cache']))"],
+                            cwd=tmp_path, capture_output=True, text=True, timeout=300,
+                            env={"PYTHONPATH": str(tmp_path), "PATH": ""})
+    assert result.returncode != 0 and "ramavt_jax.env -> ramavt_jax.train" in result.stdout, result.stdout[-3000:]
+
+
+@pytest.mark.parametrize("folder", ["ramavt_jax"])
+def test_no_module_over_400_lines(folder):
+    long = {str(p.relative_to(ROOT)): n for p in (ROOT / folder).rglob("*.py")
+            if (n := len(p.read_text().splitlines())) > 400}
+    assert not long, long
+
+
+def test_every_module_has_a_layer():
+    """A new top-level module must be placed in a layer, or the contracts would not see it."""
+    import tomllib
+
+    contracts = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["importlinter"]["contracts"]
+    (layers,) = [c["layers"] for c in contracts if c["type"] == "layers"]
+    placed = {name.strip() for layer in layers for name in layer.replace("|", ":").split(":")}
+    package = ROOT / "ramavt_jax"
+    present = {p.stem for p in package.glob("*.py") if p.stem not in ("__init__", "__main__")}
+    present |= {p.name for p in package.iterdir() if (p / "__init__.py").is_file()}
+    assert present == placed, f"not in a layer: {sorted(present - placed)}; gone: {sorted(placed - present)}"
