@@ -151,6 +151,66 @@ def cast(table, x, y, near: float):
     return jnp.where(ok & (t_in >= near), t_in, jnp.inf)
 
 
+def _directions(f, x, y):
+    dx = f[M0 + 0] * x + f[M0 + 1] * y + f[M0 + 2]
+    dy = f[M0 + 3] * x + f[M0 + 4] * y + f[M0 + 5]
+    dz = f[M0 + 6] * x + f[M0 + 7] * y + f[M0 + 8]
+    return dx, dy, dz
+
+
+def cast_ellipsoid(table, x, y, near: float):
+    """`cast` for spheres and ellipsoids (unit-sphere quadric, no active slab, no caps): one square root, one division.
+
+    The entry root is c / (sqrt(disc) - b); it is the entry in front of the camera only when the camera is outside
+    (c > 0) and the ray approaches (b < 0). Otherwise both roots are behind the camera or it is inside the geom,
+    which `cast` also reports as a miss (the entry lies behind the near plane).
+    """
+    f = [table[i] for i in range(NUM_FEATURES)]
+    dx, dy, dz = _directions(f, x, y)
+    ox, oy, oz = f[O0], f[O0 + 1], f[O0 + 2]
+    a = dx * dx + dy * dy + dz * dz
+    b = ox * dx + oy * dy + oz * dz
+    c = f[C]
+    wx = oy * dz - oz * dy
+    wy = oz * dx - ox * dz
+    wz = ox * dy - oy * dx
+    disc = a - (wx * wx + wy * wy + wz * wz)
+    t = c / (jnp.sqrt(jnp.maximum(disc, 0.0)) - b)
+    return jnp.where((disc >= 0) & (b < 0) & (c > 0) & (t >= near), t, jnp.inf)
+
+
+def cast_box(table, x, y, near: float):
+    """`cast` for boxes: the three slabs only (the box's quadric is an inactive sphere of radius 2 around it)."""
+    f = [table[i] for i in range(NUM_FEATURES)]
+    t_in, t_out = None, None
+    for k, d in enumerate(_directions(f, x, y)):
+        inv = 1.0 / d
+        s1 = f[LO0 + k] * inv
+        s2 = f[HI0 + k] * inv
+        lo, hi = jnp.minimum(s1, s2), jnp.maximum(s1, s2)
+        t_in = lo if t_in is None else jnp.maximum(t_in, lo)
+        t_out = hi if t_out is None else jnp.minimum(t_out, hi)
+    return jnp.where((t_in <= t_out) & (t_in >= near), t_in, jnp.inf)
+
+
+def cast_cylinder(table, x, y, near: float):
+    """`cast` for cylinders: the infinite unit cylinder x^2 + y^2 <= 1 and the cap slab |z| <= 1."""
+    f = [table[i] for i in range(NUM_FEATURES)]
+    dx, dy, dz = _directions(f, x, y)
+    ox, oy = f[O0], f[O0 + 1]
+    a = dx * dx + dy * dy
+    b = ox * dx + oy * dy
+    wz = ox * dy - oy * dx
+    disc = a - wz * wz
+    ok, t_in, t_out = _stable_roots(a, b, f[C], disc)
+    inv = 1.0 / dz
+    s1 = f[LO0 + 2] * inv
+    s2 = f[HI0 + 2] * inv
+    t_in = jnp.maximum(t_in, jnp.minimum(s1, s2))
+    t_out = jnp.minimum(t_out, jnp.maximum(s1, s2))
+    return jnp.where(ok & (t_in <= t_out) & (t_in >= near), t_in, jnp.inf)
+
+
 def surface_normal(st, x, y, t):
     """Unit outward normal (camera frame) at the hit ``t`` of the ray (x, y, 1) on the geom described by ``st``.
 

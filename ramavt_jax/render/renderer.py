@@ -1,11 +1,25 @@
-"""Rendering one target or a batch: screen-space tile culling, global tile compaction, chunked ray casting.
+"""Rendering a batch of targets: per-geom screen boxes, a flat list of (env, geom, tile) work items, and one
+fixed-size, branch-free ray-casting kernel per chunk of items.
 
-The image is cut into square tiles (8x8 pixels by default). A tile is only ray-cast when its pixel range overlaps
-the exact image-plane bounding box of the target's bounding sphere. For a batch, the needed (env, tile) pairs of
-all envs are compacted into one list (``jnp.nonzero`` with a static size) and processed ``chunk`` tiles at a time in
-a ``lax.while_loop`` whose trip count is the number of needed tiles divided by ``chunk``: the work done scales with
-the image area the targets cover, shapes stay static under jit, and there is no fallback path to fall into.
-Results are gathered back into full images at the end (tiles that were not cast stay empty).
+1. Setup (all envs and geoms at once, explicit multiply-adds on [B, G] arrays, no tiny matmuls): each geom's
+   transform into its unit frame (``intersect`` features) and a conservative pixel box: the projection of its bounding
+   sphere, tightened by the projection of its oriented bounding box's corners when they are all in front of the
+   camera. The box becomes a rectangle of tiles (``tile`` x ``tile`` pixels) per (env, geom).
+2. Work items: every tile of every (env, geom) rectangle. Their count per (env, geom) is the rectangle's area, an
+   exclusive prefix sum over the B*G pairs numbers them, and item k finds its pair by a branch-free binary search
+   (``log2(B*G)`` gathers). No list of the size of the whole image batch is ever built, and envs or geoms that cannot
+   be seen (behind the camera, beyond ``far``, padding) own no items.
+3. Casting: a ``lax.while_loop`` takes ``chunk`` items per iteration (the trip count is the batch's total item count
+   over ``chunk``: one loop for the whole batch, not one per env), gathers each item's geom features, intersects all
+   ``tile*tile`` rays of the item with the geom (``intersect.cast``: dense SIMD over pixels) and merges by
+   ``scatter-min`` into a depth buffer of tiles. Items of one tile never need to be processed together, so the
+   per-pixel work is exactly one ray-geom test per overlapping geom.
+4. Colour (``shade=True``) is a second pass over the same items: each item recomputes its depths, keeps the pixels
+   where it is the nearest geom, computes the normal and Lambertian colour there only (others are masked to 0) and
+   merges by ``scatter-max``; pixels nobody hits stay black.
+
+On a GPU, ``chunk`` can be the whole item capacity of the batch (one iteration); on CPU, chunks of about 16k-64k
+rays keep the kernel's operands in cache. Neither ``chunk`` nor ``tile`` changes the result.
 """
 
 from __future__ import annotations
@@ -18,110 +32,183 @@ import numpy as np
 
 from ramavt_jax.render import intersect
 from ramavt_jax.render.camera import CameraConfig, Frame, Lighting
-from ramavt_jax.targets import CAPSULE, CYLINDER, SPHERE, TargetModel
+from ramavt_jax.targets import BOX, CAPSULE, CYLINDER, ELLIPSOID, SPHERE, TargetModel
 
 DEFAULT_TILE = 8
-DEFAULT_CHUNK_RAYS = 4096  # rays per loop iteration when chunk is None (64 tiles: measured best of 64/256/1024)
-DEFAULT_GEOMS_PER_TILE = 4  # geoms per work item (a tile with more geoms gives several items); 4 measured best of 2-8
+DEFAULT_CHUNK_RAYS = 16384  # rays per loop iteration when chunk is None (measured best of 4k-64k on 2 cores)
+_BIG = 1e30
+_WIN_RTOL = 1e-6  # second (colour) pass: a geom wins a pixel when its depth is within this of the pixel's depth
 
 
-def _tile_layout(cam: CameraConfig, tile: int):
-    """Static per-tile pixel coordinates: x, y [T, P] (normalised image plane) and pixel ranges [T, 2] each."""
-    nt = -(-cam.resolution // tile)
-    p = np.arange(tile * tile)
-    t = np.arange(nt * nt)
-    u = (t % nt)[:, None] * tile + (p % tile)[None, :]
-    v = (t // nt)[:, None] * tile + (p // tile)[None, :]
+def _mat3(a):
+    """[..., 3, 3] array -> nested lists a[i][j] of [...] arrays."""
+    return [[a[..., i, j] for j in range(3)] for i in range(3)]
+
+
+def _geom_frames(targets: TargetModel, positions, rotations):
+    """Camera-frame geom centres p[i] and camera_from_geom rotations r[i][j], each [B, G] (explicit FMAs)."""
+    rb = _mat3(rotations[:, None])  # [B, 1] each
+    gm = _mat3(targets.geom_mat)  # [B, G]
+    gp = [targets.geom_pos[..., i] for i in range(3)]
+    r = [[rb[i][0] * gm[0][k] + rb[i][1] * gm[1][k] + rb[i][2] * gm[2][k] for k in range(3)] for i in range(3)]
+    p = [rb[i][0] * gp[0] + rb[i][1] * gp[1] + rb[i][2] * gp[2] + positions[:, None, i] for i in range(3)]
+    return p, r
+
+
+def _shape(geom_type, size):
+    """Per geom: inverse unit-frame scale, quadric q, slab half-extents e (3 lists of [B, G]) and capsule half-length."""
+    r, h = size[..., 0], size[..., 1]
+    sph = (geom_type == SPHERE) | (geom_type == CAPSULE)
+    cyl = geom_type == CYLINDER
+    box = geom_type == BOX
+    scale = [jnp.where(sph, r, size[..., 0]), jnp.where(sph | cyl, r, size[..., 1]), jnp.where(sph, r, jnp.where(cyl, h, size[..., 2]))]
+    inv_s = [1.0 / jnp.where(s > 0, s, 1.0) for s in scale]  # padding geoms have zero size
+    round_ = (geom_type == CYLINDER) | (geom_type == CAPSULE)
+    one = jnp.ones_like(r)
+    q = [jnp.where(box, 0.25, one), jnp.where(box, 0.25, one), jnp.where(box, 0.25, jnp.where(round_, 0.0, one))]
+    hl = jnp.where(geom_type == CAPSULE, h / jnp.maximum(r, 1e-30), 0.0)
+    e = [jnp.where(box, 1.0, 2.0 * one), jnp.where(box, 1.0, 2.0 * one), jnp.where(box | cyl, 1.0, 2.0 * one) + hl]
+    return inv_s, q, e, hl
+
+
+def _unit_frames(targets: TargetModel, p, r):
+    """unit_from_camera m[i][j] and the camera origin in the unit frame o[i] ([B, G] each), plus shape data."""
+    inv_s, q, e, hl = _shape(targets.geom_type, targets.geom_size)
+    m = [[inv_s[i] * r[j][i] for j in range(3)] for i in range(3)]
+    o = [-(m[i][0] * p[0] + m[i][1] * p[1] + m[i][2] * p[2]) for i in range(3)]
+    return m, o, q, e, hl
+
+
+def _cast_table(targets: TargetModel, m, o, q, e, hl) -> jax.Array:
+    """Features of `intersect.cast` (rows in its order) as [B*G, NUM_FEATURES]."""
+    mask = targets.geom_mask
+    c = jnp.where(mask, q[0] * o[0] * o[0] + q[1] * o[1] * o[1] + q[2] * o[2] * o[2] - 1.0, jnp.inf)
+    cap_hl = jnp.where(targets.geom_type == CAPSULE, hl, _BIG)
+    lo = [jnp.where(mask, -e[i] - o[i], jnp.inf) for i in range(3)]
+    hi = [jnp.where(mask, e[i] - o[i], jnp.inf) for i in range(3)]
+    rows = ([m[i][j] for i in range(3) for j in range(3)] + [q[i] * o[i] for i in range(3)] + [c] + q + lo + hi + o
+            + [cap_hl, q[1] * q[2], q[0] * q[2], q[0] * q[1]])
+    assert len(rows) == intersect.NUM_FEATURES
+    return jnp.stack(rows, axis=-1).reshape(-1, intersect.NUM_FEATURES).astype(jnp.float32)
+
+
+def _shade_table(targets: TargetModel, m, o, q, e, hl) -> jax.Array:
+    """Features of `intersect.surface_normal` plus the albedo as [B*G, NUM_SHADE_FEATURES]."""
+    cap = targets.geom_type == CAPSULE
+    qn = [jnp.where(cap, 1.0, q[i]) for i in range(3)]
+    rgb = [targets.geom_rgb[..., i] for i in range(3)]
+    rows = [m[i][j] for i in range(3) for j in range(3)] + o + qn + e + [hl] + rgb
+    assert len(rows) == intersect.NUM_SHADE_FEATURES
+    return jnp.stack(rows, axis=-1).reshape(-1, intersect.NUM_SHADE_FEATURES).astype(jnp.float32)
+
+
+def _half_extents(targets: TargetModel):
+    """Half extents (3 lists of [B, G]) of each geom's bounding box in its own frame."""
+    t = targets.geom_type
+    s = [targets.geom_size[..., i] for i in range(3)]
+    r, h = s[0], s[1]
+    radial = (t == SPHERE) | (t == CYLINDER) | (t == CAPSULE)
+    ex = jnp.where(radial, r, s[0])
+    ey = jnp.where(radial, r, s[1])
+    ez = jnp.where(t == SPHERE, r, jnp.where(t == CYLINDER, h, jnp.where(t == CAPSULE, h + r, s[2])))
+    return [ex, ey, ez]
+
+
+def _screen_boxes(targets: TargetModel, p, r, cam: CameraConfig):
+    """Conservative pixel boxes (umin, umax, vmin, vmax) [B, G] of every geom and whether it can be seen [B, G].
+
+    The projection of the geom's bounding sphere, intersected, when all 8 corners of the geom's oriented bounding box
+    lie in front of the camera, with the projection of those corners (exact for boxes; thin panels have huge
+    bounding spheres but small boxes). One pixel of margin on each side.
+    """
     f, c = cam.focal(), cam.centre()
-    x = ((u - c) / f).astype(np.float32)
-    y = ((v - c) / f).astype(np.float32)
-    u0 = (t % nt) * tile
-    v0 = (t // nt) * tile
-    return nt, x, y, np.stack([u0, u0 + tile - 1], 1).astype(np.float32), np.stack([v0, v0 + tile - 1], 1).astype(np.float32)
-
-
-def _projected_bounds(centre: jax.Array, radius: jax.Array, cam: CameraConfig):
-    """Pixel-coordinate box (umin, umax, vmin, vmax) containing the image of a sphere; empty when out of range."""
-    cx, cy, cz = centre[0], centre[1], centre[2]
-    r2 = radius * radius
-    den = cz * cz - r2
+    radius = targets.geom_rbound
+    cx, cy, cz = p
+    den = cz * cz - radius * radius
     in_front = cz > radius * 1.001 + 1e-6
-    safe_den = jnp.where(in_front, den, 1.0)
-    f, c = cam.focal(), cam.centre()
+    inv_den = 1.0 / jnp.where(in_front, den, 1.0)
 
     def extent(a):
         root = jnp.sqrt(jnp.maximum(a * a + den, 0.0)) * radius
-        lo = (a * cz - root) / safe_den
-        hi = (a * cz + root) / safe_den
+        lo = (a * cz - root) * inv_den
+        hi = (a * cz + root) * inv_den
         return jnp.where(in_front, f * lo + c - 1.0, -jnp.inf), jnp.where(in_front, f * hi + c + 1.0, jnp.inf)
 
     umin, umax = extent(cx)
     vmin, vmax = extent(cy)
-    visible = (cz + radius > cam.near) & (cz - radius < cam.far)
+    visible = targets.geom_mask & (cz + radius > cam.near) & (cz - radius < cam.far)
+    ext = _half_extents(targets)
+    us, vs, zs = [], [], []
+    for sx in (-1.0, 1.0):
+        for sy in (-1.0, 1.0):
+            for sz in (-1.0, 1.0):
+                off = (sx * ext[0], sy * ext[1], sz * ext[2])
+                corner = [p[i] + r[i][0] * off[0] + r[i][1] * off[1] + r[i][2] * off[2] for i in range(3)]
+                inv_z = 1.0 / jnp.where(corner[2] > 1e-3, corner[2], 1.0)
+                us.append(f * corner[0] * inv_z + c)
+                vs.append(f * corner[1] * inv_z + c)
+                zs.append(corner[2])
+    front = functools.reduce(jnp.minimum, zs) > 1e-3
+    umin = jnp.where(front, jnp.maximum(umin, functools.reduce(jnp.minimum, us) - 1.0), umin)
+    umax = jnp.where(front, jnp.minimum(umax, functools.reduce(jnp.maximum, us) + 1.0), umax)
+    vmin = jnp.where(front, jnp.maximum(vmin, functools.reduce(jnp.minimum, vs) - 1.0), vmin)
+    vmax = jnp.where(front, jnp.minimum(vmax, functools.reduce(jnp.maximum, vs) + 1.0), vmax)
     return umin, umax, vmin, vmax, visible
 
 
-def _tile_mask(position, radius, cam, u_rng, v_rng):
-    umin, umax, vmin, vmax, visible = _projected_bounds(position, radius, cam)
-    return (
-        visible
-        & (u_rng[:, 1] >= umin)
-        & (u_rng[:, 0] <= umax)
-        & (v_rng[:, 1] >= vmin)
-        & (v_rng[:, 0] <= vmax)
-    )
+def _tile_range(lo, hi, tile: int, nt: int):
+    """First tile index and tile count [B, G] int32 of the tiles whose pixels [k*tile, k*tile+tile-1] meet [lo, hi]."""
+    lo = jnp.clip(lo, -2.0 * tile, (nt + 2.0) * tile)
+    hi = jnp.clip(hi, -2.0 * tile, (nt + 2.0) * tile)
+    first = jnp.maximum(jnp.ceil((lo - (tile - 1)) / tile), 0.0)
+    last = jnp.minimum(jnp.floor(hi / tile), nt - 1.0)
+    return first.astype(jnp.int32), jnp.maximum(last - first + 1.0, 0.0).astype(jnp.int32)
 
 
-def _assemble(tiles: jax.Array, b: int, nt: int, tile: int, res: int) -> jax.Array:
-    """[B*T, tile*tile, *rest] -> [B, res, res, *rest]."""
-    rest = tiles.shape[2:]
-    img = tiles.reshape((b, nt, nt, tile, tile) + rest)
-    img = jnp.moveaxis(img, 3, 2).reshape((b, nt * tile, nt * tile) + rest)
-    return img[:, :res, :res]
+def _columns(rows: jax.Array) -> list[jax.Array]:
+    """[C, F] gathered feature rows -> F arrays [C, 1, 1] (broadcast against a [C, tile, tile] item)."""
+    return [rows[:, i, None, None] for i in range(rows.shape[1])]
 
 
-def _half_extents(targets: TargetModel) -> jax.Array:
-    """Half extents [..., G, 3] of each geom's bounding box in its own frame."""
-    t = targets.geom_type[..., None]
-    size = targets.geom_size
-    r, h = size[..., 0:1], size[..., 1:2]
-    radial = jnp.concatenate([r, r, h], axis=-1)
-    ext = jnp.where(t == SPHERE, jnp.broadcast_to(r, size.shape), size)
-    ext = jnp.where(t == CYLINDER, radial, ext)
-    ext = jnp.where(t == CAPSULE, radial + jnp.concatenate([0 * r, 0 * r, r], axis=-1), ext)
-    return ext
+def _find_pair(ends: jax.Array, k: jax.Array) -> jax.Array:
+    """Number of entries of the non-decreasing ``ends`` [E] that are <= k, for every k [C]: the index of the
+    (env, geom) pair that owns item k. Branch-free binary search: ceil(log2(E + 1)) gathers of C entries."""
+    e = ends.shape[0]
+    pos = jnp.zeros(k.shape, jnp.int32)
+    step = 1 << (int(e).bit_length() - 1)
+    while step >= 1:
+        cand = pos + step
+        ok = (cand <= e) & (ends[jnp.minimum(cand, e) - 1] <= k)
+        pos = jnp.where(ok, cand, pos)
+        step //= 2
+    return pos
 
 
-def _geom_screen_boxes(targets: TargetModel, positions, rotations, cam: CameraConfig):
-    """Conservative pixel boxes (umin, umax, vmin, vmax) [B, G] of every geom and visibility [B, G].
-
-    The box is the intersection of the projection of the geom's bounding sphere and, when all 8 corners of the
-    geom's oriented bounding box lie in front of the camera, the projection of those corners (exact for boxes;
-    thin panels have huge bounding spheres but small boxes).
-    """
-    pos = jnp.einsum("bij,bgj->bgi", rotations, targets.geom_pos) + positions[:, None, :]  # [B, G, 3]
-    rot = jnp.einsum("bij,bgjk->bgik", rotations, targets.geom_mat)  # [B, G, 3, 3] camera_from_geom
-    radius = jnp.where(targets.geom_mask, targets.geom_rbound, -1.0)
-    umin, umax, vmin, vmax, visible = jax.vmap(jax.vmap(_projected_bounds, in_axes=(0, 0, None)), in_axes=(0, 0, None))(
-        pos, radius, cam)
-    ext = _half_extents(targets)  # [B, G, 3]
-    signs = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)], np.float32)  # [8, 3]
-    off = ext[:, :, None, :] * signs  # [B, G, 8, 3] geom frame
-    corners = [pos[:, :, None, i] + sum(rot[:, :, None, i, j] * off[..., j] for j in range(3)) for i in range(3)]
-    cz = corners[2]
-    front = jnp.min(cz, axis=-1) > 1e-3  # [B, G]
-    inv_z = 1.0 / jnp.where(cz > 1e-3, cz, 1.0)
-    f, c = cam.focal(), cam.centre()
-    u = f * corners[0] * inv_z + c
-    v = f * corners[1] * inv_z + c
-    umin = jnp.where(front, jnp.maximum(umin, jnp.min(u, -1) - 1.0), umin)
-    umax = jnp.where(front, jnp.minimum(umax, jnp.max(u, -1) + 1.0), umax)
-    vmin = jnp.where(front, jnp.maximum(vmin, jnp.min(v, -1) - 1.0), vmin)
-    vmax = jnp.where(front, jnp.minimum(vmax, jnp.max(v, -1) + 1.0), vmax)
-    return umin, umax, vmin, vmax, visible & targets.geom_mask
+# Geom classes with their own specialised kernel; each class's work items form their own list and loop.
+_CLASSES = (
+    ("ellipsoid", (SPHERE, ELLIPSOID), intersect.cast_ellipsoid),
+    ("box", (BOX,), intersect.cast_box),
+    ("cylinder", (CYLINDER,), intersect.cast_cylinder),
+    ("capsule", (CAPSULE,), intersect.cast),
+)
 
 
-@functools.partial(jax.jit, static_argnames=("cam", "shade", "chunk", "tile", "geoms_per_tile"))
+def _prefix_sum(x: jax.Array, block: int = 32) -> jax.Array:
+    """Inclusive prefix sum along the last axis in blocks of ``block`` (XLA:CPU lowers a long jnp.cumsum to a
+    quadratic reduce-window, and an associative scan to dozens of tiny ops): a few ops per level, log_block(N) levels."""
+    n = x.shape[-1]
+    if n <= 2 * block:
+        return jnp.cumsum(x, axis=-1)
+    m = -(-n // block)
+    lead = x.shape[:-1]
+    xp = jnp.pad(x, [(0, 0)] * len(lead) + [(0, m * block - n)]).reshape(lead + (m, block))
+    inner = jnp.cumsum(xp, axis=-1)
+    totals = inner[..., -1]
+    offsets = _prefix_sum(totals, block) - totals
+    return (inner + offsets[..., None]).reshape(lead + (m * block,))[..., :n]
+
+
+@functools.partial(jax.jit, static_argnames=("cam", "shade", "chunk", "tile", "specialise"))
 def render_batch(
     targets: TargetModel,
     positions: jax.Array,
@@ -131,109 +218,117 @@ def render_batch(
     shade: bool = True,
     chunk: int | None = None,
     tile: int = DEFAULT_TILE,
-    geoms_per_tile: int = DEFAULT_GEOMS_PER_TILE,
+    specialise: bool = True,
 ) -> Frame:
     """Render B targets at once: targets with leading [B], positions [B, 3], rotations [B, 3, 3] -> Frame [B, ...].
 
     position = target centre of mass in the camera frame; rotation = camera_from_body. ``chunk`` is the number of
-    work items (a tile and up to ``geoms_per_tile`` of the geoms overlapping it) ray-cast per loop iteration;
-    ``tile`` the tile side in pixels. None of them changes the result. ``shade=False`` leaves rgb at zero.
+    work items (one geom over one tile of ``tile`` x ``tile`` pixels) cast per loop iteration; ``specialise=False``
+    runs every geom through the general kernel `intersect.cast` (a test reference). None of them changes the
+    result beyond float rounding. ``shade=False`` leaves rgb at zero (and skips the colour pass).
     """
     positions = jnp.asarray(positions, jnp.float32)
     rotations = jnp.asarray(rotations, jnp.float32)
     b = positions.shape[0]
-    nt = -(-cam.resolution // tile)
-    lo_px = np.arange(nt, dtype=np.float32) * tile
-    u_rng = v_rng = np.stack([lo_px, lo_px + tile - 1], 1)  # [nt, 2] pixel range of each tile column / row
-    n_tiles = nt * nt
-    npix = tile * tile
-    total = b * n_tiles
-    if chunk is None:  # small batches must not pay for a mostly empty chunk
-        chunk = max(1, min(DEFAULT_CHUNK_RAYS // npix, max(16, total // 8)))
-    chunk = int(min(chunk, total))
     n_geoms = targets.geom_type.shape[-1]
-    kg = int(min(geoms_per_tile, n_geoms))
-    n_groups = -(-n_geoms // kg)
+    nt = -(-cam.resolution // tile)
+    n_pairs = b * n_geoms
+    if chunk is None:  # small batches must not pay for a mostly empty chunk
+        chunk = max(8, min(DEFAULT_CHUNK_RAYS // (tile * tile), (b * nt * nt * 2) // 8))
+    chunk = int(chunk)
 
-    tables = jax.vmap(intersect.geom_table)(targets, positions, rotations)  # [B, F, G]
-    tables = jnp.moveaxis(tables, 1, 0).reshape(tables.shape[1], b * n_geoms)  # [F, B*G]
+    p, r = _geom_frames(targets, positions, rotations)
+    m, o, q, e, hl = _unit_frames(targets, p, r)
+    table = _cast_table(targets, m, o, q, e, hl)  # [B*G, F]: an item gathers one contiguous row
+    umin, umax, vmin, vmax, visible = _screen_boxes(targets, p, r, cam)
+    tu0, nu = _tile_range(umin, umax, tile, nt)
+    tv0, nv = _tile_range(vmin, vmax, tile, nt)
+    counts = jnp.where(visible, nu * nv, 0).reshape(-1)  # items per (env, geom)
+    tu0, tv0, nu = tu0.reshape(-1), tv0.reshape(-1), jnp.maximum(nu.reshape(-1), 1)
+    gtype = targets.geom_type.reshape(-1)
+    classes = _CLASSES if specialise else (("all", (SPHERE, CAPSULE, ELLIPSOID, CYLINDER, BOX), intersect.cast),)
+    kernels = [k for _, _, k in classes]
+    n_cls = len(classes)
+
+    # One list per geom class (ends [K, B*G]: inclusive prefix sums of the class's item counts over the pairs), each
+    # padded to whole chunks and laid end to end: chunk j belongs to class cls(j) and runs that class's kernel.
+    member = jnp.stack([functools.reduce(jnp.logical_or, [gtype == t for t in types]) for _, types, _ in classes])
+    ends = _prefix_sum(jnp.where(member, counts, 0))  # [K, B*G]
+    n_items = ends[:, -1]  # [K]
+    chunk_end = jnp.cumsum((n_items + chunk - 1) // chunk)  # [K]
+    n_chunks = chunk_end[-1]
+
+    tx0 = jnp.asarray((np.arange(nt) * tile - cam.centre()) / cam.focal(), jnp.float32)
+    px = jnp.asarray(np.arange(tile) / cam.focal(), jnp.float32)
+    item_iota = jnp.arange(chunk, dtype=jnp.int32)
+
+    def items(j):
+        """Chunk j: class, pair index, env (b for padding: dropped), tile row/column, ray coordinates."""
+        cls = jnp.sum(j >= chunk_end, dtype=jnp.int32)
+        first = jnp.where(cls > 0, chunk_end[jnp.maximum(cls - 1, 0)], 0)
+        k = (j - first) * chunk + item_iota
+        ends_c = ends[cls]
+        pair = jnp.minimum(_find_pair(ends_c, k), n_pairs - 1)
+        local = k - (ends_c[pair] - counts[pair])
+        nu_k = nu[pair]
+        dv = local // nu_k
+        tv = jnp.clip(tv0[pair] + dv, 0, nt - 1)
+        tu = jnp.clip(tu0[pair] + (local - dv * nu_k), 0, nt - 1)
+        env = jnp.where(k < n_items[cls], pair // n_geoms, b)
+        x = (tx0[tu][:, None] + px)[:, None, :]  # [C, 1, tile] (pixel column)
+        y = (tx0[tv][:, None] + px)[:, :, None]  # [C, tile, 1] (pixel row)
+        return cls, pair, env, tv, tu, x, y
+
+    def cast(cls, pair, x, y):
+        tab = _columns(table[pair])  # F x [C, 1, 1]
+        if n_cls == 1:
+            return kernels[0](tab, x, y, cam.near)
+        return jax.lax.switch(cls, [functools.partial(k, near=cam.near) for k in kernels], tab, x, y)
+
+    # Buffers in image layout [B, tile rows, pixel row in tile, tile columns, pixel column in tile]: an item's
+    # pixels are one [tile, tile] window, and the final image is a reshape (no transpose pass).
+    def depth_body(state):
+        j, dbuf = state
+        cls, pair, env, tv, tu, x, y = items(j)
+        t = cast(cls, pair, x, y)  # [C, tile, tile]
+        return j + 1, dbuf.at[env, tv, :, tu, :].min(t, mode="drop")
+
+    dbuf = jnp.full((b, nt, tile, nt, tile), jnp.inf, jnp.float32)
+    _, dbuf = jax.lax.while_loop(lambda s: s[0] < n_chunks, depth_body, (jnp.int32(0), dbuf))
+
     if shade:
-        stables = jax.vmap(intersect.shade_table)(targets, positions, rotations)
-        stables = jnp.moveaxis(stables, 1, 0).reshape(stables.shape[1], b * n_geoms)  # [S, B*G]
-    # Per (env, tile, geom): does the geom's screen box overlap the tile? (separable in u and v)
-    umin, umax, vmin, vmax, visible = _geom_screen_boxes(targets, positions, rotations, cam)
-    over_u = (u_rng[:, 1] >= umin[..., None]) & (u_rng[:, 0] <= umax[..., None])  # [B, G, nt]
-    over_v = (v_rng[:, 1] >= vmin[..., None]) & (v_rng[:, 0] <= vmax[..., None])
-    over_u = over_u & visible[..., None]
-    overlap = jnp.transpose(over_v, (0, 2, 1))[:, :, None, :] & jnp.transpose(over_u, (0, 2, 1))[:, None, :, :]
-    overlap = overlap.reshape(total, n_geoms)  # [B*T, G], tile = tv * nt + tu
-    n_over = jnp.sum(overlap, axis=1, dtype=jnp.int32)
-    # Work items: (tile, group j) for the j-th group of kg overlapping geoms; groups run in order (j = 0 first, its
-    # results are set; later groups merge by depth), each group's list padded to whole chunks.
-    counts = jnp.stack([jnp.sum(n_over > j * kg, dtype=jnp.int32) for j in range(n_groups)])
-    n_chunks = -(-counts // chunk)
-    chunk_end = jnp.cumsum(n_chunks)
-    chunk_start = chunk_end - n_chunks
-    orders = jnp.stack([jnp.nonzero(n_over > j * kg, size=total, fill_value=total)[0].astype(jnp.int32)
-                        for j in range(n_groups)])
-    orders = jnp.concatenate([orders, jnp.full((n_groups, chunk), total, jnp.int32)], axis=1)
-    # lighting may be shared ([3], []) or per env ([B, 3], [B]), e.g. when env params are randomised
-    sun_all = jnp.broadcast_to(jnp.asarray(lighting.sun_dir, jnp.float32), (b, 3))
-    amb_all = jnp.broadcast_to(jnp.asarray(lighting.ambient, jnp.float32), (b,))
-    tx0 = jnp.asarray(((np.arange(nt) * tile - cam.centre()) / cam.focal()), jnp.float32)
-    pix = np.arange(npix)
-    px = jnp.asarray((pix % tile) / cam.focal(), jnp.float32)
-    py = jnp.asarray((pix // tile) / cam.focal(), jnp.float32)
-    geom_iota = jnp.arange(n_geoms, dtype=jnp.int32)
-    slot_iota = jnp.arange(kg, dtype=jnp.int32)
+        stable = _shade_table(targets, m, o, q, e, hl)  # [B*G, S]
+        # lighting may be shared ([3], []) or per env ([B, 3], [B]), e.g. when env params are randomised
+        sun_all = jnp.broadcast_to(jnp.asarray(lighting.sun_dir, jnp.float32), (b, 3))
+        amb_all = jnp.broadcast_to(jnp.asarray(lighting.ambient, jnp.float32), (b,))
 
-    def body(state):
-        i, dbuf, cbuf = state
-        j = jnp.sum(i >= chunk_end, dtype=jnp.int32)
-        ids = jax.lax.dynamic_slice(orders, (j, (i - chunk_start[j]) * chunk), (1, chunk))[0]
-        safe = jnp.minimum(ids, total - 1)
-        env, tid = safe // n_tiles, safe % n_tiles
-        ov = overlap[safe]  # [K, G]
-        rank = jnp.cumsum(ov, axis=1, dtype=jnp.int32)
-        want = j * kg + slot_iota + 1  # [kg] ranks of this group's slots
-        sel = ov[:, None, :] & (rank[:, None, :] == want[None, :, None])  # [K, kg, G]
-        gid = jnp.sum(jnp.where(sel, geom_iota, 0), axis=2)  # [K, kg]
-        gvalid = jnp.any(sel, axis=2)
-        col = env[:, None] * n_geoms + gid  # [K, kg]
-        x = (tx0[tid % nt][:, None] + px)[:, None, :]  # [K, 1, P]
-        y = (tx0[tid // nt][:, None] + py)[:, None, :]
-        tab = jnp.take(tables, col, axis=1)[..., None]  # [F, K, kg, 1]
-        t = intersect.cast(tab, x, y, cam.near)  # [K, kg, P]
-        t = jnp.where(gvalid[:, :, None], t, jnp.inf)
-        tmin = jnp.min(t, axis=1)  # [K, P]
-        old = dbuf[safe]
-        new = tmin < old
-        dbuf = dbuf.at[ids].set(jnp.where(new, tmin, old), mode="drop")  # padding ids (== total) are dropped
-        if shade:
-            slot = jnp.argmin(t, axis=1)  # [K, P]
-            win = slot[:, None, :] == slot_iota[None, :, None]  # [K, kg, P]
-            st = jnp.take(stables, col, axis=1)[..., None]  # [S, K, kg, 1]
-            st = jnp.sum(jnp.where(win, st, 0.0), axis=2)  # [S, K, P] features of the winning geom
-            hitp = jnp.isfinite(tmin)
-            n = intersect.surface_normal(st, x[:, 0], y[:, 0], jnp.where(hitp, tmin, 1.0))  # 3 x [K, P]
-            sun = sun_all[env].T[:, :, None]  # [3, K, 1]
-            amb = amb_all[env][:, None]
+        def colour_body(state):
+            j, cbuf = state
+            cls, pair, env, tv, tu, x, y = items(j)
+            t = cast(cls, pair, x, y)
+            safe_env = jnp.minimum(env, b - 1)
+            best = dbuf[safe_env, tv, :, tu, :]  # [C, tile, tile]
+            win = (t <= best * (1.0 + _WIN_RTOL)) & (t <= cam.far)
+            st = _columns(stable[pair])  # S x [C, 1, 1]
+            n = intersect.surface_normal(st, x, y, jnp.where(win, t, 1.0))
+            sun = sun_all[safe_env].T[:, :, None, None]  # [3, C, 1, 1]
+            amb = amb_all[safe_env][:, None, None]
             lam = jnp.maximum(n[0] * sun[0] + n[1] * sun[1] + n[2] * sun[2], 0.0)
-            light = amb + (1.0 - amb) * lam  # [K, P]
-            rgb = jnp.stack([st[intersect.S_RGB0 + k] * light for k in range(3)])  # [3, K, P]
-            oldc = cbuf[:, safe]
-            cbuf = cbuf.at[:, ids].set(jnp.where(new, jnp.clip(rgb, 0.0, 1.0), oldc), mode="drop")
-        return i + 1, dbuf, cbuf
+            light = amb + (1.0 - amb) * lam
+            # One plane per channel (a [tile, tile] window each, like the depth buffer).
+            cbuf = tuple(cbuf[k].at[env, tv, :, tu, :].max(
+                jnp.where(win, jnp.clip(st[intersect.S_RGB0 + k] * light, 0.0, 1.0), 0.0), mode="drop") for k in range(3))
+            return j + 1, cbuf
 
-    dbuf = jnp.full((total, npix), jnp.inf, jnp.float32)
-    cbuf = jnp.zeros((3, total, npix) if shade else (1, 1, 1), jnp.float32)
-    _, dbuf, cbuf = jax.lax.while_loop(lambda s: s[0] < chunk_end[-1], body, (jnp.int32(0), dbuf, cbuf))
-    depth = _assemble(dbuf, b, nt, tile, cam.resolution)
+        cbuf = tuple(jnp.zeros((b, nt, tile, nt, tile), jnp.float32) for _ in range(3))
+        _, cbuf = jax.lax.while_loop(lambda s: s[0] < n_chunks, colour_body, (jnp.int32(0), cbuf))
+
+    res = cam.resolution
+    depth = dbuf.reshape(b, nt * tile, nt * tile)[:, :res, :res]
     hit = depth <= cam.far
     depth = jnp.where(hit, depth, 0.0)
     if shade:
-        rgb = _assemble(jnp.moveaxis(cbuf, 0, -1), b, nt, tile, cam.resolution)
-        rgb = jnp.where(hit[..., None], rgb, 0.0)
+        rgb = jnp.stack([c.reshape(b, nt * tile, nt * tile)[:, :res, :res] for c in cbuf], axis=-1)
     else:
         rgb = jnp.zeros(depth.shape + (3,), jnp.float32)
     return Frame(depth=depth, rgb=rgb, hit=hit)
@@ -250,7 +345,7 @@ def render(
     """Render one target: position [3] (centre of mass, camera frame), rotation [3, 3] camera_from_body -> Frame.
 
     Jit- and vmap-able. Under ``jax.vmap`` it becomes one `render_batch` call (a custom batching rule), so a
-    vmapped env step shares one compacted tile list over all its envs instead of running a batched loop per env.
+    vmapped env step shares one work list over all its envs instead of running a batched loop per env.
     """
     return _vmappable_render(cam, bool(shade))(target, jnp.asarray(position), jnp.asarray(rotation), lighting)
 
