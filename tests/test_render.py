@@ -334,3 +334,78 @@ def test_vmapped_render_uses_batch_rule_with_per_env_lighting():
     assert nested.depth.shape == (2, 2, 24, 24)
     single = R.render(jax.tree.map(lambda x: x[0], tg), pos[1], rot[0], cam, light, False)
     np.testing.assert_allclose(nested.depth[0, 1], single.depth, atol=1e-6)
+
+
+# ----------------------------------------------------------------------------------------------- fast paths
+
+
+def test_specialised_kernels_match_general_cast():
+    """The per-type kernels (ellipsoid, box, cylinder) give the general kernel's depths on random rays and poses."""
+    from ramavt_jax.render import intersect, renderer
+
+    rng = np.random.default_rng(7)
+    cam = R.CameraConfig(resolution=32)
+    for gtype, kernel in [(targets.SPHERE, intersect.cast_ellipsoid), (targets.ELLIPSOID, intersect.cast_ellipsoid),
+                          (targets.BOX, intersect.cast_box), (targets.CYLINDER, intersect.cast_cylinder)]:
+        g = 16
+        model = targets.TargetModel(
+            geom_type=jnp.full((1, g), gtype, jnp.int32),
+            geom_size=jnp.asarray(rng.uniform(0.1, 1.0, (1, g, 3)), jnp.float32),
+            geom_pos=jnp.asarray(rng.normal(0, 0.5, (1, g, 3)), jnp.float32),
+            geom_mat=jnp.asarray(np.stack([_random_rotation(rng) for _ in range(g)])[None], jnp.float32),
+            geom_rgb=jnp.ones((1, g, 3)), geom_rbound=jnp.ones((1, g)), geom_mask=jnp.ones((1, g), bool),
+            bound_radius=jnp.ones((1,)), inertia=jnp.ones((1, 3)), mass=jnp.ones((1,)))
+        pos = jnp.array([[0.2, -0.1, 3.0]])
+        p, r = renderer._geom_frames(model, pos, jnp.asarray(_random_rotation(rng), jnp.float32)[None])
+        table = renderer._cast_table(model, *renderer._unit_frames(model, p, r))  # [G, F]
+        s = np.asarray(R.camera_rays(cam))
+        x, y = jnp.asarray(s[..., 0])[None], jnp.asarray(s[..., 1])[None]  # [1, H, W]
+        cols = [table[:, i, None, None] for i in range(table.shape[1])]
+        ref = np.asarray(intersect.cast(cols, x, y, cam.near))
+        out = np.asarray(kernel(cols, x, y, cam.near))
+        assert np.isfinite(ref).sum() > 50, gtype
+        np.testing.assert_array_equal(np.isfinite(out), np.isfinite(ref))
+        fin = np.isfinite(ref)
+        np.testing.assert_allclose(out[fin], ref[fin], rtol=2e-5, atol=2e-5)
+
+
+def test_render_options_do_not_change_the_image(scene):
+    """Chunk size and the specialised kernels change nothing (beyond float rounding); the old renderer agrees."""
+    from ramavt_jax.render import legacy
+
+    cam, _, batch, pos, rot = scene
+    light = R.default_lighting()
+    ref = R.render_batch(batch, pos, rot, cam, light, specialise=False)
+    for kwargs in [dict(), dict(chunk=1), dict(chunk=3), dict(chunk=1000)]:
+        _frames_equal(R.render_batch(batch, pos, rot, cam, light, **kwargs), ref, atol=2e-5)
+    old = legacy.render_batch(batch, pos, rot, cam, light)
+    np.testing.assert_array_equal(np.asarray(old.hit), np.asarray(ref.hit))
+    np.testing.assert_allclose(np.asarray(old.depth), np.asarray(ref.depth), atol=1e-4)
+    # colour differs only where two geoms are within float rounding of the same depth (ties)
+    assert (np.abs(np.asarray(old.rgb) - np.asarray(ref.rgb)).max(-1) > 1e-3).mean() < 0.002
+
+
+def test_hidden_targets_cost_no_work_and_render_empty(scene):
+    cam, _, batch, pos, rot = scene
+    behind = pos.at[:, 2].set(-1e6)
+    frame = R.render_batch(batch, behind, rot, cam, R.default_lighting())
+    assert not np.asarray(frame.hit).any() and not np.asarray(frame.depth).any() and not np.asarray(frame.rgb).any()
+
+
+@pytest.mark.parametrize("n", [1, 5, 64, 65, 1000, 2049, 70000])
+def test_prefix_sum(n):
+    from ramavt_jax.render.renderer import _prefix_sum
+
+    x = np.random.default_rng(n).integers(0, 70, (3, n)).astype(np.int32)
+    np.testing.assert_array_equal(np.asarray(_prefix_sum(jnp.asarray(x))), np.cumsum(x, axis=-1))
+
+
+def test_observation_with_traced_per_env_far(scene):
+    cam, _, batch, pos, rot = scene
+    frames = R.render_batch(batch, pos, rot, cam, R.default_lighting())
+    far = jnp.linspace(10.0, 30.0, pos.shape[0])
+    for mode in ("depth", "rgbd"):
+        obs = jax.jit(jax.vmap(lambda f, d: R.to_observation(f, mode, d)))(frames, far)
+        for i in range(pos.shape[0]):
+            one = R.to_observation(jax.tree.map(lambda a: a[i], frames), mode, float(far[i]))
+            np.testing.assert_allclose(np.asarray(obs[i]), np.asarray(one), rtol=1e-6, atol=1e-7)
