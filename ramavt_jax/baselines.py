@@ -49,7 +49,7 @@ def oracle_policy(gain: float = 1.0) -> Policy:
     def act(key, pstate, obs, env_state: env_lib.EnvState, params: env_lib.EnvParams):
         position = env_lib.relative_position(env_state)
         target_vel_cam = env_lib.HILL_FROM_CAM.T @ env_state.target_vel
-        desired = target_vel_cam + gain * (position - params.desired_pos)
+        desired = target_vel_cam + gain * (position - env_lib.desired_position(env_state, params))
         return quantise_velocity(desired, params.speed), pstate
 
     return Policy("oracle", lambda key: jnp.zeros(()), act)
@@ -96,13 +96,14 @@ def depth_tracker_policy(
     def act(key, pstate: DepthTrackerState, obs, env_state, params: env_lib.EnvParams):
         depth = obs[..., -1]  # depth is the last channel in 'depth' and 'rgbd' modes
         position, seen = estimate_position(depth, camera)
+        position = position * env_state.scale  # depths of a target at a scaled stand-off are divided by k
         # Relative displacement = target displacement - chaser displacement (trapezoid of its last command).
         rel_vel = (position - pstate.last_position) / params.dt
         target_vel_raw = rel_vel + pstate.last_command
         blend = jnp.where(pstate.has_estimate, velocity_smoothing, 0.0)
         target_vel = jnp.where(seen & pstate.has_estimate, blend * pstate.target_vel + (1 - blend) * target_vel_raw,
                                pstate.target_vel)
-        desired = target_vel + kp * (position - params.desired_pos)
+        desired = target_vel + kp * (position - env_lib.desired_position(env_state, params))
         action = quantise_velocity(desired, params.speed)
         action = jnp.where(seen, action, quantise_velocity(pstate.last_command, params.speed))
         command = jnp.asarray(env_lib.ACTIONS)[action] * params.speed

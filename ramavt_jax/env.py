@@ -61,6 +61,7 @@ class EnvState:
     steps: jax.Array  # [] steps taken this episode
     episode_return: jax.Array  # []
     done: jax.Array  # [] bool, the last step ended the episode (used by next_step autoreset)
+    scale: jax.Array  # [] stand-off scale k of this episode's target (>= 1; 1 for every catalogue target)
 
 
 @struct.dataclass
@@ -82,6 +83,17 @@ def relative_position(state: EnvState) -> jax.Array:
     return HILL_FROM_CAM.T @ (state.target_pos - state.chaser_pos)
 
 
+def standoff_scale(target: targets_lib.TargetModel, params: EnvParams) -> jax.Array:
+    """[] k = max(1, standoff_per_radius * bound_radius / desired distance): how much farther than the nominal
+    5 m a target this large must be held so that it fits the view (see EnvParams.standoff_per_radius)."""
+    return jnp.maximum(1.0, params.standoff_per_radius * target.bound_radius / params.desired_pos[2])
+
+
+def desired_position(state: EnvState, params: EnvParams) -> jax.Array:
+    """Where the target centre should be in the camera frame [3] for this episode's target (m)."""
+    return params.desired_pos * state.scale
+
+
 def state_rotation(state: EnvState, mean_motion: jax.Array) -> jax.Array:
     """camera_from_body [3, 3]: the attitude is inertial; the Hill frame has turned by n * t since the start."""
     hill_from_inertial = _rot_z(-mean_motion * state.sim_time)
@@ -101,9 +113,11 @@ def in_view(position: jax.Array, camera: CameraConfig) -> jax.Array:
     return (z > camera.near) & (jnp.abs(position[0] / safe_z) <= tan_half) & (jnp.abs(position[1] / safe_z) <= tan_half)
 
 
-def reward_fn(position: jax.Array, visible: jax.Array, params: EnvParams) -> jax.Array:
-    """+1 if the target centre is in view else -5, minus dist_weight * ||r* - p|| (original SNCOAT reward)."""
-    return jnp.where(visible, 1.0, -5.0) - params.dist_weight * jnp.linalg.norm(params.desired_pos - position)
+def reward_fn(position: jax.Array, visible: jax.Array, params: EnvParams, scale: jax.Array = 1.0) -> jax.Array:
+    """+1 if the target centre is in view else -5, minus dist_weight * ||r* - p|| (original SNCOAT reward).
+    For a target held at a scaled stand-off (scale k > 1) the distance is measured in units of k metres, so the
+    reward means the same for every target size; k = 1 is the original reward exactly."""
+    return jnp.where(visible, 1.0, -5.0) - params.dist_weight * jnp.linalg.norm(params.desired_pos - position / scale)
 
 
 class TrackingEnv:
@@ -151,15 +165,17 @@ class TrackingEnv:
         The frame history is zeros (``reset`` fills it with the first observation)."""
         k_tgt, k_xy, k_z, k_vel, k_quat, k_spin, k_acc = jax.random.split(key, 7)
         index = jax.random.categorical(k_tgt, jnp.log(params.target_probs))
+        target = targets_lib.select(params.catalogue, index)
+        scale = standoff_scale(target, params)
         xy = params.init_xy_std * jax.random.normal(k_xy, (2,))
         z = jax.random.uniform(k_z, (), minval=params.init_z_min, maxval=params.init_z_max)
-        pos_cam = jnp.array([xy[0], xy[1], z])
+        pos_cam = jnp.array([xy[0], xy[1], z]) * scale
         vel_cam = params.target_vel_std * jax.random.normal(k_vel, (3,))
         accel_cam = params.target_accel_std * jax.random.normal(k_acc, (3,))
         r, c = self.config.camera.resolution, OBS_CHANNELS[self.config.obs_mode]
         zero = jnp.zeros(3)
         return EnvState(
-            target=targets_lib.select(params.catalogue, index),
+            target=target,
             target_index=index,
             target_pos=HILL_FROM_CAM @ pos_cam,
             target_vel=HILL_FROM_CAM @ vel_cam,
@@ -174,6 +190,7 @@ class TrackingEnv:
             steps=jnp.zeros((), jnp.int32),
             episode_return=jnp.zeros(()),
             done=jnp.zeros((), bool),
+            scale=scale,
         )
 
     # ----------------------------------------------------------------------------------------- step
@@ -214,10 +231,10 @@ class TrackingEnv:
         """Reward and episode end for a state just reached. Returns (state, reward, terminated, truncated, info)."""
         position = relative_position(state)
         visible = in_view(position, self.config.camera)
-        error = position - params.desired_pos
-        lost = ~visible | (jnp.linalg.norm(error) > params.lost_distance)
+        error = position - desired_position(state, params)
+        lost = ~visible | (jnp.linalg.norm(error) > params.lost_distance * state.scale)
         lost_steps = jnp.where(lost, state.lost_steps + 1, 0)
-        reward = reward_fn(position, visible, params)
+        reward = reward_fn(position, visible, params, state.scale)
         steps = state.steps + 1
         terminated = lost_steps > params.lost_patience
         truncated = (steps >= params.max_steps) & ~terminated
@@ -284,7 +301,7 @@ class TrackingEnv:
         position = relative_position(state)
         return dict(
             rel_pos=position,
-            tracking_error=position - params.desired_pos,
+            tracking_error=position - desired_position(state, params),
             in_view=in_view(position, self.config.camera),
             lost=jnp.zeros((), bool),
             target_index=state.target_index,
@@ -303,13 +320,17 @@ class TrackingEnv:
 
     def _render(self, state: EnvState, params: EnvParams, visible: jax.Array | None = None) -> render.Frame:
         """Camera frame of `state`; where `visible` is False the target is moved behind the camera, which the
-        renderer's culling skips at almost no cost (used for frames that will be discarded)."""
+        renderer's culling skips at almost no cost (used for frames that will be discarded).
+
+        A target at stand-off scale k is rendered shrunk by 1 / k at 1 / k of its distance: the same image, with
+        depths divided by k, i.e. a far plane k times farther (exact: multiplying by 1.0 changes no float)."""
         pose = self.pose(state, params)
-        position = pose.position
+        position = pose.position / state.scale
         if visible is not None:
             position = jnp.where(visible, position, jnp.array([0.0, 0.0, -1e6]))
         shade = self.config.obs_mode != "depth"
-        return render.render(state.target, position, pose.rotation, self.config.camera, self.lighting(params), shade)
+        target = targets_lib.scaled(state.target, 1.0 / state.scale)
+        return render.render(target, position, pose.rotation, self.config.camera, self.lighting(params), shade)
 
     def _postprocess(self, key, frame: render.Frame, state: EnvState, params: EnvParams, first=None):
         """Image perturbations and the frame history. Returns (obs [H, W, C], state with the new frame pushed)."""

@@ -90,6 +90,11 @@ class EnvParams:
     max_steps: jax.Array = 1000  # truncation
     lost_distance: jax.Array = 15.0  # m from the desired position counts as lost
     desired_pos: jax.Array = struct.field(default_factory=lambda: jnp.array([0.0, 0.0, 5.0]))
+    # Stand-off for large targets: an episode's lengths (desired position, start positions, lost distance, far
+    # plane) are scaled by k = max(1, standoff_per_radius * bound_radius / desired_pos[2]): the target is held at
+    # least two bounding radii away. Every catalogue target (bounding radius <= 2.4 m) keeps k = 1; a user's 12 m
+    # satellite is held 24 m away.
+    standoff_per_radius: jax.Array = 2.0
     init_xy_std: jax.Array = 1.0  # m
     init_z_min: jax.Array = 2.0  # m
     init_z_max: jax.Array = 12.0  # m
@@ -128,6 +133,7 @@ def validate_params(params: EnvParams, config: EnvConfig) -> EnvParams:
     check("lost_patience", lambda v: v >= 0, ">= 0")
     check("max_steps", lambda v: v >= 1, ">= 1")
     check("lost_distance", lambda v: v > 0, "> 0")
+    check("standoff_per_radius", lambda v: v > 0, "> 0")
     check("init_z_max", lambda v: v > np.asarray(params.init_z_min), "> init_z_min")
     check("init_z_min", lambda v: v > config.camera.near, f"> camera.near ({config.camera.near})")
     check("blur_frames", lambda v: (v >= 1) & (v <= config.frame_history), f"in [1, EnvConfig.frame_history={config.frame_history}]")

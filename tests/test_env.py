@@ -288,3 +288,61 @@ def test_bad_params(small_env):
 def test_unknown_target_error_is_target_error():
     with pytest.raises(targets.TargetError, match="unknown target"):
         targets.load("Satelite-v1")
+
+
+# ------------------------------------------------------------------------------------------------ stand-off scale
+def _enlarged_satellite(tmp_path, factor: float):
+    """Satellite-v1 with every length times `factor`, written as a user MJCF file."""
+    from ramavt_jax.targets import catalogue_gen
+
+    sat = catalogue_gen.satellite_v1()
+    sat.scale = factor * next(t.scale for t in catalogue_gen.all_targets() if t.name == "Satellite-v1")
+    path = tmp_path / "big_satellite.xml"
+    path.write_text(sat.xml())
+    return path
+
+
+def test_catalogue_targets_keep_the_nominal_stand_off():
+    tracking_env = env.TrackingEnv(env.EnvConfig(camera=render.CameraConfig(resolution=RES), targets=targets.ALL_TARGETS))
+    p = tracking_env.default_params()
+    scales = jax.vmap(lambda i: env.standoff_scale(targets.select(p.catalogue, i), p))(jnp.arange(len(targets.ALL_TARGETS)))
+    np.testing.assert_array_equal(np.asarray(scales), 1.0)
+
+
+def test_large_user_target_is_seen_as_the_small_one_at_a_scaled_stand_off(tmp_path):
+    """A 5x larger satellite (12 m bounding radius) is held 5x farther: at reset, its image is the image of the
+    original satellite (same key), its depths are scaled accordingly, and the desired position is 25 m away."""
+    cam = render.CameraConfig(resolution=32)
+    small = env.TrackingEnv(env.EnvConfig(camera=cam, targets=("Satellite-v1",)))
+    big = env.TrackingEnv(env.EnvConfig(camera=cam, targets=(str(_enlarged_satellite(tmp_path, 5.0)),)))
+    ratio = 5.0 / 2.4  # stand-off per radius that holds the 5x model exactly 5x farther (default: 2)
+    p_small, p_big = small.eval_params(standoff_per_radius=ratio), big.eval_params(standoff_per_radius=ratio)
+    assert float(p_big.catalogue.bound_radius[0]) == pytest.approx(12.0, rel=1e-3)
+    for seed in range(3):
+        obs_s, st_s = jax.jit(small.reset)(jax.random.key(seed), p_small)
+        obs_b, st_b = jax.jit(big.reset)(jax.random.key(seed), p_big)
+        assert float(st_b.scale) == pytest.approx(5.0, rel=1e-3) and float(st_s.scale) == pytest.approx(1.0, rel=1e-4)
+        np.testing.assert_allclose(env.relative_position(st_b), 5.0 * env.relative_position(st_s), rtol=1e-4)
+        np.testing.assert_allclose(env.desired_position(st_b, p_big), [0.0, 0.0, 25.0], rtol=1e-3)
+        differ = np.abs(np.asarray(obs_b) - np.asarray(obs_s)) > 1e-3
+        assert differ.mean() < 0.01, differ.mean()  # only pixels grazing an edge may flip
+        assert float(obs_s.max()) > 0.0
+
+
+def test_oracle_holds_a_large_user_target_at_its_stand_off(tmp_path):
+    from ramavt_jax import baselines
+
+    big = env.TrackingEnv(env.EnvConfig(camera=render.CameraConfig(resolution=16),
+                                        targets=(str(_enlarged_satellite(tmp_path, 5.0)),)))
+    p = big.eval_params(max_steps=150)
+    policy = baselines.oracle_policy()
+    step = jax.jit(big.step_env)
+    obs, state = big.reset(jax.random.key(3), p)
+    pstate = policy.init(jax.random.key(0))
+    for k in jax.random.split(jax.random.key(4), 150):
+        action, pstate = policy.act(k, pstate, obs, state, p)
+        obs, state, reward, term, trunc, info = step(k, state, action, p)
+        assert not bool(term)
+    assert float(state.scale) == pytest.approx(4.8, rel=1e-3)  # 2 x 12 m / 5 m
+    assert float(jnp.linalg.norm(info["tracking_error"])) < 2.5 and bool(trunc)
+    assert float(reward) > -1.0  # distance measured in units of the scaled stand-off

@@ -234,6 +234,13 @@ def select(catalogue: TargetModel, index: jax.Array) -> TargetModel:
     return jax.tree.map(lambda a: a[index], catalogue)
 
 
+def scaled(target: TargetModel, factor: jax.Array) -> TargetModel:
+    """The same target with every length multiplied by `factor` (a scalar, may be traced); inertia and mass are
+    left as they are (only the geometry is used where this is called: rendering at a scaled stand-off)."""
+    return target.replace(geom_size=target.geom_size * factor, geom_pos=target.geom_pos * factor,
+                          geom_rbound=target.geom_rbound * factor, bound_radius=target.bound_radius * factor)
+
+
 def split(name: str) -> tuple[str, ...]:
     """'train', 'test' or 'all' -> catalogue names."""
     table = {"train": TRAIN_TARGETS, "test": TEST_TARGETS, "all": ALL_TARGETS}
