@@ -9,7 +9,9 @@ compilation cache is on (see :func:`enable_compile_cache`), so repeating or resu
 from __future__ import annotations
 
 import os
+import signal
 import sys
+import threading
 from pathlib import Path
 
 import tyro
@@ -50,6 +52,14 @@ def enable_compile_cache() -> Path | None:
     return path
 
 
+def _exit_on_signal(signum, frame) -> None:
+    """Outside training (compiling, evaluating, rendering) a signal ends the command at once, in one line: raising
+    KeyboardInterrupt inside a running XLA compile can crash the process. Training installs its own handler that
+    saves first (ramavt_jax.training.interrupts)."""
+    print(f"\nramavt: {signal.Signals(signum).name}: stopped", file=sys.stderr, flush=True)
+    os._exit(128 + signum)
+
+
 def _one_line(e: BaseException) -> str:
     return " ".join(str(e).split()) or type(e).__name__
 
@@ -77,6 +87,8 @@ def main(argv: list[str] | None = None) -> None:
     debug = "--debug" in argv or os.environ.get("RAMAVT_DEBUG", "") not in ("", "0")
     argv = [a for a in argv if a != "--debug"]
     enable_compile_cache()
+    main_thread = threading.current_thread() is threading.main_thread()
+    old = {sig: signal.signal(sig, _exit_on_signal) for sig in (signal.SIGINT, signal.SIGTERM)} if main_thread else {}
     try:
         _dispatch(argv)
     except TrainingInterrupted as e:
@@ -94,6 +106,9 @@ def main(argv: list[str] | None = None) -> None:
             raise
         print(f"ramavt: error: {_one_line(e)} (--debug shows the traceback)", file=sys.stderr)
         raise SystemExit(USAGE_ERROR) from None
+    finally:
+        for sig, handler in old.items():
+            signal.signal(sig, handler)
 
 
 if __name__ == "__main__":

@@ -93,7 +93,7 @@ def make_train_cmd(preset_name: str):
         preset: Literal["quick", "paper", "smoke"] = preset_name,  # noqa: A002 (read before parsing: see main)
         seeds: int = 1,
         seed: int = 0,
-        out: Path = Path("runs/quick"),
+        out: Path = Path(f"runs/{preset_name}"),
         resume: bool = True,
         progress: bool = True,
         devices: int = 0,

@@ -35,8 +35,8 @@ class StopSignals:
         if self.signum is not None and signum == signal.SIGINT:
             raise KeyboardInterrupt
         if self.signum is None:
-            self._log(f"\n{signal.Signals(signum).name}: stopping after the chunk in flight (it is logged and "
-                      f"checkpointed); Ctrl-C again to stop now")
+            self._log(f"\n{signal.Signals(signum).name}: stopping at the next safe point (a chunk in flight is "
+                      f"finished, logged and checkpointed first); Ctrl-C again to stop now")
         self.signum = signum
 
     @property
