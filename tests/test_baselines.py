@@ -4,7 +4,8 @@ import jax
 import numpy as np
 import pytest
 
-from ramavt_jax import baselines, env, evaluate, render, targets
+from ramavt_jax import baselines, env, render, targets
+from ramavt_jax.evaluation import rollouts as evaluate
 
 
 @pytest.fixture(scope="module")

@@ -7,7 +7,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from ramavt_jax import baselines, evaluate
+from ramavt_jax import baselines
+from ramavt_jax.evaluation import rollouts as evaluate
 from ramavt_jax import env as env_lib
 from ramavt_jax import replay as replay_lib
 from ramavt_jax import train as T
