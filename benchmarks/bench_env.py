@@ -1,11 +1,17 @@
-"""Env throughput: full env steps/s (dynamics + render + auto-reset) vs number of envs and resolution, for depth
-and RGBD, beside MuJoCo's C ray caster `mj_multiRay` (one thread) rendering the same kind of scenes.
+"""Env throughput: full env steps/s (dynamics + render + auto-reset) vs number of envs, resolution and observation
+mode, beside two baselines measured in the same run: the previous renderer inside the same env step (calls
+interleaved with the new one, so both see the same machine load) and MuJoCo's C ray caster `mj_multiRay` (one
+thread) on the same targets and poses as the env's envs.
 
-    python benchmarks/bench_env.py [--out benchmarks/results_env.json] [--quick]
-    ramavt bench env [--quick]
+    python benchmarks/bench_env.py [--quick] [--out benchmarks/results_env.json]
+    python benchmarks/bench_env.py --gpu          # accelerator sweep: 1k .. 64k envs, one command
+    ramavt bench env [--quick | --gpu]
 
-Each point jit-compiles a `lax.scan` of 10 vmapped `env.step` calls with random actions over the training
-targets (initial-state distribution of DESIGN.md, targets tumbling), then reports the median of timed calls.
+Each point jit-compiles a `lax.scan` of 10 vmapped `env.step` calls with random actions over the training targets
+(same_step auto-reset with the final observation in info: two renders per step, the second culled for envs that
+did not finish), warms it up (the envs reach the tracked regime of DESIGN.md's initial distribution), then reports
+the median of timed calls. The 1-minute load average is printed beside every figure: other jobs on the machine
+lower the absolute numbers; the ratios to the interleaved baseline are the robust figures.
 """
 
 from __future__ import annotations
@@ -20,22 +26,37 @@ import time
 from pathlib import Path
 
 import jax
+import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from bench_render import bench_mujoco  # noqa: E402
+from bench_render import mujoco_on_poses  # noqa: E402
 
 from ramavt_jax import env as env_lib  # noqa: E402
 from ramavt_jax import render  # noqa: E402
+from ramavt_jax.render import legacy, renderer  # noqa: E402
 
 STEPS_PER_CALL = 10
+RENDERERS = ("new", "legacy")
 
 
-def bench_env_point(num_envs: int, res: int, mode: str, budget_s: float, seed: int = 0) -> dict:
+def _patched_render(which: str):
+    """render.render as the env calls it, backed by the new or the previous batch renderer."""
+    if which == "new":
+        return renderer.render
+
+    def old(target, position, rotation, cam, lighting, shade=True):
+        fn = renderer.vmappable_render(cam, bool(shade), legacy.render_batch)
+        return fn(target, position, rotation, lighting)
+
+    return old
+
+
+def build(num_envs: int, res: int, mode: str, which: str = "new", seed: int = 0):
+    """(compiled scan of STEPS_PER_CALL vmapped steps, warmed-up env state, env, params, compile seconds)."""
     config = env_lib.EnvConfig(camera=render.CameraConfig(resolution=res), obs_mode=mode)
-    tracking_env = env_lib.TrackingEnv(config)
-    params = tracking_env.default_params()
-    v_reset = jax.vmap(tracking_env.reset, in_axes=(0, None))
-    v_step = jax.vmap(tracking_env.step, in_axes=(0, 0, 0, None))
+    tenv = env_lib.TrackingEnv(config)
+    params = tenv.default_params()
+    v_step = jax.vmap(tenv.step, in_axes=(0, 0, 0, None))
 
     def run(state, key):
         def body(state, k):
@@ -46,87 +67,150 @@ def bench_env_point(num_envs: int, res: int, mode: str, budget_s: float, seed: i
         return jax.lax.scan(body, state, jax.random.split(key, STEPS_PER_CALL))
 
     key = jax.random.key(seed)
-    _, state = jax.jit(v_reset)(jax.random.split(key, num_envs), params)
-    t0 = time.perf_counter()
-    compiled = jax.jit(run).lower(state, key).compile()
-    compile_s = time.perf_counter() - t0
-    state, _ = compiled(state, jax.random.key(1))  # warm-up moves envs into the tracked regime
-    jax.block_until_ready(state)
-    times = []
+    _, state = jax.jit(jax.vmap(tenv.reset, in_axes=(0, None)))(jax.random.split(key, num_envs), params)
+    real = render.render
+    render.render = _patched_render(which)
+    try:
+        t0 = time.perf_counter()
+        compiled = jax.jit(run).lower(state, key).compile()
+        compile_s = time.perf_counter() - t0
+    finally:
+        render.render = real
+    for i in range(3):  # warm-up moves envs into the tracked regime
+        state, out = compiled(state, jax.random.key(100 + i))
+    jax.block_until_ready(out)
+    return compiled, state, tenv, params, compile_s
+
+
+def time_interleaved(runners: dict, budget_s: float, min_reps: int = 3, max_reps: int = 30) -> dict:
+    """Median seconds per call of each runner (callables taking the repetition index), calls alternated."""
+    times = {k: [] for k in runners}
     start = time.perf_counter()
     i = 0
-    while len(times) < 3 or (time.perf_counter() - start < budget_s and len(times) < 30):
-        t = time.perf_counter()
-        state, out = compiled(state, jax.random.key(2 + i))
-        jax.block_until_ready(out)
-        times.append(time.perf_counter() - t)
+    while i < min_reps or (time.perf_counter() - start < budget_s * len(runners) and i < max_reps):
+        for k, fn in runners.items():
+            t = time.perf_counter()
+            fn(i)
+            times[k].append(time.perf_counter() - t)
         i += 1
-    dt = statistics.median(times)
-    return dict(num_envs=num_envs, resolution=res, mode=mode, env_steps_per_s=num_envs * STEPS_PER_CALL / dt,
-                compile_s=compile_s, repeats=len(times))
+    return {k: statistics.median(v) for k, v in times.items()}
 
 
-def run(out: str | Path = "benchmarks/results_env.json", quick: bool = False, budget_s: float = 3.0) -> dict:
-    env_sweep = (1, 64, 1024) if quick else (1, 16, 64, 256, 1024, 4096)
-    res_sweep = (64, 128) if quick else (64, 84, 128, 256)
-    res_envs = 64 if quick else 256
-    points = []
-    for mode in ("depth", "rgbd"):
-        for n in env_sweep:
-            points.append(bench_env_point(n, 64, mode, budget_s))
-            print(_row(points[-1]), flush=True)
-            _write_partial(out, points)
-        for res in res_sweep:
-            if res == 64 and res_envs in env_sweep:
-                continue
-            points.append(bench_env_point(res_envs, res, mode, budget_s))
-            print(_row(points[-1]), flush=True)
+def _runner(compiled, state):
+    box = [state]
+
+    def call(i):
+        box[0], out = compiled(box[0], jax.random.key(1000 + i))
+        jax.block_until_ready(out)
+
+    return call
+
+
+def bench_point(num_envs: int, res: int, mode: str, budget_s: float, baselines=RENDERERS) -> tuple[list, object]:
+    """Rows for the new renderer and each baseline renderer at one (envs, res, mode), timed interleaved."""
+    built = {w: build(num_envs, res, mode, w) for w in baselines}
+    load0 = os.getloadavg()[0]
+    med = time_interleaved({w: _runner(b[0], b[1]) for w, b in built.items()}, budget_s)
+    load1 = os.getloadavg()[0]
+    rows = [dict(renderer=w, num_envs=num_envs, resolution=res, mode=mode,
+                 env_steps_per_s=num_envs * STEPS_PER_CALL / med[w], compile_s=built[w][4],
+                 load_avg_1min=[load0, load1]) for w in baselines]
+    return rows, built["new"]
+
+
+def env_poses(tenv, params, state):
+    """Catalogue names and true camera-frame poses of the envs of a state (the scenes MuJoCo ray-casts)."""
+    pos = np.asarray(jax.vmap(env_lib.relative_position)(state))
+    rot = np.asarray(jax.vmap(env_lib.state_rotation, in_axes=(0, None))(state, params.mean_motion))
+    names = [tenv.config.targets[i] for i in np.asarray(state.target_index)]
+    return names, pos, rot
+
+
+def machine() -> dict:
+    return dict(platform=platform.platform(), processor=platform.processor(), cpu_count=os.cpu_count(),
+                jax=jax.__version__, backend=jax.default_backend(), devices=[str(d) for d in jax.devices()],
+                device_kind=jax.devices()[0].device_kind, glibc_tunables=os.environ.get("GLIBC_TUNABLES", ""))
+
+
+def run(out="benchmarks/results_env.json", quick=False, gpu=False, budget_s=3.0) -> dict:
+    if gpu:  # (mode, res, envs, baselines); the old renderer only where it still fits a short run
+        plan = ([("depth", 64, n, RENDERERS if n <= 4096 else ("new",)) for n in (1024, 4096, 16384, 65536)]
+                + [("rgbd", 64, n, ("new",)) for n in (4096, 16384)] + [("depth", 128, 16384, ("new",))])
+    elif quick:
+        plan = ([("depth", 64, n, RENDERERS) for n in (64, 256, 1024)] + [("depth", 128, 256, RENDERERS)]
+                + [("rgbd", 64, n, RENDERERS) for n in (64, 256)])
+    else:
+        plan = ([("depth", 64, n, RENDERERS) for n in (1, 16, 64, 256, 1024, 4096)]
+                + [("depth", r, 256, RENDERERS) for r in (84, 128, 256)]
+                + [("rgbd", 64, n, RENDERERS) for n in (1, 64, 256, 1024)] + [("rgbd", 128, 256, RENDERERS)])
+    print(f"backend {jax.default_backend()} ({jax.devices()[0].device_kind}), {os.cpu_count()} CPUs, "
+          f"GLIBC_TUNABLES={os.environ.get('GLIBC_TUNABLES', '')!r}", flush=True)
+    points, poses = [], {}
+    for mode, res, n, baselines in plan:
+        rows, (_, state, tenv, params, _) = bench_point(n, res, mode, budget_s, baselines)
+        points += rows
+        if n >= 64 and res not in poses:
+            poses[res] = env_poses(tenv, params, state)
+        new = rows[0]
+        for r in rows:
+            vs = f"  {new['env_steps_per_s'] / r['env_steps_per_s']:5.2f}x new/this" if r is not new else ""
+            print(_row(r) + vs, flush=True)
+        _write(out, dict(partial=True, env=points))
     mujoco = []
-    for res in res_sweep:
-        m = bench_mujoco(64, res, budget_s)
-        mujoco.append(dict(resolution=res, num_envs=64, **m))
-        print(f"mj_multiRay 1 thread  res {res:>3}: {m['fps']:>9.0f} frames/s", flush=True)
-    result = dict(
-        machine=dict(platform=platform.platform(), processor=platform.processor(), cpu_count=os.cpu_count(),
-                     jax=jax.__version__, devices=[str(d) for d in jax.devices()],
-                     glibc_tunables=os.environ.get("GLIBC_TUNABLES", "")),
-        steps_per_call=STEPS_PER_CALL,
-        env=points,
-        mujoco_mj_multiRay=mujoco,
-    )
-    _summary(points, mujoco)
-    out = Path(out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps(result, indent=2))
+    for res, (names, pos, rot) in sorted(poses.items()):
+        load0 = os.getloadavg()[0]
+        m = mujoco_on_poses(names, pos, rot, res, budget_s)
+        mujoco.append(dict(resolution=res, frames=min(len(names), 64), fps=m["fps"],
+                           load_avg_1min=[load0, os.getloadavg()[0]]))
+        print(f"mj_multiRay, 1 thread, env poses, res {res:>3}: {m['fps']:>9.0f} frames/s   (load {load0:.2f})",
+              flush=True)
+    result = dict(machine=machine(), steps_per_call=STEPS_PER_CALL, env=points, mujoco_mj_multiRay=mujoco,
+                  summary=_summary(points, mujoco))
+    _write(out, result)
     print(f"wrote {out}")
     return result
 
 
-def _write_partial(out, points):
-    """Keep what was measured if a long sweep is stopped."""
+def _write(out, obj):
     Path(out).parent.mkdir(parents=True, exist_ok=True)
-    Path(out).write_text(json.dumps(dict(partial=True, env=points), indent=2))
+    Path(out).write_text(json.dumps(obj, indent=1))
 
 
 def _row(p: dict) -> str:
-    return (f"env {p['mode']:<5} res {p['resolution']:>3} envs {p['num_envs']:>5}: {p['env_steps_per_s']:>10.0f} "
-            f"env steps/s (compile {p['compile_s']:.1f} s)")
+    return (f"{p['renderer']:<6} {p['mode']:<5} res {p['resolution']:>3} envs {p['num_envs']:>6}: "
+            f"{p['env_steps_per_s']:>10,.0f} env steps/s  compile {p['compile_s']:5.1f} s  "
+            f"load {p['load_avg_1min'][0]:.2f}-{p['load_avg_1min'][1]:.2f}")
 
 
-def _summary(points, mujoco):
-    print("\nratio to mj_multiRay (1 thread, same resolution); env steps include dynamics and auto-reset")
+def _summary(points, mujoco) -> list:
+    """Ratios to mj_multiRay per core and the cost per pixel between resolutions, printed and returned."""
+    cores = 1 if jax.default_backend() != "cpu" else os.cpu_count()
     mj = {m["resolution"]: m["fps"] for m in mujoco}
+    lines = []
     for p in points:
-        if p["resolution"] in mj:
-            print(f"  {p['mode']:<5} res {p['resolution']:>3} envs {p['num_envs']:>5}: "
-                  f"{p['env_steps_per_s'] / mj[p['resolution']]:.2f}x (both processes use this machine's cores: "
-                  f"{os.cpu_count()})")
+        if p["renderer"] == "new" and p["resolution"] in mj:
+            ratio = p["env_steps_per_s"] / cores / mj[p["resolution"]]
+            lines.append(dict(mode=p["mode"], resolution=p["resolution"], num_envs=p["num_envs"],
+                              per_core_vs_mj_multiRay=ratio))
+    new = {(p["mode"], p["resolution"], p["num_envs"]): p["env_steps_per_s"] for p in points if p["renderer"] == "new"}
+    for (mode, res, n), v in new.items():
+        if res != 64 and (mode, 64, n) in new:
+            lines.append(dict(mode=mode, num_envs=n, resolution=res,
+                              pixel_rate_vs_64=v * res * res / (new[(mode, 64, n)] * 64 * 64)))
+    print(f"\nper core (env steps/s / {cores} cores) over one mj_multiRay thread on the same poses; pixel rate "
+          f"(env steps/s x pixels) relative to 64x64 at the same envs (1.0 = cost per pixel flat)")
+    for line in lines:
+        key = "per_core_vs_mj_multiRay" if "per_core_vs_mj_multiRay" in line else "pixel_rate_vs_64"
+        print(f"  {line['mode']:<5} res {line['resolution']:>3} envs {line['num_envs']:>6}: {key} {line[key]:.2f}")
+    return lines
 
 
 if __name__ == "__main__":
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--out", default="benchmarks/results_env.json")
+    parser.add_argument("--out", default=None, help="JSON path (default benchmarks/results_env[_gpu].json)")
     parser.add_argument("--quick", action="store_true")
-    parser.add_argument("--budget", type=float, default=3.0, help="seconds of timed calls per point")
+    parser.add_argument("--gpu", action="store_true", help="accelerator sweep, 1k..64k envs (about 5-8 min)")
+    parser.add_argument("--budget", type=float, default=3.0, help="seconds of timed calls per point and renderer")
     args = parser.parse_args()
-    run(args.out, args.quick, args.budget)
+    default = "benchmarks/results_env_gpu.json" if args.gpu else "benchmarks/results_env.json"
+    run(args.out or default, args.quick, args.gpu, args.budget)

@@ -69,9 +69,16 @@ def bench_jax(num_envs, res, shade, budget_s, chunk=None, seed=0):
 
 
 def bench_mujoco(num_envs, res, budget_s, seed=0):
+    _, _, _, names, pos, rot = make_scene(num_envs, seed)
+    return mujoco_on_poses(names, pos, rot, res, budget_s)
+
+
+def mujoco_on_poses(names, pos, rot, res, budget_s, max_frames=64):
+    """mj_multiRay (one thread) frames/s on the given targets (names or MJCF paths) and camera-frame poses
+    (pos [N, 3] target centre of mass, rot [N, 3, 3] camera_from_body), the first ``max_frames`` of them."""
     import mujoco
 
-    _, _, _, names, pos, rot = make_scene(num_envs, seed)
+    pos, rot = np.asarray(pos, np.float64), np.asarray(rot, np.float64)
     cam = R.CameraConfig(resolution=res)
     rays = np.asarray(R.camera_rays(cam), np.float64).reshape(-1, 3)
     nray = rays.shape[0]
@@ -92,7 +99,7 @@ def bench_mujoco(num_envs, res, budget_s, seed=0):
         jobs.append((m, d, p_wb - r_wc @ pos[i], np.ascontiguousarray((rays @ r_wc.T).reshape(-1))))
     geomid = np.zeros(nray, np.int32)
     dist = np.zeros(nray, np.float64)
-    n_frames = max(1, min(num_envs, 64))
+    n_frames = max(1, min(len(names), max_frames))
 
     def run_all():
         for m, d, p, v in jobs[:n_frames]:

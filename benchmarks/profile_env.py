@@ -172,7 +172,7 @@ def _label(stack, op_name, thunk):
         kind = "cast loop" if body else "setup, work list, assembly"
         if "colour_body" in " ".join(fn for _, fn, _ in stack):
             kind = "colour loop"
-        return f"render: {kind} | {short}:{own[1]}"
+        return f"render: {kind} | {short}:{own[1]}: {_line(own[0], own[2])[:60]}"
     if short == "dynamics.py":
         return f"env: dynamics and reward | {detail}"
     if short == "env.py":

@@ -409,3 +409,17 @@ def test_observation_with_traced_per_env_far(scene):
         for i in range(pos.shape[0]):
             one = R.to_observation(jax.tree.map(lambda a: a[i], frames), mode, float(far[i]))
             np.testing.assert_allclose(np.asarray(obs[i]), np.asarray(one), rtol=1e-6, atol=1e-7)
+
+
+@pytest.mark.parametrize("e", [1, 7, 64, 1344, 5000])
+def test_find_pair_is_searchsorted(e):
+    from ramavt_jax.render.renderer import _find_pair, _search_levels
+
+    rng = np.random.default_rng(e)
+    counts = rng.integers(0, 5, (2, e)) * (rng.random((2, e)) < 0.6)
+    ends = np.cumsum(counts, axis=-1).astype(np.int32)
+    levels = _search_levels(jnp.asarray(ends))
+    for cls in (0, 1):
+        k = np.arange(max(int(ends[cls, -1]), 1), dtype=np.int32)
+        got = np.asarray(_find_pair(levels, jnp.full(k.shape, cls, jnp.int32), jnp.asarray(k)))
+        np.testing.assert_array_equal(got, np.searchsorted(ends[cls], k, side="right"))

@@ -170,18 +170,31 @@ def _columns(rows: jax.Array) -> list[jax.Array]:
     return [rows[:, i, None, None] for i in range(rows.shape[1])]
 
 
-def _find_pair(ends: jax.Array, k: jax.Array) -> jax.Array:
-    """Number of entries of the non-decreasing ``ends`` [E] that are <= k, for every k [C]: the index of the
-    (env, geom) pair that owns item k. Branch-free binary search: ceil(log2(E + 1)) gathers of C entries."""
-    e = ends.shape[0]
-    pos = jnp.zeros(k.shape, jnp.int32)
-    step = 1 << (int(e).bit_length() - 1)
-    while step >= 1:
-        cand = pos + step
-        ok = (cand <= e) & (ends[jnp.minimum(cand, e) - 1] <= k)
-        pos = jnp.where(ok, cand, pos)
-        step //= 2
-    return pos
+def _search_levels(ends: jax.Array):
+    """Loop-invariant tables for `_find_pair` on the non-decreasing ``ends`` [K, E]: a B-ary search tree of L levels
+    (B^L >= E, B about E^(1/L) with L = ceil(log_64 E)); level l is [K, B^l, B], padded with int32 max."""
+    e = ends.shape[-1]
+    levels = max(1, int(np.ceil(np.log(max(e, 2)) / np.log(64))))
+    block = int(np.ceil(e ** (1.0 / levels)))
+    while block ** levels < e:
+        block += 1
+    pad = jnp.pad(ends, ((0, 0), (0, block ** levels - e)), constant_values=np.iinfo(np.int32).max)
+    out = []
+    for lv in range(levels):
+        idx = (np.arange(block ** (lv + 1)) + 1) * block ** (levels - 1 - lv) - 1
+        out.append(pad[:, idx].reshape(ends.shape[0], block ** lv, block))
+    return out
+
+
+def _find_pair(levels, cls: jax.Array, k: jax.Array) -> jax.Array:
+    """Number of entries of row ``cls`` of the non-decreasing ends that are <= k, for every k [C]: the index of the
+    (env, geom) pair that owns item k. One gather of [C, B] entries and one compare-count per level (`_search_levels`)."""
+    node = jnp.zeros(k.shape, jnp.int32)
+    for table in levels:
+        block = table.shape[-1]
+        below = jnp.sum(table[cls, node] <= k[:, None], axis=1, dtype=jnp.int32)
+        node = node * block + below
+    return node
 
 
 # Geom classes with their own specialised kernel; each class's work items form their own list and loop.
@@ -194,15 +207,20 @@ _CLASSES = (
 
 
 def _prefix_sum(x: jax.Array, block: int = 32) -> jax.Array:
-    """Inclusive prefix sum along the last axis in blocks of ``block`` (XLA:CPU lowers a long jnp.cumsum to a
-    quadratic reduce-window, and an associative scan to dozens of tiny ops): a few ops per level, log_block(N) levels."""
+    """Inclusive prefix sum of int32 counts along the last axis: blocks of ``block`` summed by one integer matmul
+    with a triangular matrix per level, log_block(N) levels (XLA:CPU lowers a long jnp.cumsum to a quadratic
+    reduce-window, and an associative scan to dozens of tiny ops)."""
     n = x.shape[-1]
-    if n <= 2 * block:
-        return jnp.cumsum(x, axis=-1)
+    tri = jnp.asarray(np.triu(np.ones((block, block), np.int32)))
+
+    def blocksum(v, k):
+        return jax.lax.dot_general(v, tri[:k, :k], (((v.ndim - 1,), (0,)), ((), ())), preferred_element_type=jnp.int32)
+
+    if n <= block:
+        return blocksum(x, n)
     m = -(-n // block)
     lead = x.shape[:-1]
-    xp = jnp.pad(x, [(0, 0)] * len(lead) + [(0, m * block - n)]).reshape(lead + (m, block))
-    inner = jnp.cumsum(xp, axis=-1)
+    inner = blocksum(jnp.pad(x, [(0, 0)] * len(lead) + [(0, m * block - n)]).reshape(lead + (m, block)), block)
     totals = inner[..., -1]
     offsets = _prefix_sum(totals, block) - totals
     return (inner + offsets[..., None]).reshape(lead + (m * block,))[..., :n]
@@ -233,8 +251,11 @@ def render_batch(
     n_geoms = targets.geom_type.shape[-1]
     nt = -(-cam.resolution // tile)
     n_pairs = b * n_geoms
-    if chunk is None:  # small batches must not pay for a mostly empty chunk
-        chunk = max(8, min(DEFAULT_CHUNK_RAYS // (tile * tile), (b * nt * nt * 2) // 8))
+    if chunk is None:
+        if jax.default_backend() == "cpu":  # cache-sized chunks; small batches must not pay for a mostly empty one
+            chunk = max(8, min(DEFAULT_CHUNK_RAYS // (tile * tile), (b * nt * nt * 2) // 8))
+        else:  # accelerators: a few large fixed-size iterations for the whole batch
+            chunk = max(1024, b * nt * nt // 2)
     chunk = int(chunk)
 
     p, r = _geom_frames(targets, positions, rotations)
@@ -256,6 +277,7 @@ def render_batch(
     ends = _prefix_sum(jnp.where(member, counts, 0))  # [K, B*G]
     n_items = ends[:, -1]  # [K]
     chunk_end = jnp.cumsum((n_items + chunk - 1) // chunk)  # [K]
+    levels = _search_levels(ends)
     n_chunks = chunk_end[-1]
 
     tx0 = jnp.asarray((np.arange(nt) * tile - cam.centre()) / cam.focal(), jnp.float32)
@@ -267,9 +289,8 @@ def render_batch(
         cls = jnp.sum(j >= chunk_end, dtype=jnp.int32)
         first = jnp.where(cls > 0, chunk_end[jnp.maximum(cls - 1, 0)], 0)
         k = (j - first) * chunk + item_iota
-        ends_c = ends[cls]
-        pair = jnp.minimum(_find_pair(ends_c, k), n_pairs - 1)
-        local = k - (ends_c[pair] - counts[pair])
+        pair = jnp.minimum(_find_pair(levels, cls, k), n_pairs - 1)
+        local = k - (ends[cls, pair] - counts[pair])
         nu_k = nu[pair]
         dv = local // nu_k
         tv = jnp.clip(tv0[pair] + dv, 0, nt - 1)
@@ -280,10 +301,14 @@ def render_batch(
         return cls, pair, env, tv, tu, x, y
 
     def cast(cls, pair, x, y):
-        tab = _columns(table[pair])  # F x [C, 1, 1]
+        rows = table[pair]  # [C, F], one operand (the switch materialises its operands)
+
+        def branch(kernel):
+            return lambda rows, x, y: kernel(_columns(rows), x, y, cam.near)
+
         if n_cls == 1:
-            return kernels[0](tab, x, y, cam.near)
-        return jax.lax.switch(cls, [functools.partial(k, near=cam.near) for k in kernels], tab, x, y)
+            return branch(kernels[0])(rows, x, y)
+        return jax.lax.switch(cls, [branch(k) for k in kernels], rows, x, y)
 
     # Buffers in image layout [B, tile rows, pixel row in tile, tile columns, pixel column in tile]: an item's
     # pixels are one [tile, tile] window, and the final image is a reshape (no transpose pass).
@@ -347,15 +372,19 @@ def render(
     Jit- and vmap-able. Under ``jax.vmap`` it becomes one `render_batch` call (a custom batching rule), so a
     vmapped env step shares one work list over all its envs instead of running a batched loop per env.
     """
-    return _vmappable_render(cam, bool(shade))(target, jnp.asarray(position), jnp.asarray(rotation), lighting)
+    return vmappable_render(cam, bool(shade))(target, jnp.asarray(position), jnp.asarray(rotation), lighting)
 
 
 @functools.lru_cache(maxsize=None)
-def _vmappable_render(cam: CameraConfig, shade: bool):
+def vmappable_render(cam: CameraConfig, shade: bool, batch_fn=None):
+    """render(target, position, rotation, lighting) for one target whose ``jax.vmap`` is one ``batch_fn`` call
+    (default `render_batch`; the benchmarks pass the old renderer's to compare inside the same env step)."""
+    batch_fn = render_batch if batch_fn is None else batch_fn
+
     @jax.custom_batching.custom_vmap
     def render_one(target, position, rotation, lighting):
         batch = jax.tree.map(lambda a: jnp.asarray(a)[None], (target, position, rotation))
-        frame = render_batch(*batch, cam, lighting, shade)
+        frame = batch_fn(*batch, cam, lighting, shade)
         return jax.tree.map(lambda a: a[0], frame)
 
     @render_one.def_vmap
@@ -366,7 +395,7 @@ def _vmappable_render(cam: CameraConfig, shade: bool):
 
         target, position, rotation = jax.tree.map(batched, (target, position, rotation), tuple(in_batched[:3]))
         lighting = jax.tree.map(batched, lighting, in_batched[3])
-        frame = render_batch(target, position, rotation, cam, lighting, shade)
+        frame = batch_fn(target, position, rotation, cam, lighting, shade)
         return frame, jax.tree.map(lambda _: True, frame)
 
     return render_one
