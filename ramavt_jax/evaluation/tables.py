@@ -85,6 +85,8 @@ def run_suite(entries: list[Entry], targets: tuple[str, ...], episodes: int, max
         row = {"name": entry.name, "kind": entry.kind, "input": entry.input_label or config.obs_mode,
                "obs_mode": config.obs_mode, "resolution": config.camera.resolution, "dynamics": config.dynamics,
                "info": entry.info, "settings": {}}
+        log(f"{entry.name} ({row['input']}): {len(settings)} setting(s) x {len(targets)} target(s) x {episodes} "
+            f"episodes, up to {max_steps} steps ...")
         for s_index, setting in enumerate(settings):
             t0 = time.time()
             params = tracking_env.eval_params(**{**entry.env_overrides, "max_steps": max_steps,
