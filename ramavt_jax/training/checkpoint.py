@@ -47,8 +47,10 @@ def _flat(tree: Any) -> tuple[dict, int]:
 
 
 def _first_line(e: BaseException) -> str:
+    """The gist of a (possibly very long, multi-line) restore error."""
     text = str(e).strip().splitlines()
-    return f"{type(e).__name__}: {text[0][:160] if text else ''}"
+    first = text[0].split(" See full TensorStore details")[0] if text else ""
+    return f"{type(e).__name__}: {first[:160]}"
 
 
 class CheckpointStore:
