@@ -19,6 +19,7 @@ from ramavt_jax.evaluation import rollouts
 from ramavt_jax.evaluation import tables as tables_lib
 from ramavt_jax.evaluation.runs import LoadedRun, load_policy, row_name
 from ramavt_jax.figures import episode, training
+from ramavt_jax.training import run_folder
 
 LABELS = {"oracle": "oracle (true state)", "depth": "depth tracker", "random": "random"}
 
@@ -48,6 +49,24 @@ def _baseline_entries(names: list[str], obs: tuple[str, ...], resolution: int, d
             label = mode if name == "depth" else f"any ({mode})"
             entries.append(tables_lib.Entry(LABELS[name], "baseline", pol, config, {}, label, {"variant": name}))
     return entries
+
+
+def _check_eval_args(policy, run, targets, episodes, max_steps, tables, blur_frames, out) -> tuple[str, ...]:
+    """Every argument of `ramavt eval` checked before anything compiles; returns the resolved target names."""
+    positive("--episodes", episodes)
+    positive("--max-steps", max_steps)
+    positive("--blur-frames", blur_frames)
+    if any(t not in (1, 2, 3) for t in tables):
+        raise UsageError(f"--tables must be among 1 2 3, got {' '.join(map(str, tables))}")
+    if policy == "checkpoint" and not run:
+        raise UsageError("--policy checkpoint needs at least one --run folder (or pick a baseline policy)")
+    for run_dir in run:
+        if not (Path(run_dir) / run_folder.CONFIG_FILE).is_file():
+            raise UsageError(f"--run {run_dir}: {run_folder.CONFIG_FILE} not found; --run must name a folder written by "
+                             f"`ramavt train` (config.json, checkpoints/)")
+    names = rollouts.resolve_targets(targets)
+    output_folder(out)
+    return names
 
 
 def eval_cmd(
@@ -94,15 +113,7 @@ def eval_cmd(
             training curves of the runs.
     """
     t0 = time.time()
-    positive("--episodes", episodes)
-    positive("--max-steps", max_steps)
-    positive("--blur-frames", blur_frames)
-    if any(t not in (1, 2, 3) for t in tables):
-        raise UsageError(f"--tables must be among 1 2 3, got {' '.join(map(str, tables))}")
-    if policy == "checkpoint" and not run:
-        raise UsageError("--policy checkpoint needs at least one --run folder (or pick a baseline policy)")
-    names = rollouts.resolve_targets(targets)
-    output_folder(out)
+    names = _check_eval_args(policy, run, targets, episodes, max_steps, tables, blur_frames, out)
     entries, loaded = _run_entries(run)
     wanted = [policy] if policy != "checkpoint" else []
     if baselines and policy == "checkpoint":
