@@ -207,3 +207,14 @@ def test_markdown_handles_skipped_tables():
               "machine": tables_lib.machine_info(), "rows": [], "wall_s": 1.0}
     md = tables_lib.to_markdown(result)
     assert "Table I" in md and "959.1" in md  # the paper's numbers are always shown for comparison
+
+
+@pytest.mark.parametrize("name", ["quick", "paper", "smoke"])
+def test_config_json_round_trips_to_the_same_train_config(name):
+    from ramavt_jax.augment import AugmentConfig
+    from ramavt_jax.train_config import TrainConfig, preset
+
+    cfg = dataclasses.replace(preset(name), env_params=(("dist_weight", 0.5), ("lost_patience", 10)), augment=True,
+                              augment_config=AugmentConfig(crop=False, flip=False, rot90=False))
+    text = json.dumps({"seed": 0, "config": cfg.to_dict()}, default=str)
+    assert runs.config_from_dict(TrainConfig, json.loads(text)["config"]) == cfg
