@@ -423,3 +423,20 @@ def test_find_pair_is_searchsorted(e):
         k = np.arange(max(int(ends[cls, -1]), 1), dtype=np.int32)
         got = np.asarray(_find_pair(levels, jnp.full(k.shape, cls, jnp.int32), jnp.asarray(k)))
         np.testing.assert_array_equal(got, np.searchsorted(ends[cls], k, side="right"))
+
+
+def test_add_noise_matches_the_plain_formula_and_skips_when_off():
+    keys = jax.random.split(jax.random.key(3), 4)
+    img = jax.random.uniform(jax.random.key(4), (4, 12, 10, 1))
+    mask = img > 0.3
+
+    def plain(k, i, s, m):
+        return jnp.clip(jnp.where(m, i + s * jax.random.normal(k, i.shape), i), 0.0, 1.0)
+
+    for std in (jnp.zeros(4), jnp.array([0.0, 0.1, 0.0, 0.3])):
+        got = jax.jit(jax.vmap(R.add_noise))(keys, img, std, mask)
+        np.testing.assert_array_equal(np.asarray(got), np.asarray(jax.jit(jax.vmap(plain))(keys, img, std, mask)))
+    one = jax.jit(R.add_noise)(keys[1], img[1], 0.1, mask[1])
+    np.testing.assert_array_equal(np.asarray(one), np.asarray(jax.jit(plain)(keys[1], img[1], 0.1, mask[1])))
+    shared = jax.vmap(R.add_noise, in_axes=(0, 0, None, 0))(keys, img, 0.0, mask)
+    np.testing.assert_array_equal(np.asarray(shared), np.asarray(img))

@@ -97,6 +97,23 @@ def _gaussian_blur(image, sigma, max_radius):
     return jnp.where(sigma > 0, blurred / weight, image).astype(image.dtype)
 
 
+def add_noise(key: jax.Array, image: jax.Array, std, mask: jax.Array) -> jax.Array:
+    """clip(where(mask, image + std * N(0, 1), image), 0, 1) with the normal draw of ``jax.random.normal(key,
+    image.shape)``; when std == 0 (the default of every env) no random numbers are drawn at run time, which on CPU
+    is most of an env step's post-processing (threefry for every pixel). std may be traced; mask broadcasts."""
+    image = jnp.asarray(image)
+    return _noise_fn()(image, jnp.asarray(std, image.dtype), key, jnp.asarray(mask))
+
+
+@functools.lru_cache(maxsize=None)
+def _noise_fn():
+    def noisy(image, std, key, mask):
+        return jnp.clip(jnp.where(mask, image + std * jax.random.normal(key, image.shape, image.dtype), image), 0.0, 1.0)
+
+    skip = _skip_when_off(noisy)
+    return lambda image, std, key, mask: jnp.clip(skip(image, std, key, mask), 0.0, 1.0)
+
+
 def motion_blur(image: jax.Array, length_px, angle_rad, samples: int = 9) -> jax.Array:
     """Linear motion blur of [H, W, C]: average of `samples` copies shifted along a line of length_px pixels at
     angle_rad (0 = along +u, columns) centred on each pixel, bilinear sampling, edges clamped. Both may be traced;
