@@ -21,6 +21,8 @@ import socket
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 __all__ = ["CONFIG_FILE", "METRICS_FILE", "CHECKPOINTS", "EVAL_FILE", "CURVES_FILE", "RESUMABLE_FIELDS",
            "seed_dir", "seed_folders", "is_seed_dir", "to_strict_json", "dumps", "read_metrics", "append_metrics",
            "write_metrics", "config_differences", "check_config", "RunFolderError", "RunLock", "check_writable"]
@@ -58,8 +60,8 @@ def is_seed_dir(path: str | os.PathLike) -> bool:
 # ============================================================================================ strict JSON
 def to_strict_json(x: Any) -> Any:
     """``x`` with every non-finite float replaced by None (JSON null), recursively."""
-    if isinstance(x, float) and not math.isfinite(x):
-        return None
+    if isinstance(x, (float, np.floating)):
+        return float(x) if math.isfinite(x) else None
     if isinstance(x, dict):
         return {k: to_strict_json(v) for k, v in x.items()}
     if isinstance(x, (list, tuple)):
