@@ -83,6 +83,10 @@ class NetworkConfig:
     frame_stack: int = 4  # drlavt only
     conv_impl: str = "im2col"
     dtype: str = "float32"
+    # Absolute depth and image position made visible to the encoder (see Encoder): without these, a bias-free conv
+    # followed by a per-frame LayerNorm is exactly invariant to a global scaling of the depth image.
+    coord_channels: bool = False  # append a hit mask and the pixel coordinates in [-1, 1] to the input channels
+    pooled_skip: bool = False  # append the spatial mean of block 1's activations, taken BEFORE its norm, to the output
 
     def __post_init__(self):
         def fail(msg):
@@ -197,8 +201,21 @@ def stack_frames(obs: jax.Array, reset: jax.Array, frames: jax.Array) -> tuple[j
     return jnp.swapaxes(stacked, 0, 1), hist
 
 
+def with_coordinates(x: jax.Array) -> jax.Array:
+    """[N, H, W, C] -> [N, H, W, C + 3]: the frame, a hit mask (any channel > 0; the background is 0 in every
+    observation mode) and the column / row coordinate of each pixel in [-1, 1] (CoordConv). The mask and the
+    coordinates do not scale with the depth values, so a conv over all channels followed by a per-frame norm
+    still tells a near small target from a far large one, and where in the image it is."""
+    n, h, w, _ = x.shape
+    mask = (jnp.max(x, axis=-1, keepdims=True) > 0).astype(x.dtype)
+    cols = jnp.broadcast_to(jnp.linspace(-1.0, 1.0, w, dtype=x.dtype)[None, None, :, None], (n, h, w, 1))
+    rows = jnp.broadcast_to(jnp.linspace(-1.0, 1.0, h, dtype=x.dtype)[None, :, None, None], (n, h, w, 1))
+    return jnp.concatenate([x, mask, cols, rows], axis=-1)
+
+
 class Encoder(nn.Module):
-    """Conv backbone (+ MHA gate): [N, H, W, C] -> [N, h * w * C_last]. Sows block outputs to 'intermediates'."""
+    """Conv backbone (+ MHA gate): [N, H, W, C] -> [N, h * w * C_last (+ C_1 with pooled_skip)].
+    Sows block outputs to 'intermediates'."""
 
     config: NetworkConfig
 
@@ -207,11 +224,16 @@ class Encoder(nn.Module):
         cfg = self.config
         dtype = cfg.jnp_dtype
         x = x.astype(dtype)
+        if cfg.coord_channels:
+            x = with_coordinates(x)
         n_blocks = len(cfg.channels)
+        skip = None
         for i, (ch, k, s, p) in enumerate(zip(cfg.channels, cfg.kernels, cfg.strides, cfg.pools)):
             x = make_conv(ch, k, s, cfg.conv_impl, dtype, name=f"conv{i}")(x)
             if p and cfg.pool_first:
                 x = max_pool2(x)
+            if i == 0 and cfg.pooled_skip:  # [N, C_1]: scales with the input, unlike everything after the norm
+                skip = jnp.mean(nn.relu(x), axis=(1, 2))
             if cfg.use_se and i < n_blocks - 1:
                 x = SqueezeExcite(cfg.se_reduction, dtype=dtype, name=f"se{i}")(x)
             if cfg.norm == "layer":
@@ -225,7 +247,8 @@ class Encoder(nn.Module):
         if cfg.use_mha:
             x = AttentionGate(cfg.attention_heads, dtype=dtype, name="attention")(x)
             self.sow("intermediates", "mha", x)
-        return x.reshape(x.shape[0], -1)
+        x = x.reshape(x.shape[0], -1)
+        return x if skip is None else jnp.concatenate([x, skip], axis=-1)
 
 
 class QNetwork(nn.Module):
@@ -338,5 +361,6 @@ __all__ = [
     "flops_per_frame",
     "attention_maps",
     "stack_frames",
+    "with_coordinates",
 ]
 

@@ -121,7 +121,7 @@ class Trainer:
         self.augment_fn = None
         if config.augment:
             from ramavt_jax import augment as aug
-            aug_cfg = config.augment_config or aug.AugmentConfig(flip=False, rot90=False)
+            aug_cfg = config.augment_config or aug.AugmentConfig(crop=False, flip=False, rot90=False)
             self.augment_fn = functools.partial(aug.augment_batch, config=aug_cfg)
         self.replay = replay_lib.make_replay(
             replay_lib.ReplayConfig(capacity_steps=config.replay_capacity, sequence_length=config.sequence_length,
@@ -238,10 +238,12 @@ class Trainer:
         if burn:
             _, state = self.q_values(params, obs[:, :burn], reset[:, :burn], state)
         sg = jax.lax.stop_gradient
+        terminated, truncated = batch.terminated[:, burn:-1], batch.truncated[:, burn:-1]
+        if c.bootstrap_lost:  # see TrainConfig.bootstrap_lost
+            terminated, truncated = jnp.zeros_like(terminated), truncated | terminated
         return dict(obs=obs[:, burn:], reset=reset[:, burn:], state=sg(state), q_target=sg(q_target[:, burn:]),
                     action=batch.action[:, burn:-1], reward=sg(batch.reward[:, burn:-1] * c.reward_scale),
-                    terminated=batch.terminated[:, burn:-1], truncated=batch.truncated[:, burn:-1],
-                    mask=masks["loss_mask"][:, burn:])
+                    terminated=terminated, truncated=truncated, mask=masks["loss_mask"][:, burn:])
 
     def trained_loss(self, params, prepared: dict):
         """TD loss over the trained part of the window (gradient w.r.t. params only). Returns (loss, aux)."""

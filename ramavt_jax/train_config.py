@@ -69,8 +69,16 @@ class TrainConfig:
     target_update: str = "polyak"  # 'polyak' | 'period'
     polyak_tau: float = 0.01  # target net moves this fraction towards the online net per step ('polyak')
     target_period: int = 500  # gradient steps between hard target syncs ('period')
+    # Bootstrap through 'target lost' terminations as through time limits. The env ends an episode once the target
+    # has been lost for lost_patience steps; with a terminal value of 0 a tracker whose per-step reward is negative
+    # (in view but a few metres off: 1 - w * distance < 0) gains by losing the target on purpose. Bootstrapping from
+    # the lost final observation values it as if the episode went on, which removes that incentive. The env's
+    # reward and episode rules (and therefore evaluation) are unchanged.
+    bootstrap_lost: bool = False
     augment: bool = False  # augment the sampled windows' images (augment_config)
-    augment_config: Any = None  # augment.AugmentConfig; None = crop + cutout only (flips/rot90 change action meaning)
+    # augment.AugmentConfig; None = cutout only. Crops, flips and rotations move the target in the image, and the
+    # target's image position and size are the state here: they would change the correct action.
+    augment_config: Any = None
     # ---- host driver
 
     eval_episodes: int = 32  # per split at the end (0 = no final evaluation)

@@ -233,3 +233,45 @@ def test_bad_inputs():
     net, variables, obs = _setup(cfg, t=2)
     with pytest.raises(ValueError, match="expected obs"):
         net.apply(variables, obs[:, 0], jnp.zeros((2,), bool), initial_state(cfg, 2))
+
+
+# ------------------------------------------------------------------------------------------ depth scale visibility
+def _encode(cfg, obs):
+    from ramavt_jax.network import Encoder
+
+    variables = init_params(cfg, jax.random.key(0), obs.shape[1:])
+    return Encoder(cfg).apply({"params": variables["params"]["encoder"]}, obs)
+
+
+def _silhouette(depth_value: float, res: int = 32) -> jnp.ndarray:
+    v, u = jnp.meshgrid(jnp.arange(res), jnp.arange(res), indexing="ij")
+    disc = (u - 12.0) ** 2 + (v - 14.0) ** 2 < 30.0
+    return jnp.where(disc, depth_value, 0.0)[None, :, :, None]
+
+
+def test_plain_encoder_cannot_see_depth_scale_and_the_cues_fix_it():
+    """One silhouette at 5 m and at 10 m (depth values 0.25 and 0.5): bias-free convs and a per-frame LayerNorm give
+    the same features (the scale divides out; variant 'origin': SE's sigmoid gates leak a little of the scale);
+    the hit-mask / coordinate channels and the pre-norm pooled skip make them differ."""
+    near, far = _silhouette(0.25), _silhouette(0.5)
+    plain = small("origin", channels=(8, 16, 16), kernels=(3, 3, 3), strides=(2, 1, 1), pools=(True, True, False))
+    diff_plain = float(jnp.max(jnp.abs(_encode(plain, near) - _encode(plain, far))))
+    assert diff_plain < 1e-4, diff_plain
+    for cues in (dict(coord_channels=True), dict(pooled_skip=True)):
+        cfg = dataclasses.replace(plain, **cues)
+        diff = float(jnp.max(jnp.abs(_encode(cfg, near) - _encode(cfg, far))))
+        assert diff > 1e-2, (cues, diff)
+
+
+def test_coordinate_channels_and_skip_shapes():
+    from ramavt_jax.network import with_coordinates
+
+    x = with_coordinates(_silhouette(0.3, res=8))
+    assert x.shape == (1, 8, 8, 4)
+    np.testing.assert_array_equal(np.asarray(x[0, :, :, 1]), np.asarray(x[0, :, :, 0] > 0).astype(np.float32))
+    np.testing.assert_allclose(np.asarray(x[0, 0, :, 2]), np.linspace(-1, 1, 8), atol=1e-6)
+    np.testing.assert_allclose(np.asarray(x[0, :, 0, 3]), np.linspace(-1, 1, 8), atol=1e-6)
+    cfg = small("ramavt", pooled_skip=True, coord_channels=True)
+    net, variables, obs = _setup(cfg)
+    q, _ = net.apply(variables, obs, jnp.zeros(obs.shape[:2], bool), initial_state(cfg, obs.shape[0]))
+    assert q.shape == (*obs.shape[:2], cfg.num_actions) and bool(jnp.all(jnp.isfinite(q)))

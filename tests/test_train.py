@@ -284,3 +284,20 @@ def test_learns_an_easy_task():
     print(f"random {rand.length_mean:.1f}, greedy {greedy.length_mean:.1f}, training episodes per chunk "
           f"{np.round(np.asarray(m.episode_length_sum.sum(1) / np.maximum(m.episodes.sum(1), 1)), 1)}")
     assert greedy.length_mean > 1.5 * rand.length_mean, (greedy, rand)
+
+
+def test_bootstrap_lost_turns_terminations_into_bootstrapped_ends(trainer, learner):
+    """With bootstrap_lost, a 'target lost' termination is bootstrapped like a time limit (the loss changes), and
+    nothing else in the prepared batch does."""
+    params, target = learner
+    term = jnp.zeros((SMOKE.batch_size, SMOKE.sequence_length), bool).at[:, SMOKE.burn_in + 2].set(True)
+    batch = _batch(jax.random.PRNGKey(5), SMOKE, terminated=term)
+    boot = T.Trainer(dataclasses.replace(SMOKE, bootstrap_lost=True))
+    plain_prep = trainer.prepare(params, target, batch, jax.random.PRNGKey(0))
+    boot_prep = boot.prepare(params, target, batch, jax.random.PRNGKey(0))
+    assert bool(plain_prep["terminated"].any()) and not bool(boot_prep["terminated"].any())
+    np.testing.assert_array_equal(np.asarray(boot_prep["truncated"]),
+                                  np.asarray(plain_prep["truncated"] | plain_prep["terminated"]))
+    for k in ("obs", "reward", "action", "mask", "q_target"):
+        np.testing.assert_array_equal(np.asarray(boot_prep[k]), np.asarray(plain_prep[k]))
+    assert float(trainer.trained_loss(params, plain_prep)[0]) != float(boot.trained_loss(params, boot_prep)[0])
