@@ -1,0 +1,88 @@
+"""Pretrained agents shipped inside the package (``ramavt_jax/agents/<name>/``), loadable without a run folder.
+
+An agent folder holds ``config.json`` (the full TrainConfig it was trained with, plus the training command and
+what it was trained on), ``params.npz`` (the online network's parameters, one array per parameter path) and
+``TRAINING.md`` (how to reproduce it). Only the network parameters are stored: a few hundred kB.
+
+    agent = pretrained.load()                 # the default agent: RAMAVT, depth
+    policy = agent.policy                     # a baselines.Policy, acting greedily (evaluate / render it)
+    pretrained.export("runs/long/seed_0", "ramavt_depth", command="ramavt train --preset long ...")
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from pathlib import Path
+
+import jax
+import numpy as np
+
+from ramavt_jax.baselines import Policy
+from ramavt_jax.evaluation.runs import config_from_dict, load_policy
+from ramavt_jax.network import init_params
+from ramavt_jax.train import TrainConfig, greedy_policy
+
+__all__ = ["AGENTS_DIR", "DEFAULT_AGENT", "PretrainedAgent", "PretrainedError", "available", "load", "export",
+           "load_policy"]
+
+AGENTS_DIR = Path(__file__).resolve().parent.parent / "agents"
+DEFAULT_AGENT = "ramavt_depth"
+
+
+class PretrainedError(ValueError):
+    """A pretrained agent that does not exist or does not fit this code version."""
+
+
+@dataclasses.dataclass(frozen=True)
+class PretrainedAgent:
+    name: str
+    policy: Policy
+    config: TrainConfig
+    params: object  # network params
+    info: dict  # training command, targets, budget and measured results recorded at export
+
+
+def available(agents_dir: Path = AGENTS_DIR) -> list[str]:
+    """Names of the agents shipped with this installation (or found in ``agents_dir``)."""
+    return sorted(p.parent.name for p in Path(agents_dir).glob("*/params.npz"))
+
+
+def _path_key(path) -> str:
+    return "/".join(str(getattr(k, "key", k)) for k in path)
+
+
+def load(name: str = DEFAULT_AGENT, agents_dir: Path = AGENTS_DIR) -> PretrainedAgent:
+    """Load a shipped agent by name (see :func:`available`)."""
+    folder = Path(agents_dir) / name
+    if not (folder / "params.npz").is_file():
+        raise PretrainedError(f"no pretrained agent {name!r}; available: {', '.join(available(agents_dir)) or 'none'}")
+    saved = json.loads((folder / "config.json").read_text())
+    config = config_from_dict(TrainConfig, saved["config"])
+    obs_shape = tuple(config.env.obs_shape)
+    template = jax.eval_shape(lambda k: init_params(config.network, k, obs_shape)["params"], jax.random.key(0))
+    with np.load(folder / "params.npz") as arrays:
+        stored = {k: arrays[k] for k in arrays.files}
+
+    def fill(path, like):
+        key = _path_key(path)
+        if key not in stored or stored[key].shape != like.shape:
+            raise PretrainedError(f"pretrained agent {name!r} does not match this code's network at {key!r}")
+        return jax.numpy.asarray(stored[key], like.dtype)
+
+    params = jax.tree_util.tree_map_with_path(fill, template)
+    policy = greedy_policy(config.network, params, obs_shape, name=f"pretrained:{name}")
+    return PretrainedAgent(name=name, policy=policy, config=config, params=params, info=saved.get("info", {}))
+
+
+def export(run_dir, name: str, command: str, info: dict | None = None, out_dir: Path = AGENTS_DIR) -> Path:
+    """Copy a run folder's latest network parameters and config into an agent folder ``out_dir/name``."""
+    run = load_policy(run_dir)
+    folder = Path(out_dir) / name
+    folder.mkdir(parents=True, exist_ok=True)
+    flat = {_path_key(p): np.asarray(v) for p, v in jax.tree_util.tree_flatten_with_path(run.params)[0]}
+    np.savez_compressed(folder / "params.npz", **flat)
+    record = {"config": run.config.to_dict(),
+              "info": {"command": command, "run": str(run_dir), "seed": run.seed, "chunks": run.step, **(info or {})}}
+    (folder / "config.json").write_text(json.dumps(record, indent=1))
+    return folder
