@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import subprocess
 import sys
 import time
@@ -12,6 +13,7 @@ import jax
 
 from ramavt_jax import baselines, env, render, targets
 from ramavt_jax.cli.checks import UsageError, output_file, positive
+from ramavt_jax.evaluation import pretrained
 from ramavt_jax.evaluation.rollouts import resolve_targets
 from ramavt_jax.figures import episode
 
@@ -29,9 +31,10 @@ def targets_cmd(split: Literal["all", "train", "test"] = "all") -> None:
 
 def render_cmd(
     target: str = "Satellite-v1",
-    policy: Literal["oracle", "random", "depth"] = "oracle",
+    policy: Literal["oracle", "random", "depth", "pretrained"] = "oracle",
     steps: int = 200,
     out: Path = Path("episode.gif"),
+    agent: str = "ramavt_depth",
     resolution: int = 64,
     obs: Literal["depth", "color", "rgbd"] = "depth",
     dynamics: Literal["cw", "kinematic"] = "cw",
@@ -43,7 +46,8 @@ def render_cmd(
 
     Args:
         target: catalogue name or path to an MJCF file.
-        policy: baseline that flies the chaser.
+        policy: baseline that flies the chaser, or 'pretrained': the agent shipped with the package (--agent); it
+            sees with its own camera resolution and observation mode.
         steps: number of steps to record.
         out: output file (.gif or .mp4).
         resolution: camera resolution in pixels (square).
@@ -52,6 +56,7 @@ def render_cmd(
         seed: random seed of the episode.
         size: panel size in pixels.
         every: keep every n-th frame.
+        agent: the shipped agent flown by --policy pretrained.
     """
     for name, value in (("--steps", steps), ("--resolution", resolution), ("--size", size), ("--every", every)):
         positive(name, value)
@@ -59,15 +64,22 @@ def render_cmd(
     resolve_targets(target)
     config = env.EnvConfig(camera=render.CameraConfig(resolution=resolution), obs_mode=obs, targets=(target,),
                            dynamics=dynamics)
+    if policy == "pretrained":
+        if agent not in pretrained.available():
+            raise UsageError(f"--agent {agent!r} is not shipped; available: {', '.join(pretrained.available()) or 'none'}")
+        loaded = pretrained.load(agent)
+        config = dataclasses.replace(config, camera=loaded.config.env.camera, obs_mode=loaded.config.env.obs_mode)
+        pol = loaded.policy
+    else:
+        pol = baselines.make_policy(policy, config.camera)
     tracking_env = env.TrackingEnv(config)
-    pol = baselines.make_policy(policy, config.camera)
     t = time.time()
     print(f"flying {steps} steps of {policy} on {target} (compiling the episode first) ...", flush=True)
     frames = episode.record_episode(tracking_env, pol, tracking_env.eval_params(), jax.random.key(seed), steps)
     length = int(frames.alive.sum())
     print(f"recorded in {time.time() - t:.0f} s; writing {out} ...", flush=True)
     path = episode.episode_video(frames, out, size=size, every=every)
-    print(f"{policy} on {target}: {length} steps tracked, return {float(frames.reward[:length].sum()):.1f}; wrote {path}")
+    print(f"{pol.name} on {target}: {length} steps tracked, return {float(frames.reward[:length].sum()):.1f}; wrote {path}")
 
 
 def bench_main(argv: list[str]) -> None:

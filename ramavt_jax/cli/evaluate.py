@@ -15,7 +15,7 @@ from ramavt_jax import baselines as baselines_lib
 from ramavt_jax import env as env_lib
 from ramavt_jax import render
 from ramavt_jax.cli.checks import UsageError, output_folder, positive
-from ramavt_jax.evaluation import rollouts
+from ramavt_jax.evaluation import pretrained, rollouts
 from ramavt_jax.evaluation import tables as tables_lib
 from ramavt_jax.evaluation.runs import LoadedRun, load_policy, row_name
 from ramavt_jax.figures import episode, training
@@ -37,6 +37,14 @@ def _run_entries(runs: tuple[Path, ...]) -> tuple[list[tables_lib.Entry], list[L
     return entries, loaded
 
 
+def _pretrained_entry(name: str) -> tables_lib.Entry:
+    agent = pretrained.load(name)
+    cfg = agent.config
+    info = {"variant": cfg.network.variant, "augment": bool(cfg.augment), "pretrained": name, **agent.info}
+    return tables_lib.Entry(f"pretrained:{name}", "checkpoint", agent.policy, cfg.env,
+                            rollouts.run_env_overrides(cfg.env_params), cfg.env.obs_mode, info)
+
+
 def _baseline_entries(names: list[str], obs: tuple[str, ...], resolution: int, dynamics: str,
                       targets: tuple[str, ...]) -> list[tables_lib.Entry]:
     camera = render.CameraConfig(resolution=resolution)
@@ -51,13 +59,15 @@ def _baseline_entries(names: list[str], obs: tuple[str, ...], resolution: int, d
     return entries
 
 
-def _check_eval_args(policy, run, targets, episodes, max_steps, tables, blur_frames, out) -> tuple[str, ...]:
+def _check_eval_args(policy, agent, run, targets, episodes, max_steps, tables, blur_frames, out) -> tuple[str, ...]:
     """Every argument of `ramavt eval` checked before anything compiles; returns the resolved target names."""
     positive("--episodes", episodes)
     positive("--max-steps", max_steps)
     positive("--blur-frames", blur_frames)
     if any(t not in (1, 2, 3) for t in tables):
         raise UsageError(f"--tables must be among 1 2 3, got {' '.join(map(str, tables))}")
+    if policy == "pretrained" and agent not in pretrained.available():
+        raise UsageError(f"--agent {agent!r} is not shipped; available: {', '.join(pretrained.available()) or 'none'}")
     if policy == "checkpoint" and not run:
         raise UsageError("--policy checkpoint needs at least one --run folder (or pick a baseline policy)")
     for run_dir in run:
@@ -70,8 +80,9 @@ def _check_eval_args(policy, run, targets, episodes, max_steps, tables, blur_fra
 
 
 def eval_cmd(
-    policy: Literal["checkpoint", "oracle", "depth", "random"] = "checkpoint",
+    policy: Literal["checkpoint", "pretrained", "oracle", "depth", "random"] = "checkpoint",
     run: tuple[Path, ...] = (),
+    agent: str = pretrained.DEFAULT_AGENT,
     baselines: bool = True,
     targets: str = "test",
     episodes: int = 20,
@@ -91,9 +102,11 @@ def eval_cmd(
     """Evaluate policies greedily and write the paper's tables (Markdown + JSON) to --out.
 
     Args:
-        policy: 'checkpoint' (trained runs given by --run) or a baseline: 'oracle' (true state, an upper bound),
+        policy: 'checkpoint' (trained runs given by --run), 'pretrained' (an agent shipped with the package, see
+            --agent; --run folders may be added) or a baseline: 'oracle' (true state, an upper bound),
             'depth' (classical depth-image tracker) or 'random'.
         run: training run folders (written by `ramavt train`); each is one row of Tables I-III.
+        agent: the shipped agent evaluated by --policy pretrained.
         baselines: with --policy checkpoint, also evaluate oracle, depth tracker and random in every table (a
             baseline given as --policy is evaluated alone).
         targets: 'test' (held-out split), 'train', 'all', or comma-separated catalogue names / MJCF files.
@@ -113,10 +126,13 @@ def eval_cmd(
             training curves of the runs.
     """
     t0 = time.time()
-    names = _check_eval_args(policy, run, targets, episodes, max_steps, tables, blur_frames, out)
+    names = _check_eval_args(policy, agent, run, targets, episodes, max_steps, tables, blur_frames, out)
     entries, loaded = _run_entries(run)
-    wanted = [policy] if policy != "checkpoint" else []
-    if baselines and policy == "checkpoint":
+    if policy == "pretrained":
+        entries.insert(0, _pretrained_entry(agent))
+    trained = policy in ("checkpoint", "pretrained")
+    wanted = [] if trained else [policy]
+    if baselines and trained:
         wanted += [p for p in ("oracle", "depth", "random") if p not in wanted]
     entries += _baseline_entries(wanted, obs, resolution, dynamics, names)
     settings = tables_lib.settings_for(tuple(tables))
