@@ -29,7 +29,7 @@ import jax
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from bench_render import mujoco_on_poses  # noqa: E402
+from bench_render import mujoco_caster, mujoco_on_poses  # noqa: E402
 
 from ramavt_jax import env as env_lib  # noqa: E402
 from ramavt_jax import render  # noqa: E402
@@ -37,11 +37,40 @@ from ramavt_jax.render import legacy, renderer  # noqa: E402
 
 STEPS_PER_CALL = 10
 RENDERERS = ("new", "legacy")
+PROPOSED = "new+env-fix"  # the new renderer in the env with the post-processing change proposed to its owner
+
+
+class ProposedEnv(env_lib.TrackingEnv):
+    """Benchmark-only copy of the env whose post-processing draws its depth noise with `render.add_noise` (no
+    random numbers when depth_noise_std == 0) and skips the frame-average product when the history holds one frame.
+    Same observations as the env (tested in tests/test_render.py for add_noise); proposed to env.py's owner."""
+
+    def _postprocess(self, key, frame, state, params, first=None):
+        import jax.numpy as jnp
+
+        k_noise, k_drop = jax.random.split(key)
+        image = render.to_observation(frame, self.config.obs_mode, self.config.camera.far)
+        image = render.gaussian_blur(image, params.gaussian_blur_sigma)
+        velocity_img = (env_lib.HILL_FROM_CAM.T @ (state.target_vel - state.chaser_vel))[:2]
+        image = render.motion_blur(image, params.motion_blur_px, jnp.arctan2(velocity_img[1], velocity_img[0]))
+        image = render.add_noise(k_noise, image, params.depth_noise_std, frame.hit[..., None])
+        dropped = jax.random.uniform(k_drop, ()) < params.frame_drop_prob
+        if first is not None:
+            dropped = dropped & ~first
+        image = jnp.where(dropped, state.frames[-1], image)
+        frames = jnp.concatenate([state.frames[1:], image[None]], axis=0)
+        if first is not None:
+            frames = jnp.where(first, jnp.broadcast_to(image, frames.shape), frames)
+        k = frames.shape[0]
+        if k == 1:
+            return frames[0], state.replace(frames=frames)
+        weights = (jnp.arange(k) >= k - params.blur_frames).astype(image.dtype)
+        return jnp.tensordot(weights / weights.sum(), frames, axes=1), state.replace(frames=frames)
 
 
 def _patched_render(which: str):
     """render.render as the env calls it, backed by the new or the previous batch renderer."""
-    if which == "new":
+    if which in ("new", PROPOSED):
         return renderer.render
 
     def old(target, position, rotation, cam, lighting, shade=True):
@@ -54,7 +83,7 @@ def _patched_render(which: str):
 def build(num_envs: int, res: int, mode: str, which: str = "new", seed: int = 0):
     """(compiled scan of STEPS_PER_CALL vmapped steps, warmed-up env state, env, params, compile seconds)."""
     config = env_lib.EnvConfig(camera=render.CameraConfig(resolution=res), obs_mode=mode)
-    tenv = env_lib.TrackingEnv(config)
+    tenv = (ProposedEnv if which == PROPOSED else env_lib.TrackingEnv)(config)
     params = tenv.default_params()
     v_step = jax.vmap(tenv.step, in_axes=(0, 0, 0, None))
 
@@ -106,16 +135,36 @@ def _runner(compiled, state):
     return call
 
 
-def bench_point(num_envs: int, res: int, mode: str, budget_s: float, baselines=RENDERERS) -> tuple[list, object]:
+def bench_point(num_envs: int, res: int, mode: str, budget_s: float, baselines=RENDERERS + (PROPOSED,)):
     """Rows for the new renderer and each baseline renderer at one (envs, res, mode), timed interleaved."""
     built = {w: build(num_envs, res, mode, w) for w in baselines}
+    runners = {w: _runner(b[0], b[1]) for w, b in built.items()}
+    mj_frames = 0
+    if num_envs >= 64 and res <= 128:  # MuJoCo on the env's own poses, its calls interleaved with ours
+        _, state, tenv, params, _ = built["new"]
+        mj_frames = min(num_envs, 64)
+        runners["mj_multiRay"] = mujoco_runner(*env_poses(tenv, params, state), res, mj_frames)
     load0 = os.getloadavg()[0]
-    med = time_interleaved({w: _runner(b[0], b[1]) for w, b in built.items()}, budget_s)
+    med = time_interleaved(runners, budget_s)
     load1 = os.getloadavg()[0]
     rows = [dict(renderer=w, num_envs=num_envs, resolution=res, mode=mode,
                  env_steps_per_s=num_envs * STEPS_PER_CALL / med[w], compile_s=built[w][4],
                  load_avg_1min=[load0, load1]) for w in baselines]
+    if mj_frames:
+        for r in rows:
+            r["mj_multiRay_fps_interleaved"] = mj_frames / med["mj_multiRay"]
+            r["per_core_vs_mj_multiRay"] = r["env_steps_per_s"] / _cores() / r["mj_multiRay_fps_interleaved"]
     return rows, built["new"]
+
+
+def _cores() -> int:
+    return 1 if jax.default_backend() != "cpu" else os.cpu_count()
+
+
+def mujoco_runner(names, pos, rot, res, frames):
+    """A runner (see time_interleaved) that ray-casts ``frames`` env poses with mj_multiRay on one thread."""
+    run_all, _ = mujoco_caster(names, pos, rot, res, frames)
+    return lambda i: run_all()
 
 
 def env_poses(tenv, params, state):
@@ -132,17 +181,23 @@ def machine() -> dict:
                 device_kind=jax.devices()[0].device_kind, glibc_tunables=os.environ.get("GLIBC_TUNABLES", ""))
 
 
-def run(out="benchmarks/results_env.json", quick=False, gpu=False, budget_s=3.0) -> dict:
+def run(out="benchmarks/results_env.json", quick=False, gpu=False, budget_s=3.0, mj_check=False) -> dict:
     if gpu:  # (mode, res, envs, baselines); the old renderer only where it still fits a short run
-        plan = ([("depth", 64, n, RENDERERS if n <= 4096 else ("new",)) for n in (1024, 4096, 16384, 65536)]
+        plan = ([("depth", 64, n, RENDERERS + (PROPOSED,) if n <= 4096 else ("new", PROPOSED))
+                 for n in (1024, 4096, 16384, 65536)]
                 + [("rgbd", 64, n, ("new",)) for n in (4096, 16384)] + [("depth", 128, 16384, ("new",))])
+    elif mj_check:  # the per-core comparison with MuJoCo only, no old renderer
+        plan = [("depth", 64, 64, ("new", PROPOSED)), ("depth", 64, 256, ("new", PROPOSED)),
+                ("rgbd", 64, 64, ("new", PROPOSED))]
     elif quick:
-        plan = ([("depth", 64, n, RENDERERS) for n in (64, 256, 1024)] + [("depth", 128, 256, RENDERERS)]
-                + [("rgbd", 64, n, RENDERERS) for n in (64, 256)])
+        both = RENDERERS + (PROPOSED,)
+        plan = ([("depth", 64, n, both) for n in (64, 256, 1024)] + [("depth", 128, 256, both)]
+                + [("rgbd", 64, n, both) for n in (64, 256)])
     else:
-        plan = ([("depth", 64, n, RENDERERS) for n in (1, 16, 64, 256, 1024, 4096)]
-                + [("depth", r, 256, RENDERERS) for r in (84, 128, 256)]
-                + [("rgbd", 64, n, RENDERERS) for n in (1, 64, 256, 1024)] + [("rgbd", 128, 256, RENDERERS)])
+        both = RENDERERS + (PROPOSED,)
+        plan = ([("depth", 64, n, both) for n in (1, 16, 64, 256, 1024, 4096)]
+                + [("depth", r, 256, both) for r in (84, 128, 256)]
+                + [("rgbd", 64, n, both) for n in (1, 64, 256, 1024)] + [("rgbd", 128, 256, both)])
     print(f"backend {jax.default_backend()} ({jax.devices()[0].device_kind}), {os.cpu_count()} CPUs, "
           f"GLIBC_TUNABLES={os.environ.get('GLIBC_TUNABLES', '')!r}", flush=True)
     points, poses = [], {}
@@ -153,7 +208,10 @@ def run(out="benchmarks/results_env.json", quick=False, gpu=False, budget_s=3.0)
             poses[res] = env_poses(tenv, params, state)
         new = rows[0]
         for r in rows:
-            vs = f"  {new['env_steps_per_s'] / r['env_steps_per_s']:5.2f}x new/this" if r is not new else ""
+            vs = f"  new is {new['env_steps_per_s'] / r['env_steps_per_s']:5.2f}x this" if r is not new else ""
+            if "per_core_vs_mj_multiRay" in r:
+                vs += (f"  | per core {r['per_core_vs_mj_multiRay']:.2f}x mj_multiRay "
+                       f"({r['mj_multiRay_fps_interleaved']:,.0f} frames/s interleaved)")
             print(_row(r) + vs, flush=True)
         _write(out, dict(partial=True, env=points))
     mujoco = []
@@ -177,7 +235,7 @@ def _write(out, obj):
 
 
 def _row(p: dict) -> str:
-    return (f"{p['renderer']:<6} {p['mode']:<5} res {p['resolution']:>3} envs {p['num_envs']:>6}: "
+    return (f"{p['renderer']:<11} {p['mode']:<5} res {p['resolution']:>3} envs {p['num_envs']:>6}: "
             f"{p['env_steps_per_s']:>10,.0f} env steps/s  compile {p['compile_s']:5.1f} s  "
             f"load {p['load_avg_1min'][0]:.2f}-{p['load_avg_1min'][1]:.2f}")
 
@@ -188,20 +246,23 @@ def _summary(points, mujoco) -> list:
     mj = {m["resolution"]: m["fps"] for m in mujoco}
     lines = []
     for p in points:
-        if p["renderer"] == "new" and p["resolution"] in mj:
-            ratio = p["env_steps_per_s"] / cores / mj[p["resolution"]]
+        if p["renderer"] != "legacy" and (p["resolution"] in mj or "per_core_vs_mj_multiRay" in p):
+            # prefer the MuJoCo figure timed interleaved with this point (same load) over the separate one
+            ratio = p.get("per_core_vs_mj_multiRay") or p["env_steps_per_s"] / cores / mj[p["resolution"]]
             lines.append(dict(mode=p["mode"], resolution=p["resolution"], num_envs=p["num_envs"],
-                              per_core_vs_mj_multiRay=ratio))
+                              renderer=p["renderer"], per_core_vs_mj_multiRay=ratio))
     new = {(p["mode"], p["resolution"], p["num_envs"]): p["env_steps_per_s"] for p in points if p["renderer"] == "new"}
     for (mode, res, n), v in new.items():
         if res != 64 and (mode, 64, n) in new:
             lines.append(dict(mode=mode, num_envs=n, resolution=res,
                               pixel_rate_vs_64=v * res * res / (new[(mode, 64, n)] * 64 * 64)))
-    print(f"\nper core (env steps/s / {cores} cores) over one mj_multiRay thread on the same poses; pixel rate "
+    print(f"\nper core (env steps/s / {cores} cores) over one mj_multiRay thread on the same poses (timed interleaved "
+          f"with the point where it was); pixel rate "
           f"(env steps/s x pixels) relative to 64x64 at the same envs (1.0 = cost per pixel flat)")
     for line in lines:
         key = "per_core_vs_mj_multiRay" if "per_core_vs_mj_multiRay" in line else "pixel_rate_vs_64"
-        print(f"  {line['mode']:<5} res {line['resolution']:>3} envs {line['num_envs']:>6}: {key} {line[key]:.2f}")
+        print(f"  {line.get('renderer', 'new'):<11} {line['mode']:<5} res {line['resolution']:>3} "
+              f"envs {line['num_envs']:>6}: {key} {line[key]:.2f}")
     return lines
 
 
@@ -210,7 +271,8 @@ if __name__ == "__main__":
     parser.add_argument("--out", default=None, help="JSON path (default benchmarks/results_env[_gpu].json)")
     parser.add_argument("--quick", action="store_true")
     parser.add_argument("--gpu", action="store_true", help="accelerator sweep, 1k..64k envs (about 5-8 min)")
+    parser.add_argument("--mj-check", action="store_true", help="only new vs mj_multiRay (interleaved), 3 points")
     parser.add_argument("--budget", type=float, default=3.0, help="seconds of timed calls per point and renderer")
     args = parser.parse_args()
     default = "benchmarks/results_env_gpu.json" if args.gpu else "benchmarks/results_env.json"
-    run(args.out or default, args.quick, args.gpu, args.budget)
+    run(args.out or default, args.quick, args.gpu, args.budget, args.mj_check)

@@ -76,6 +76,12 @@ def bench_mujoco(num_envs, res, budget_s, seed=0):
 def mujoco_on_poses(names, pos, rot, res, budget_s, max_frames=64):
     """mj_multiRay (one thread) frames/s on the given targets (names or MJCF paths) and camera-frame poses
     (pos [N, 3] target centre of mass, rot [N, 3, 3] camera_from_body), the first ``max_frames`` of them."""
+    run_all, n_frames = mujoco_caster(names, pos, rot, res, max_frames)
+    return dict(fps=n_frames / _time(run_all, budget_s))
+
+
+def mujoco_caster(names, pos, rot, res, max_frames=64):
+    """(run_all, n_frames): run_all() casts every pixel ray of the first n_frames scenes with mj_multiRay."""
     import mujoco
 
     pos, rot = np.asarray(pos, np.float64), np.asarray(rot, np.float64)
@@ -105,8 +111,7 @@ def mujoco_on_poses(names, pos, rot, res, budget_s, max_frames=64):
         for m, d, p, v in jobs[:n_frames]:
             mujoco.mj_multiRay(m, d, p, v, None, 1, -1, geomid, dist, None, nray, cam.far)
 
-    dt = _time(run_all, budget_s)
-    return dict(fps=n_frames / dt)
+    return run_all, n_frames
 
 
 def run(envs=DEFAULT_ENVS, resolutions=DEFAULT_RES, budget_s: float = 2.0, out: str | None = None, chunk=None):
