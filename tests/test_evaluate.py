@@ -88,9 +88,13 @@ def test_target_specs_and_unknown_target(tmp_path):
     path = tmp_path / "probe.xml"
     path.write_text(PROBE_XML)
     assert rollouts.resolve_targets(f"Capsule-v2,{path}") == ("Capsule-v2", str(path))
-    with pytest.raises(ValueError, match="unknown target 'Sputnik-v9'.*catalogue name"):
+    with pytest.raises(ValueError, match="unknown target 'Sputnik-v9': not in the catalogue .*splits test, train"):
         rollouts.resolve_targets("Satellite-v2,Sputnik-v9")
-    with pytest.raises(ValueError, match="unknown target"):
+    with pytest.raises(ValueError, match="Did you mean Satellite-v1"):
+        rollouts.resolve_targets("Satelite-v1")
+    with pytest.raises(ValueError, match="is a folder"):
+        rollouts.resolve_targets(str(tmp_path))
+    with pytest.raises(ValueError, match="target file nope.xml does not exist"):
         cli_eval.eval_cmd(policy="random", baselines=False, targets="nope.xml", out=tmp_path / "e")
     with pytest.raises(ValueError, match="needs at least one --run"):
         cli_eval.eval_cmd(policy="checkpoint", baselines=False, out=tmp_path / "e")
