@@ -19,12 +19,13 @@ from ramavt_jax import distributed
 from ramavt_jax.cli.checks import positive
 from ramavt_jax.evaluation.final import evaluate_run
 from ramavt_jax.figures.training import plot_run
-from ramavt_jax.train_config import TrainConfig, preset
+from ramavt_jax.train_config import PRESETS, TrainConfig, preset
 from ramavt_jax.training import driver
 
 # short flags kept from earlier versions (scripts use them): --network VARIANT, --obs MODE
 ALIASES = {"--network": "--network.variant", "--obs": "--env.obs-mode"}
 DEFAULT_PRESET = "quick"
+PresetName = Literal[tuple(PRESETS)]  # the choices of --preset: train_config.PRESETS
 # How tyro parses the one untyped-tuple field, TrainConfig.env_params: --env-params dist_weight=0.5 lost_patience=10
 FLAG_TYPES = constructors.ConstructorRegistry()
 
@@ -90,7 +91,7 @@ def make_train_cmd(preset_name: str):
 
     def train(
         config: Annotated[TrainConfig, tyro.conf.arg(name="")] = default,
-        preset: Literal["quick", "paper", "smoke"] = preset_name,  # noqa: A002 (read before parsing: see main)
+        preset: PresetName = preset_name,  # noqa: A002 (read before parsing: see main)
         seeds: int = 1,
         seed: int = 0,
         out: Path = Path(f"runs/{preset_name}"),
@@ -110,8 +111,9 @@ def make_train_cmd(preset_name: str):
 
         Args:
             config: the training configuration (defaults: the preset's).
-            preset: 'quick' (minutes on 2 CPU cores: 32x32 depth, small RAMAVT), 'paper' (256x256, full RAMAVT,
-                batch 64, lr 1e-4, gamma 0.99, 50,000-step replay), 'smoke' (plumbing checks).
+            preset: the named defaults of train_config.PRESETS, e.g. 'quick' (minutes on 2 CPU cores: 32x32 depth,
+                small RAMAVT), 'paper' (256x256, full RAMAVT, batch 64, lr 1e-4, gamma 0.99, 50,000-step replay),
+                'smoke' (plumbing checks).
             seeds: number of independent seeds, trained together as ONE jitted program (vmap over seeds, each with
                 its own envs and replay) into out/seed_<k>/ (each a complete run folder).
             seed: first seed.
