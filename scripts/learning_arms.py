@@ -1,0 +1,180 @@
+"""Learning experiments: arms of the `quick` preset, each changing one thing, trained with several seeds as one
+vmapped program and evaluated on the SAME held-out episodes (fixed evaluation key; the episodes do not depend on the
+policy). Results go to OUT/<arm>/ (run folders seed_k/) and OUT/<arm>/heldout.json; `report` prints the table.
+
+    python scripts/learning_arms.py train base see grid boot all --seeds 3 --out runs/arms
+    python scripts/learning_arms.py eval base see grid boot all baselines --out runs/arms
+    python scripts/learning_arms.py report --out runs/arms
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import time
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ramavt_jax import baselines, train
+from ramavt_jax import env as env_lib
+from ramavt_jax import targets as targets_lib
+from ramavt_jax.evaluation import runs
+from ramavt_jax.training.driver import run as train_run
+
+
+def _net(cfg, **kw):
+    return dataclasses.replace(cfg, network=dataclasses.replace(cfg.network, **kw))
+
+
+# One change per arm against the quick preset; 'all' combines them.
+ARMS = {
+    "base": lambda c: c,
+    "see": lambda c: _net(c, coord_channels=True, pooled_skip=True),  # depth scale + position visible
+    "grid": lambda c: _net(c, pools=(True, True, False)),  # 4x4 feature map (16 attention tokens) at 32x32
+    "boot": lambda c: dataclasses.replace(c, bootstrap_lost=True),  # no incentive to lose the target
+    "all": lambda c: dataclasses.replace(_net(c, coord_channels=True, pooled_skip=True, pools=(True, True, False)),
+                                         bootstrap_lost=True),
+}
+
+
+def arm_config(name: str, preset: str = "quick", **overrides):
+    base = train.preset(preset, eval_episodes=0, **overrides)
+    return ARMS[name](base)
+
+
+# ----------------------------------------------------------------------------------------------- evaluation
+def batched_rollout(tracking_env, params_b, policy, key, num_steps):
+    """Episodes of one policy, one env per row of params_b ([N] leading axis): (length [N], return [N], lost [N]).
+    Stops when all have ended. Keys depend only on `key` and N, so every policy sees the same episodes."""
+    n = params_b.target_probs.shape[0]
+    k_reset, k_policy, k_loop = jax.random.split(key, 3)
+    obs, state = jax.vmap(tracking_env.reset)(jax.random.split(k_reset, n), params_b)
+    pstate = jax.vmap(policy.init)(jax.random.split(k_policy, n))
+    zeros_i, zeros_b = jnp.zeros(n, jnp.int32), jnp.zeros(n, bool)
+    carry = (jnp.zeros((), jnp.int32), obs, state, pstate, jnp.ones(n, bool), zeros_i, jnp.zeros(n), zeros_b)
+
+    def cond(c):
+        return (c[0] < num_steps) & c[4].any()
+
+    def body(c):
+        t, obs, state, pstate, alive, length, ret, lost = c
+        k_act, k_env = jax.random.split(jax.random.fold_in(k_loop, t))
+        action, pstate = jax.vmap(policy.act)(jax.random.split(k_act, n), pstate, obs, state, params_b)
+        obs, state, reward, term, trunc, _ = jax.vmap(tracking_env.step_env)(jax.random.split(k_env, n), state,
+                                                                              action, params_b)
+        length = length + alive
+        ret = ret + jnp.where(alive, reward, 0.0)
+        lost = lost | (alive & term)
+        return t + 1, obs, state, pstate, alive & ~(term | trunc), length, ret, lost
+
+    _, _, _, _, _, length, ret, lost = jax.lax.while_loop(cond, body, carry)
+    return length, ret, lost
+
+
+def heldout_setup(resolution: int, episodes: int, targets=targets_lib.TEST_TARGETS):
+    cfg = env_lib.EnvConfig(camera=env_lib.CameraConfig(resolution=resolution), targets=tuple(targets))
+    tracking_env = env_lib.TrackingEnv(cfg)
+    params = tracking_env.eval_params()
+    ids = jnp.repeat(jnp.arange(len(targets)), episodes)
+    params_b = jax.vmap(lambda i: params.replace(target_probs=jax.nn.one_hot(i, len(targets))))(ids)
+    params_b = params_b.replace(catalogue=jax.tree.map(lambda a: jnp.broadcast_to(a, (ids.shape[0],) + a.shape),
+                                                       params.catalogue))
+    return tracking_env, params_b, np.asarray(ids)
+
+
+def _summary(length, ret, lost, ids, names):
+    length, ret, lost = (np.asarray(x, np.float64) for x in (length, ret, lost))
+    per = {n: {"AEL": float(length[ids == i].mean()), "AER": float(ret[ids == i].mean()),
+               "lost": float(lost[ids == i].mean())} for i, n in enumerate(names)}
+    return {"AEL": float(length.mean()), "AER": float(ret.mean()), "lost": float(lost.mean()), "per_target": per}
+
+
+def evaluate_arm(out: Path, arm: str, episodes: int, key: jax.Array, max_steps: int = 1000) -> dict:
+    seed_dirs = sorted((out / arm).glob("seed_*")) or [out / arm]
+    loaded = [runs.load_policy(d) for d in seed_dirs]
+    config = loaded[0].config
+    tracking_env, params_b, ids = heldout_setup(config.env.camera.resolution, episodes)
+    stacked = jax.tree.map(lambda *xs: jnp.stack(xs), *[lr.params for lr in loaded])
+
+    @jax.jit
+    def run_all(net_params):
+        def one(p):
+            policy = train.greedy_policy(config.network, p, tuple(config.env.obs_shape))
+            return batched_rollout(tracking_env, params_b, policy, key, max_steps)
+        return jax.lax.map(one, net_params)
+
+    t = time.time()
+    length, ret, lost = jax.device_get(run_all(stacked))
+    seeds = [dict(_summary(length[k], ret[k], lost[k], ids, tracking_env.config.targets), run=str(d))
+             for k, d in enumerate(seed_dirs)]
+    ael, aer = np.array([s["AEL"] for s in seeds]), np.array([s["AER"] for s in seeds])
+    return {"arm": arm, "episodes_per_target": episodes, "eval_wall_s": time.time() - t, "seeds": seeds,
+            "AEL_mean": float(ael.mean()), "AEL_std": float(ael.std()), "AER_mean": float(aer.mean()),
+            "AER_std": float(aer.std())}
+
+
+def evaluate_baselines(resolution: int, episodes: int, key: jax.Array, max_steps: int = 1000) -> dict:
+    tracking_env, params_b, ids = heldout_setup(resolution, episodes)
+    out = {}
+    for name in ("oracle", "depth", "random"):
+        policy = baselines.make_policy(name, tracking_env.config.camera)
+        length, ret, lost = jax.jit(lambda: batched_rollout(tracking_env, params_b, policy, key, max_steps))()
+        out[name] = _summary(length, ret, lost, ids, tracking_env.config.targets)
+    return out
+
+
+# ----------------------------------------------------------------------------------------------- commands
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("command", choices=("train", "eval", "report"))
+    ap.add_argument("arms", nargs="*")
+    ap.add_argument("--out", type=Path, default=Path("runs/arms"))
+    ap.add_argument("--seeds", type=int, default=3)
+    ap.add_argument("--preset", default="quick")
+    ap.add_argument("--episodes", type=int, default=10, help="held-out episodes per target")
+    ap.add_argument("--eval-seed", type=int, default=0)
+    args = ap.parse_args()
+    key = jax.random.PRNGKey(args.eval_seed)
+    for arm in args.arms:
+        if args.command == "train":
+            t = time.time()
+            train_run(arm_config(arm, args.preset), args.out / arm, seed=0, num_seeds=args.seeds, progress=False)
+            print(f"[{arm}] trained {args.seeds} seeds in {time.time() - t:.0f} s", flush=True)
+        elif args.command == "eval" and arm == "baselines":
+            res = evaluate_baselines(32, args.episodes, key)
+            (args.out / "baselines.json").write_text(json.dumps(res, indent=1))
+            print(json.dumps({k: (v["AEL"], v["AER"]) for k, v in res.items()}), flush=True)
+        elif args.command == "eval":
+            res = evaluate_arm(args.out, arm, args.episodes, key)
+            (args.out / arm / "heldout.json").write_text(json.dumps(res, indent=1))
+            print(f"[{arm}] AEL {res['AEL_mean']:.1f} ± {res['AEL_std']:.1f}  AER {res['AER_mean']:.1f} ± "
+                  f"{res['AER_std']:.1f}  ({res['eval_wall_s']:.0f} s)", flush=True)
+    if args.command == "report":
+        report(args.out)
+
+
+def report(out: Path) -> None:
+    rows = [json.loads(p.read_text()) for p in sorted(out.glob("*/heldout.json"))]
+    names = list(targets_lib.TEST_TARGETS)
+    print("| arm | AEL | AER | lost % | " + " | ".join(names) + " |")
+    print("|---|---|---|---|" + "---|" * len(names))
+    for r in rows:
+        lost = 100 * np.mean([s["lost"] for s in r["seeds"]])
+        per = [np.mean([s["per_target"][n]["AEL"] for s in r["seeds"]]) for n in names]
+        per_r = [np.mean([s["per_target"][n]["AER"] for s in r["seeds"]]) for n in names]
+        cells = " | ".join(f"{a:.0f} / {b:.0f}" for a, b in zip(per, per_r))
+        print(f"| {r['arm']} | {r['AEL_mean']:.1f} ± {r['AEL_std']:.1f} | {r['AER_mean']:.1f} ± {r['AER_std']:.1f} "
+              f"| {lost:.0f} | {cells} |")
+    base = out / "baselines.json"
+    if base.exists():
+        for name, s in json.loads(base.read_text()).items():
+            cells = " | ".join(f"{s['per_target'][n]['AEL']:.0f} / {s['per_target'][n]['AER']:.0f}" for n in names)
+            print(f"| {name} (baseline) | {s['AEL']:.1f} | {s['AER']:.1f} | {100 * s['lost']:.0f} | {cells} |")
+
+
+if __name__ == "__main__":
+    main()
