@@ -4,6 +4,7 @@ policy). Results go to OUT/<arm>/ (run folders seed_k/) and OUT/<arm>/heldout.js
 
     python scripts/learning_arms.py train base see grid boot all --seeds 3 --out runs/arms
     python scripts/learning_arms.py eval base see grid boot all baselines --out runs/arms
+    python scripts/learning_arms.py train long --seeds 1 --out runs/arms      # the shipped agent
     python scripts/learning_arms.py report --out runs/arms
 """
 
@@ -39,6 +40,10 @@ ARMS = {
     "all": lambda c: dataclasses.replace(_net(c, coord_channels=True, pooled_skip=True, pools=(True, True, False)),
                                          bootstrap_lost=True),
 }
+# The longer CPU preset (the shipped agent): 'all' with 3x the env steps, slower exploration decay, a bigger replay
+# (the same TrainConfig as `ramavt train --preset long`, without its end-of-training evaluation).
+ARMS["long"] = lambda c: dataclasses.replace(ARMS["all"](c), total_env_steps=1_152_000, eps_decay_steps=400_000,
+                                             replay_capacity=128_000, checkpoint_every_chunks=6)
 
 
 def arm_config(name: str, preset: str = "quick", **overrides):
