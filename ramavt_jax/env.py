@@ -339,8 +339,9 @@ class TrackingEnv:
         image = render.gaussian_blur(image, params.gaussian_blur_sigma)
         velocity_img = (HILL_FROM_CAM.T @ (state.target_vel - state.chaser_vel))[:2]  # streak direction
         image = render.motion_blur(image, params.motion_blur_px, jnp.arctan2(velocity_img[1], velocity_img[0]))
-        noise = params.depth_noise_std * jax.random.normal(k_noise, image.shape)
-        image = jnp.clip(jnp.where(frame.hit[..., None], image + noise, image), 0.0, 1.0)
+        # Same draws as jax.random.normal(k_noise, image.shape), but none at all when the noise is off: drawing a
+        # normal per pixel was a third of a 64x64 depth env step (benchmarks/RESULTS.md).
+        image = render.add_noise(k_noise, image, params.depth_noise_std, frame.hit[..., None])
         dropped = jax.random.uniform(k_drop, ()) < params.frame_drop_prob
         if first is not None:
             dropped = dropped & ~first
@@ -350,5 +351,7 @@ class TrackingEnv:
             frames = jnp.where(first, jnp.broadcast_to(image, frames.shape), frames)
         k = frames.shape[0]
         weights = (jnp.arange(k) >= k - params.blur_frames).astype(image.dtype)
+        if k == 1:  # no averaging blur possible: the frame itself (the same value, without the weighted sum)
+            return frames[0], state.replace(frames=frames)
         obs = jnp.tensordot(weights / weights.sum(), frames, axes=1)
         return obs, state.replace(frames=frames)

@@ -395,7 +395,6 @@ def vmappable_render(cam: CameraConfig, shade: bool, batch_fn=None):
 
         target, position, rotation = jax.tree.map(batched, (target, position, rotation), tuple(in_batched[:3]))
         lighting = jax.tree.map(batched, lighting, in_batched[3])
-        frame = batch_fn(target, position, rotation, cam, lighting, shade)
-        return frame, jax.tree.map(lambda _: True, frame)
+        return (frame := batch_fn(target, position, rotation, cam, lighting, shade)), jax.tree.map(lambda _: True, frame)
 
     return render_one
