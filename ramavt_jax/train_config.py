@@ -212,7 +212,7 @@ class TrainConfig:
 
 
 def _quick() -> TrainConfig:
-    """~6 min on 2 idle CPU cores, compile and evaluation included: the task at 32x32 depth with a small RAMAVT
+    """The README main job (the earlier, cheaper-encoder version took 5.6 min on 2 CPU cores): the task at 32x32 depth with a small RAMAVT
     (stride-2 first conv, 16-32-32 channels, a 4x4 final map = 16 attention tokens, dense/LSTM 128) whose encoder
     sees absolute depth and image position (hit-mask and coordinate channels, pre-norm pooled skip), trained with
     'target lost' bootstrapped (no incentive to lose the target), replay ratio 2. RESULTS.md has the measurements."""
@@ -231,7 +231,7 @@ def _quick() -> TrainConfig:
 
 def _long() -> TrainConfig:
     """The quick preset with 3x the env steps (1.15M), exploration decaying over 400k steps and a 128k-step replay:
-    under 30 min on 2 idle CPU cores. The shipped pretrained agent was trained with it."""
+    3x the quick preset's compute. The shipped pretrained agent was trained with it."""
     return dataclasses.replace(_quick(), total_env_steps=1_152_000, eps_decay_steps=400_000, replay_capacity=128_000,
                                checkpoint_every_chunks=6)
 

@@ -2,8 +2,9 @@
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
+
+from ramavt_jax.training import run_folder
 
 __all__ = ["UsageError", "positive", "output_file", "output_folder"]
 
@@ -19,17 +20,11 @@ def positive(name: str, value: int, minimum: int = 1) -> int:
 
 
 def output_folder(path: Path, flag: str = "--out") -> Path:
-    """``path`` is (or can be created as) a writable folder; it is created."""
-    path = Path(path)
-    if path.exists() and not path.is_dir():
-        raise UsageError(f"{flag} {path} is a file, not a folder; choose a folder path")
+    """``path`` is (or can be created as) a writable folder; it is created (one home: run_folder.check_writable)."""
     try:
-        path.mkdir(parents=True, exist_ok=True)
-    except OSError as e:
-        raise UsageError(f"cannot create the {flag} folder {path}: {e.strerror}") from None
-    if not os.access(path, os.W_OK | os.X_OK):
-        raise UsageError(f"the {flag} folder {path} is not writable; choose another folder")
-    return path
+        return run_folder.check_writable(path, flag)
+    except run_folder.RunFolderError as e:
+        raise UsageError(str(e)) from None
 
 
 def output_file(path: Path, suffixes: tuple[str, ...], flag: str = "--out") -> Path:
