@@ -17,7 +17,7 @@ Conventions (shared with :mod:`ramavt_jax.replay`):
   (which stops at ``terminated | truncated``) never reaches it.
 
 Batching: the sequence functions are written for one sequence and vmapped over the batch (rlax style);
-:func:`sequence_td_loss` takes ``[B, ...]`` arrays.
+:func:`sequence_td_loss` takes ``[B, ...]`` arrays, :func:`td_loss` the same arrays named in a :class:`TDBatch`.
 """
 
 from __future__ import annotations
@@ -32,7 +32,9 @@ __all__ = [
     "signed_parabolic",
     "n_step_targets",
     "TDConfig",
+    "TDBatch",
     "sequence_td_loss",
+    "td_loss",
 ]
 
 
@@ -220,3 +222,30 @@ def sequence_td_loss(
     per_step = _elementwise_loss(td_error, cfg.huber_delta) * mask_f
     loss = per_step.sum() / jnp.maximum(mask_f.sum(), 1.0)
     return loss, {"td_error": td_error, "q_taken": q_taken, "target": target}
+
+
+@struct.dataclass
+class TDBatch:
+    """The inputs of :func:`sequence_td_loss` that take no gradient, for ``B`` windows of ``T`` transitions.
+
+    Attributes:
+      q_target: ``[B, T+1, A]`` target-network Q-values for observations 0..T.
+      action: ``[B, T]`` int action of transition t.
+      reward: ``[B, T]`` reward of transition t (already scaled).
+      terminated: ``[B, T]`` bool, obs t+1 is terminal.
+      truncated: ``[B, T]`` bool, the time limit ended the episode at obs t+1.
+      mask: ``[B, T]`` bool, transition t contributes to the loss.
+    """
+
+    q_target: jax.Array
+    action: jax.Array
+    reward: jax.Array
+    terminated: jax.Array
+    truncated: jax.Array
+    mask: jax.Array
+
+
+def td_loss(q_online: jax.Array, batch: TDBatch, cfg: TDConfig) -> tuple[jax.Array, dict[str, jax.Array]]:
+    """:func:`sequence_td_loss` of ``q_online`` (``[B, T+1, A]``) against a :class:`TDBatch`."""
+    return sequence_td_loss(q_online, batch.q_target, batch.action, batch.reward, batch.terminated, batch.truncated,
+                            batch.mask, cfg)
