@@ -15,7 +15,7 @@ of moving it, so every episode's final observation is a real, stored observation
 * ``action``, ``reward``, ``terminated``, ``truncated``: the transition from obs t to obs t+1;
 * ``is_first``: obs t is the first observation of an episode.  The network resets its carry there, and the
   transition t-1 -> t (final obs of the previous episode -> reset) is not a real transition and must be masked
-  (:func:`sequence_masks` does this);
+  (:func:`loss_mask` does this);
 * ``recurrent_state``: the actor's recurrent state *before* consuming obs t (leaves ``[layers, units]`` per
   env).  At an ``is_first`` step this may be the previous episode's carry; it does not matter because the
   network resets the carry where ``reset`` (= ``is_first``) is set.
@@ -24,17 +24,10 @@ So for an episode obs_0 .. obs_K: transitions 0..K-1 are real, transition K-1 ha
 ``truncated`` set, step K stores the final obs_K (its action/reward describe the reset and are masked), and the
 next step has ``is_first``.  A sampled window of L steps gives the learner L observations and L-1 transitions.
 
-Learner wiring (R2D2: burn-in without gradient from the stored state, loss on the rest)::
-
-    batch = replay.sample(buffer_state, key)                      # leaves [B, L, ...]
-    m = sequence_masks(batch.is_first, burn_in)                   # reset [B, L], loss_mask [B, L-1]
-    s0 = start_state(batch)                                       # [layers, B, units]
-    # burn-in: obs[:, :burn_in] through online and target nets under stop_gradient -> carries s_on, s_tg
-    q_on, _ = net.apply(params, batch.obs[:, burn_in:], m["reset"][:, burn_in:], s_on)         # [B, L-burn_in, A]
-    q_tg, _ = net.apply(target_params, batch.obs[:, burn_in:], m["reset"][:, burn_in:], s_tg)
-    tr = lambda x: x[:, burn_in:-1]                               # transitions burn_in .. L-2
-    loss, aux = sequence_td_loss(q_on, q_tg, tr(batch.action), tr(batch.reward), tr(batch.terminated),
-                                 tr(batch.truncated), m["loss_mask"][:, burn_in:], td_config)
+Learner (R2D2): :meth:`SequenceReplay.sample` returns a :class:`SequenceBatch` (the windows' observations and
+reset flags, their transitions with the loss mask, and the stored state before each window's first observation in
+the network's layout).  The learner runs the first ``burn_in`` steps from that state without gradient and takes
+the TD loss over the rest (see ``Trainer.prepare`` in :mod:`ramavt_jax.train`).
 
 Performance: jit ``add`` with the buffer state donated (``donate_argnums``) or keep it in a ``lax.scan`` carry;
 otherwise XLA copies the whole buffer on every add (measured ~100x slower on CPU).
@@ -56,13 +49,12 @@ from flax import struct
 __all__ = [
     "ReplayConfig",
     "Transition",
+    "SequenceBatch",
     "SequenceReplay",
     "make_replay",
     "memory_bytes",
-    "sequence_masks",
-    "state_to_storage",
-    "state_from_storage",
-    "start_state",
+    "loss_mask",
+    "sequence_batch",
     "chunk_to_storage",
     "quantise_obs",
     "dequantise_obs",
@@ -83,6 +75,8 @@ class ReplayConfig:
       period: stride between admissible window starts (1 = any start; ``sequence_length - 1`` = windows share
         only their end points).  The grid is anchored at the oldest stored step.
       batch_size: windows per sample.
+      burn_in: leading steps of each window that only warm up the recurrent state (no loss); fixes
+        :attr:`SequenceBatch.loss_mask`.  Must leave a trained transition: ``0 <= burn_in < sequence_length - 1``.
       obs_dtype: storage dtype of observations: ``'uint8'`` (float [0, 1] quantised to 1/255, error <= 1/510),
         ``'float16'`` or ``'float32'``.  Samples are always float32.
       state_dtype: storage dtype of the recurrent state (``'float32'``, ``'bfloat16'``, ``'float16'``); samples
@@ -95,17 +89,13 @@ class ReplayConfig:
     sequence_length: int = 13
     period: int = 1
     batch_size: int = 64
+    burn_in: int = 0
     obs_dtype: str = "uint8"
     state_dtype: str = "float32"
     min_fill_steps: int = 0
 
-    @classmethod
-    def from_lengths(cls, burn_in: int, train_len: int, **kwargs: Any) -> "ReplayConfig":
-        """``sequence_length = burn_in + train_len + 1``; other fields as keywords."""
-        return cls(sequence_length=burn_in + train_len + 1, **kwargs)
-
     def __post_init__(self):
-        for name in ("capacity_steps", "sequence_length", "period", "batch_size", "min_fill_steps"):
+        for name in ("capacity_steps", "sequence_length", "period", "batch_size", "burn_in", "min_fill_steps"):
             value = getattr(self, name)
             if not isinstance(value, (int, np.integer)) or isinstance(value, bool):
                 raise ValueError(f"ReplayConfig.{name} must be an int, got {value!r}")
@@ -123,6 +113,9 @@ class ReplayConfig:
             )
         if self.batch_size < 1:
             raise ValueError(f"ReplayConfig.batch_size must be >= 1, got {self.batch_size}")
+        if not 0 <= self.burn_in < self.sequence_length - 1:
+            raise ValueError(f"ReplayConfig.burn_in must be in [0, sequence_length - 1 = {self.sequence_length - 1}) "
+                             f"so that some transition trains, got {self.burn_in}")
         if self.obs_dtype not in _OBS_DTYPES:
             raise ValueError(f"ReplayConfig.obs_dtype must be one of {sorted(_OBS_DTYPES)}, got {self.obs_dtype!r}")
         if self.state_dtype not in _STATE_DTYPES:
@@ -163,8 +156,8 @@ class ReplayConfig:
 class Transition:
     """One stored time step (shapes per env, without the batch/time prefix).
 
-    In :meth:`SequenceReplay.add` every leaf carries a ``[num_envs, T_chunk]`` prefix, in
-    :meth:`SequenceReplay.sample` a ``[batch_size, sequence_length]`` prefix.
+    In :meth:`SequenceReplay.add` every leaf carries a ``[num_envs, T_chunk]`` prefix; :meth:`SequenceReplay.sample`
+    turns ``[batch_size, sequence_length]`` windows of them into a :class:`SequenceBatch`.
 
     Attributes:
       obs: ``[H, W, C]`` observation t, float in [0, 1] (stored quantised).
@@ -173,8 +166,8 @@ class Transition:
       terminated: ``[]`` bool, obs t+1 is terminal (no bootstrap).
       truncated: ``[]`` bool, the time limit ended the episode at obs t+1 (bootstrap from it).
       is_first: ``[]`` bool, obs t is an episode's first observation (carry reset; transition t-1 masked).
-      recurrent_state: pytree (e.g. the network's LSTM state) with leaves ``[layers, units]``: the actor's state
-        *before* consuming obs t.
+      recurrent_state: the actor's state *before* consuming obs t, any pytree with leaves ``[layers, units]``; the
+        trainer stores the network's own ``RecurrentState`` (LSTM ``h``, ``c``; no frame history).
     """
 
     obs: jax.Array
@@ -184,11 +177,6 @@ class Transition:
     truncated: jax.Array
     is_first: jax.Array
     recurrent_state: Any
-
-
-# --------------------------------------------------------------------------------------------------------------
-# Observation quantisation and state layout helpers
-# --------------------------------------------------------------------------------------------------------------
 
 
 def quantise_obs(obs: jax.Array, dtype: str) -> jax.Array:
@@ -210,21 +198,6 @@ def dequantise_obs(obs: jax.Array) -> jax.Array:
     return obs.astype(jnp.float32)
 
 
-def state_to_storage(state: Any) -> Any:
-    """Network layout ``[layers, B, units]`` -> storage layout ``[B, layers, units]`` (per leaf)."""
-    return jax.tree.map(lambda x: jnp.moveaxis(x, 1, 0), state)
-
-
-def state_from_storage(state: Any) -> Any:
-    """Storage layout ``[B, layers, units]`` -> network layout ``[layers, B, units]`` (per leaf)."""
-    return jax.tree.map(lambda x: jnp.moveaxis(x, 0, 1), state)
-
-
-def start_state(batch: Transition) -> Any:
-    """The stored state at the first step of each sampled window, in network layout ``[layers, B, units]``."""
-    return state_from_storage(jax.tree.map(lambda x: x[:, 0], batch.recurrent_state))
-
-
 def chunk_to_storage(chunk: Transition) -> Transition:
     """Time-major chunk from an acting ``lax.scan`` -> the batch-major layout :meth:`SequenceReplay.add` takes.
 
@@ -239,36 +212,66 @@ def chunk_to_storage(chunk: Transition) -> Transition:
     return data.replace(recurrent_state=state)
 
 
-# --------------------------------------------------------------------------------------------------------------
-# Masks for the learner
-# --------------------------------------------------------------------------------------------------------------
+@struct.dataclass
+class SequenceBatch:
+    """``B`` sampled windows of ``L`` consecutive steps of one env each, in the form the learner consumes.
+
+    Observation-indexed fields have ``L`` entries per window, transition-indexed ones ``L - 1`` (transition t goes
+    from obs t to obs t+1; the last step's action and reward describe a transition out of the window: dropped).
+
+    Attributes:
+      obs: ``[B, L, H, W, C]`` float32 in [0, 1].
+      reset: ``[B, L]`` bool, the network zeroes its carry before consuming obs t (= stored ``is_first``).
+      action: ``[B, L-1]`` int32 action of transition t.
+      reward: ``[B, L-1]`` float32 reward of transition t.
+      terminated: ``[B, L-1]`` bool, obs t+1 is terminal.
+      truncated: ``[B, L-1]`` bool, the time limit ended the episode at obs t+1.
+      loss_mask: ``[B, L-1]`` bool, transition t trains (see :func:`loss_mask`).
+      start_state: the stored recurrent state before obs 0, in the network's layout: leaves ``[layers, B, units]``.
+      burn_in: static number of leading steps that only warm up the carry (``loss_mask`` is False there).
+    """
+
+    obs: jax.Array
+    reset: jax.Array
+    action: jax.Array
+    reward: jax.Array
+    terminated: jax.Array
+    truncated: jax.Array
+    loss_mask: jax.Array
+    start_state: Any
+    burn_in: int = struct.field(pytree_node=False, default=0)
 
 
-def sequence_masks(is_first: jax.Array, burn_in: int) -> dict[str, jax.Array]:
-    """Per-window reset flags and loss mask.
+def loss_mask(is_first: jax.Array, burn_in: int) -> jax.Array:
+    """Which transitions of a window train.
 
     Args:
       is_first: ``[B, L]`` bool from a sampled window.
       burn_in: static number of leading transitions used only to warm up the carry (no loss).
 
     Returns:
-      ``reset``: ``[B, L]`` bool for the network (carry zeroed before consuming obs t where set) = ``is_first``.
-      ``loss_mask``: ``[B, L-1]`` bool, transition t (obs t -> obs t+1) trains iff ``t >= burn_in`` and obs t+1
-      is not an episode's first observation (that transition crosses into the next episode).
+      ``[B, L-1]`` bool: transition t (obs t -> obs t+1) trains iff ``t >= burn_in`` and obs t+1 is not an
+      episode's first observation (that transition crosses into the next episode).
     """
     chex.assert_rank(is_first, 2)
     L = is_first.shape[1]
     if not 0 <= burn_in < L - 1:
         raise ValueError(f"burn_in must be in [0, L - 1 = {L - 1}) so that some transition trains, got {burn_in}")
-    is_first = is_first.astype(bool)
     after_burn_in = jnp.arange(L - 1) >= burn_in  # [L-1]
-    loss_mask = after_burn_in[None, :] & ~is_first[:, 1:]
-    return {"reset": is_first, "loss_mask": loss_mask}
+    return after_burn_in[None, :] & ~is_first.astype(bool)[:, 1:]
 
 
-# --------------------------------------------------------------------------------------------------------------
-# The buffer
-# --------------------------------------------------------------------------------------------------------------
+def sequence_batch(window: Transition, burn_in: int) -> SequenceBatch:
+    """Sampled windows (leaves ``[B, L, ...]``, obs float, state leaves ``[B, L, layers, units]``) -> the
+    :class:`SequenceBatch` the learner takes (what :meth:`SequenceReplay.sample` returns)."""
+    transition = lambda x: x[:, :-1]  # noqa: E731
+    # only the window's first state is needed: the network carries its own state from there
+    start = jax.tree.map(lambda x: jnp.moveaxis(x[:, 0], 0, 1), window.recurrent_state)
+    return SequenceBatch(
+        obs=window.obs, reset=window.is_first.astype(bool), action=transition(window.action),
+        reward=transition(window.reward), terminated=transition(window.terminated),
+        truncated=transition(window.truncated), loss_mask=loss_mask(window.is_first, burn_in), start_state=start,
+        burn_in=burn_in)
 
 
 def _storage_example(example: Transition, config: ReplayConfig) -> Transition:
@@ -323,13 +326,14 @@ class SequenceReplay:
         rest = jax.tree.map(lambda x, s: x.astype(s.dtype), batch.replace(obs=None), stored.replace(obs=None))
         return self.buffer.add(state, rest.replace(obs=obs))
 
-    def sample(self, state, key: jax.Array) -> Transition:
-        """``batch_size`` windows of ``sequence_length`` consecutive steps of one env each: leaves
-        ``[batch_size, sequence_length, ...]``, obs float32 in [0, 1].  Only valid when :meth:`can_sample`:
-        flashbax silently returns empty (zero) data from an under-filled buffer."""
-        batch = self.buffer.sample(state, key).experience
-        state_out = jax.tree.map(lambda x, e: x.astype(e.dtype), batch.recurrent_state, self.example.recurrent_state)
-        return batch.replace(obs=dequantise_obs(batch.obs), recurrent_state=state_out)
+    def sample(self, state, key: jax.Array) -> SequenceBatch:
+        """``batch_size`` windows of ``sequence_length`` consecutive steps of one env each, as a
+        :class:`SequenceBatch` (obs float32 in [0, 1], the start state in the example's dtypes).  Only valid when
+        :meth:`can_sample`: flashbax silently returns empty (zero) data from an under-filled buffer."""
+        window = self.buffer.sample(state, key).experience
+        state_out = jax.tree.map(lambda x, e: x.astype(e.dtype), window.recurrent_state, self.example.recurrent_state)
+        window = window.replace(obs=dequantise_obs(window.obs), recurrent_state=state_out)
+        return sequence_batch(window, self.config.burn_in)
 
     def can_sample(self, state) -> jax.Array:
         """``[]`` bool: every env row holds at least ``max(sequence_length, ceil(min_fill_steps / num_envs))`` steps."""

@@ -33,13 +33,13 @@ from ramavt_jax import distributed
 from ramavt_jax import env as env_lib
 from ramavt_jax import replay as replay_lib
 from ramavt_jax.baselines import Policy
-from ramavt_jax.losses import TDConfig, sequence_td_loss
+from ramavt_jax.losses import TDBatch, TDConfig, td_loss
 from ramavt_jax.network import NetworkConfig, RecurrentState, init_params, initial_state, make_network
 from ramavt_jax.train_config import PRESETS, TrainConfig, preset  # noqa: F401 (re-exported: config lives there)
 
 __all__ = [
     "TrainConfig", "preset", "PRESETS", "TrainingDivergedError", "LearnerState", "ActorState", "RunnerState",
-    "ChunkMetrics", "Trainer", "make_train", "greedy_policy",
+    "ChunkMetrics", "EpisodeStats", "LearnStats", "PreparedBatch", "Trainer", "make_train", "greedy_policy",
 ]
 
 
@@ -90,6 +90,46 @@ class ChunkMetrics:
     env_steps: jax.Array  # at the end of the iteration
 
 
+@struct.dataclass
+class EpisodeStats:
+    """Episodes that ended in one acting step, or (summed) in a rollout: all ``[]``."""
+
+    episodes: jax.Array
+    length_sum: jax.Array
+    return_sum: jax.Array  # unscaled env reward
+
+
+@struct.dataclass
+class LearnStats:
+    """One gradient step (``update``), or the sums over an iteration's steps (``learn``): all ``[]``."""
+
+    loss: jax.Array
+    q_mean: jax.Array  # mean taken Q over the trained transitions
+    grad_norm: jax.Array
+    updates: jax.Array  # int32 gradient steps
+
+
+@struct.dataclass
+class PreparedBatch:
+    """Everything the loss of ``B`` sampled windows needs that takes no gradient (``T = train_len``).
+
+    obs: ``[B, T+1, H, W, C]`` (augmented) observations after burn-in; reset: ``[B, T+1]`` bool; state: the online
+    net's ``RecurrentState`` after burn-in (h, c ``[layers, B, units]``); td: the :class:`TDBatch` of the ``T``
+    trained transitions (``q_target [B, T+1, A]``, the rest ``[B, T]``).
+    """
+
+    obs: jax.Array
+    reset: jax.Array
+    state: RecurrentState
+    td: TDBatch
+
+
+@struct.dataclass
+class _RolloutCarry:
+    actor: ActorState
+    env_steps: jax.Array  # [] int32, all envs together
+
+
 def _raw_key(key: jax.Array) -> jax.Array:
     if jnp.issubdtype(key.dtype, jax.dtypes.prng_key):
         return jax.random.key_data(key)
@@ -126,7 +166,7 @@ class Trainer:
         self.replay = replay_lib.make_replay(
             replay_lib.ReplayConfig(capacity_steps=config.replay_capacity, sequence_length=config.sequence_length,
                                     period=config.sample_period, batch_size=config.batch_size,
-                                    obs_dtype=config.obs_dtype),
+                                    burn_in=config.burn_in, obs_dtype=config.obs_dtype),
             config.num_envs, self._example_transition())
 
     # ---------------------------------------------------------------- helpers
@@ -135,7 +175,7 @@ class Trainer:
         return replay_lib.Transition(
             obs=jnp.zeros(self.obs_shape), action=jnp.zeros((), jnp.int32), reward=jnp.zeros(()),
             terminated=jnp.zeros((), bool), truncated=jnp.zeros((), bool), is_first=jnp.zeros((), bool),
-            recurrent_state=(s.h[:, 0], s.c[:, 0]))
+            recurrent_state=RecurrentState(h=s.h[:, 0], c=s.c[:, 0], frames=None))
 
     def _per_device(self, batched_fn):
         """Run a function of per-env arrays ([N, ...] in and out) on each device's own envs (``jax.shard_map``).
@@ -146,6 +186,14 @@ class Trainer:
             return batched_fn
         spec = distributed.P(distributed.DATA_AXIS)
         return jax.shard_map(batched_fn, mesh=self.mesh, in_specs=spec, out_specs=spec, check_vma=False)
+
+    def _shard_batch(self, batch: replay_lib.SequenceBatch) -> replay_lib.SequenceBatch:
+        """Split a sampled batch over the mesh along B (data-parallel gradients) when B divides. The start state is
+        in the network's layout, B on axis 1."""
+        if self.mesh is None or self.config.batch_size % self.mesh.devices.size:
+            return batch
+        rest = distributed.constrain_envs(batch.replace(start_state=None), self.mesh)
+        return rest.replace(start_state=distributed.constrain_envs(batch.start_state, self.mesh, 1))
 
     def _shard_actor(self, actor: ActorState) -> ActorState:
         if self.mesh is None:
@@ -183,7 +231,7 @@ class Trainer:
 
     # ---------------------------------------------------------------- acting
     def act_step(self, params, actor: ActorState, epsilon: jax.Array, key: jax.Array):
-        """One epsilon-greedy step of all envs. Returns (actor, Transition [N, ...] (state [layers, N, units]), info)."""
+        """One epsilon-greedy step of all envs: (actor, Transition [N, ...] (state [layers, N, units]), stats)."""
         c = self.config
         k_eps, k_rand, k_env = jax.random.split(key, 3)
         q, net_state = self.q_values(params, actor.obs[:, None], actor.is_first[:, None], actor.net_state)
@@ -193,77 +241,72 @@ class Trainer:
         obs, env_state, reward, terminated, truncated, info = self._per_device(
             jax.vmap(lambda k, s, a: self.env.step(k, s, a, self.env_params)))(
             jax.random.split(k_env, c.num_envs), actor.env_state, action)
+        # the replay keeps the LSTM part of the state; 'drlavt' rebuilds its frame history during burn-in
         transition = replay_lib.Transition(
             obs=actor.obs, action=action, reward=reward, terminated=terminated, truncated=truncated,
-            is_first=actor.is_first, recurrent_state=(actor.net_state.h, actor.net_state.c))
+            is_first=actor.is_first, recurrent_state=actor.net_state.replace(frames=None))
         new_actor = ActorState(env_state=env_state, obs=obs, is_first=info["is_first"], net_state=net_state)
         done = terminated | truncated
-        stats = dict(episodes=done.sum(), length=jnp.where(done, info["episode_length"], 0).sum(),
-                     ret=jnp.where(done, info["episode_return"], 0.0).sum())
+        stats = EpisodeStats(episodes=done.sum(), length_sum=jnp.where(done, info["episode_length"], 0).sum(),
+                             return_sum=jnp.where(done, info["episode_return"], 0.0).sum())
         return new_actor, transition, stats
 
     def rollout(self, params, actor: ActorState, env_steps: jax.Array, key: jax.Array):
-        """``rollout_steps`` acting steps. Returns (actor, chunk in replay layout [N, T, ...], stats, epsilon)."""
+        """``rollout_steps`` acting steps. Returns (actor, chunk [N, T, ...] in replay layout, summed stats, eps)."""
         c = self.config
 
-        def body(carry, k):
-            actor, steps = carry
-            eps = self.epsilon(steps)
-            actor, tr, stats = self.act_step(params, actor, eps, k)
-            return (actor, steps + c.num_envs), (tr, stats, eps)
+        def body(carry: _RolloutCarry, k):
+            eps = self.epsilon(carry.env_steps)
+            actor, tr, stats = self.act_step(params, carry.actor, eps, k)
+            return _RolloutCarry(actor=actor, env_steps=carry.env_steps + c.num_envs), (tr, stats, eps)
 
-        (actor, _), (traj, stats, eps) = jax.lax.scan(body, (actor, env_steps),
-                                                      jax.random.split(key, c.rollout_steps))
-        return actor, replay_lib.chunk_to_storage(traj), jax.tree.map(jnp.sum, stats), eps[-1]
+        last, (traj, stats, eps) = jax.lax.scan(body, _RolloutCarry(actor=actor, env_steps=env_steps),
+                                                jax.random.split(key, c.rollout_steps))
+        return last.actor, replay_lib.chunk_to_storage(traj), jax.tree.map(jnp.sum, stats), eps[-1]
 
     # ---------------------------------------------------------------- learning
-    def prepare(self, params, target_params, batch: replay_lib.Transition, key: jax.Array) -> dict:
-        """Everything the loss needs that takes no gradient: (augmented) observations, reset flags and loss mask,
-        the target net's Q over the window and the online net's state after burn-in, both run from the stored
-        recurrent state of the window's first step."""
+    def prepare(self, params, target_params, batch: replay_lib.SequenceBatch, key: jax.Array) -> PreparedBatch:
+        """Everything the loss needs that takes no gradient: (augmented) observations, the target net's Q over the
+        window and the online net's state after burn-in, both run from the window's stored start state."""
         c = self.config
-        burn = c.burn_in
-        obs = batch.obs
+        burn, obs = batch.burn_in, batch.obs
         if self.augment_fn is not None:
             obs = self.augment_fn(key, obs)
-        masks = replay_lib.sequence_masks(batch.is_first, burn)
-        reset = masks["reset"]
-        h0, c0 = replay_lib.state_from_storage(jax.tree.map(lambda x: x[:, 0], batch.recurrent_state))
         if c.network.recurrent:
             frames = jnp.zeros((obs.shape[0], 0), jnp.float32)
-        else:  # rebuilt during burn-in (burn_in >= frame_stack - 1 is validated)
+        else:  # the frame history is not stored: rebuilt during burn-in (burn_in >= frame_stack - 1 is validated)
             frames = jnp.repeat(obs[:, :1], c.network.frame_stack - 1, axis=1)
-        state = RecurrentState(h=h0, c=c0, frames=frames)
-        q_target, _ = self.q_values(target_params, obs, reset, state)
+        state = batch.start_state.replace(frames=frames)
+        q_target, _ = self.q_values(target_params, obs, batch.reset, state)
         if burn:
-            _, state = self.q_values(params, obs[:, :burn], reset[:, :burn], state)
+            _, state = self.q_values(params, obs[:, :burn], batch.reset[:, :burn], state)
         sg = jax.lax.stop_gradient
-        terminated, truncated = batch.terminated[:, burn:-1], batch.truncated[:, burn:-1]
+        terminated, truncated = batch.terminated[:, burn:], batch.truncated[:, burn:]
         if c.bootstrap_lost:  # see TrainConfig.bootstrap_lost
             terminated, truncated = jnp.zeros_like(terminated), truncated | terminated
-        return dict(obs=obs[:, burn:], reset=reset[:, burn:], state=sg(state), q_target=sg(q_target[:, burn:]),
-                    action=batch.action[:, burn:-1], reward=sg(batch.reward[:, burn:-1] * c.reward_scale),
-                    terminated=terminated, truncated=truncated, mask=masks["loss_mask"][:, burn:])
+        td = TDBatch(q_target=sg(q_target[:, burn:]), action=batch.action[:, burn:],
+                     reward=sg(batch.reward[:, burn:] * c.reward_scale), terminated=terminated, truncated=truncated,
+                     mask=batch.loss_mask[:, burn:])
+        return PreparedBatch(obs=obs[:, burn:], reset=batch.reset[:, burn:], state=sg(state), td=td)
 
-    def trained_loss(self, params, prepared: dict):
+    def trained_loss(self, params, prepared: PreparedBatch):
         """TD loss over the trained part of the window (gradient w.r.t. params only). Returns (loss, aux)."""
-        q_online, _ = self.q_values(params, prepared["obs"], prepared["reset"], prepared["state"])  # [B, T+1, A]
-        loss, aux = sequence_td_loss(q_online, prepared["q_target"], prepared["action"], prepared["reward"],
-                                     prepared["terminated"], prepared["truncated"], prepared["mask"], self.td)
-        mask = prepared["mask"].astype(jnp.float32)
+        q_online, _ = self.q_values(params, prepared.obs, prepared.reset, prepared.state)  # [B, T+1, A]
+        loss, aux = td_loss(q_online, prepared.td, self.td)
+        mask = prepared.td.mask.astype(jnp.float32)
         aux = dict(aux, q_mean=(aux["q_taken"] * mask).sum() / jnp.maximum(mask.sum(), 1.0))
         return loss, aux
 
-    def loss(self, params, target_params, batch: replay_lib.Transition, key: jax.Array):
-        """Masked TD loss of one sampled batch (leaves [B, L, ...]): burn-in without gradient, then the loss over
-        the ``train_len`` transitions after it. Returns (loss, aux)."""
+    def loss(self, params, target_params, batch: replay_lib.SequenceBatch, key: jax.Array):
+        """Masked TD loss of one sampled batch: burn-in without gradient, then the loss over the ``train_len``
+        transitions after it. Returns (loss, aux)."""
         return self.trained_loss(params, self.prepare(params, target_params, batch, key))
 
     def update(self, learner: LearnerState, replay_state, key: jax.Array):
-        """One gradient step on a fresh sample. Returns (learner, (loss, q_mean, grad_norm))."""
+        """One gradient step on a fresh sample. Returns (learner, LearnStats)."""
         c = self.config
         k_sample, k_aug = jax.random.split(key)
-        batch = distributed.constrain_batch(self.replay.sample(replay_state, k_sample), self.mesh, c.batch_size)
+        batch = self._shard_batch(self.replay.sample(replay_state, k_sample))
         prepared = self.prepare(learner.params, learner.target_params, batch, k_aug)
         (loss, aux), grads = jax.value_and_grad(self.trained_loss, has_aux=True)(learner.params, prepared)
         if c.debug_nan_at_update >= 0:
@@ -278,21 +321,22 @@ class Trainer:
         else:
             target = optax.periodic_update(params, learner.target_params, n, c.target_period)
         new = LearnerState(params=params, target_params=target, opt_state=opt_state, updates=n)
-        return new, (loss, aux["q_mean"], optax.tree.norm(grads))
+        return new, LearnStats(loss=loss, q_mean=aux["q_mean"], grad_norm=optax.tree.norm(grads),
+                               updates=jnp.ones((), jnp.int32))
 
     def learn(self, learner: LearnerState, replay_state, env_steps: jax.Array, key: jax.Array):
-        """``updates_per_iteration`` steps if the replay is ready, else none. Returns (learner, sums)."""
+        """``updates_per_iteration`` steps if the replay is ready, else none. Returns (learner, summed LearnStats)."""
         c = self.config
         ready = (env_steps >= c.learning_starts) & self.replay.can_sample(replay_state)
 
         def do(learner):
-            learner, (loss, q, gn) = jax.lax.scan(lambda l, k: self.update(l, replay_state, k), learner,
-                                                  jax.random.split(key, c.updates_per_iteration))
-            return learner, (loss.sum(), q.sum(), gn.sum(), jnp.int32(c.updates_per_iteration))
+            learner, stats = jax.lax.scan(lambda l, k: self.update(l, replay_state, k), learner,
+                                          jax.random.split(key, c.updates_per_iteration))
+            return learner, jax.tree.map(jnp.sum, stats)
 
         def skip(learner):
             z = jnp.zeros(())
-            return learner, (z, z, z, jnp.int32(0))
+            return learner, LearnStats(loss=z, q_mean=z, grad_norm=z, updates=jnp.zeros((), jnp.int32))
 
         return jax.lax.cond(ready, do, skip, learner)
 
@@ -303,10 +347,11 @@ class Trainer:
         chunk = distributed.constrain_envs(chunk, self.mesh)
         replay_state = self.replay.add(runner.replay, chunk)
         env_steps = runner.env_steps + self.config.env_steps_per_iteration
-        learner, (loss, q, gn, n) = self.learn(runner.learner, replay_state, env_steps, k_learn)
-        metrics = ChunkMetrics(episodes=stats["episodes"], episode_length_sum=stats["length"],
-                               episode_return_sum=stats["ret"], loss_sum=loss, q_sum=q, grad_norm_sum=gn, updates=n,
-                               epsilon=eps, env_steps=env_steps)
+        learner, learned = self.learn(runner.learner, replay_state, env_steps, k_learn)
+        metrics = ChunkMetrics(episodes=stats.episodes, episode_length_sum=stats.length_sum,
+                               episode_return_sum=stats.return_sum, loss_sum=learned.loss, q_sum=learned.q_mean,
+                               grad_norm_sum=learned.grad_norm, updates=learned.updates, epsilon=eps,
+                               env_steps=env_steps)
         runner = runner.replace(learner=learner, actor=actor, replay=replay_state, key=key, env_steps=env_steps)
         return runner, metrics
 

@@ -8,12 +8,12 @@ from flax import struct
 
 from ramavt_jax.replay import (
     ReplayConfig,
+    SequenceBatch,
     Transition,
     chunk_to_storage,
+    loss_mask,
     make_replay,
     memory_bytes,
-    sequence_masks,
-    start_state,
 )
 
 N_ENVS, H, W, C = 3, 4, 5, 4
@@ -102,9 +102,12 @@ def decode(batch):
 
 
 def sample_many(replay, state, n_keys=20):
+    """Several samples joined along B (axis 0, except axis 1 of the start state, which is in network layout)."""
     keys = jax.random.split(jax.random.key(0), n_keys)
     batches = [replay.sample(state, k) for k in keys]
-    return jax.tree.map(lambda *x: np.concatenate(x), *batches)
+    joined = jax.tree.map(lambda *x: np.concatenate(x), *[b.replace(start_state=None) for b in batches])
+    start = jax.tree.map(lambda *x: np.concatenate(x, axis=1), *[b.start_state for b in batches])
+    return joined.replace(start_state=start)
 
 
 @pytest.fixture(scope="module")
@@ -124,26 +127,45 @@ def test_sequences_contiguous_single_env(filled):
     np.testing.assert_array_equal(g, g[:, :1] + np.arange(L)[None, :])
     assert g.min() >= 0 and g.max() <= 119
     assert len(np.unique(env[:, 0])) == N_ENVS  # all envs get sampled
-    # every field belongs to the same (env, step)
-    np.testing.assert_array_equal(batch.reward, env * 1000.0 + g)
-    np.testing.assert_array_equal(batch.action, (g + env) % 11)
+    # every field belongs to the same (env, step); transitions are the window's first L-1 steps
+    np.testing.assert_array_equal(batch.reward, (env * 1000.0 + g)[:, :-1])
+    np.testing.assert_array_equal(batch.action, ((g + env) % 11)[:, :-1])
     is_first, terminated, truncated = episode_flags(env, g)
-    np.testing.assert_array_equal(batch.is_first, is_first)
-    np.testing.assert_array_equal(batch.terminated, terminated)
-    np.testing.assert_array_equal(batch.truncated, truncated)
-    assert batch.terminated.any() and batch.truncated.any() and batch.is_first.any()
+    np.testing.assert_array_equal(batch.reset, is_first)
+    np.testing.assert_array_equal(batch.terminated, terminated[:, :-1])
+    np.testing.assert_array_equal(batch.truncated, truncated[:, :-1])
+    np.testing.assert_array_equal(batch.loss_mask, ~is_first[:, 1:])  # burn_in 0: only episode crossings masked
+    assert batch.terminated.any() and batch.truncated.any() and batch.reset.any()
 
 
 def test_stored_state_matches_actor(filled):
-    _, _, batch = filled
+    _, state, batch = filled
     env, g = decode(batch)
     h, c = actor_state(env[:, 0], g[:, 0])  # [B, layers, units]
-    s0 = start_state(batch)  # network layout [layers, B, units]
+    s0 = batch.start_state  # network layout [layers, B, units]
+    assert isinstance(s0, FakeLSTMState)  # the stored pytree type comes back
     np.testing.assert_array_equal(s0.h, np.moveaxis(h, 0, 1))
     np.testing.assert_array_equal(s0.c, np.moveaxis(c, 0, 1))
     assert s0.h.dtype == jnp.float32
-    h_all, _ = actor_state(env, g)  # every step of the window, storage layout [B, L, layers, units]
-    np.testing.assert_array_equal(batch.recurrent_state.h, h_all)
+    h_all, _ = actor_state(np.arange(N_ENVS)[:, None], np.arange(120)[None, :])  # every stored step [N, T, l, u]
+    np.testing.assert_array_equal(state.experience.recurrent_state.h[:, :120], h_all)
+
+
+def test_sample_is_a_typed_sequence_batch():
+    burn_in, L, B = 3, 7, 16
+    cfg = ReplayConfig(capacity_steps=N_ENVS * 32, sequence_length=L, batch_size=B, burn_in=burn_in)
+    replay = make_replay(cfg, N_ENVS, EXAMPLE)
+    state = fill(replay, replay.init(), num_chunks=2, t_chunk=12)
+    batch = jax.jit(replay.sample)(state, jax.random.key(2))
+    assert isinstance(batch, SequenceBatch) and batch.burn_in == burn_in
+    assert batch.obs.shape == (B, L, H, W, C) and batch.obs.dtype == jnp.float32
+    assert batch.reset.shape == (B, L) and batch.reset.dtype == jnp.bool_
+    for x, dtype in ((batch.action, jnp.int32), (batch.reward, jnp.float32), (batch.terminated, jnp.bool_),
+                     (batch.truncated, jnp.bool_), (batch.loss_mask, jnp.bool_)):
+        assert x.shape == (B, L - 1) and x.dtype == dtype
+    assert batch.start_state.h.shape == batch.start_state.c.shape == (LAYERS, B, UNITS)
+    assert not batch.loss_mask[:, :burn_in].any() and batch.loss_mask[:, burn_in:].any()
+    np.testing.assert_array_equal(batch.loss_mask, loss_mask(batch.reset, burn_in))
 
 
 def test_uint8_round_trip(filled):
@@ -175,7 +197,7 @@ def test_capacity_wraps_oldest_dropped():
     assert g.min() == 36 and g.max() == 55  # oldest dropped, newest present
     assert set(g[:, 0].tolist()) == set(range(36, 52))  # every admissible start (period 1) is drawn
     h, _ = actor_state(env[:, 0], g[:, 0])
-    np.testing.assert_array_equal(start_state(batch).h, np.moveaxis(h, 0, 1))
+    np.testing.assert_array_equal(batch.start_state.h, np.moveaxis(h, 0, 1))
 
 
 def replay_obs(state):
@@ -224,7 +246,7 @@ def test_other_storage_dtypes(obs_dtype, state_dtype, tol):
     env = np.rint(np.asarray(batch.obs[..., 0, 0, 0]) * 255).astype(int)
     g = np.rint(np.asarray(batch.obs[..., 0, 0, 1]) * 255).astype(int)
     ref = np.asarray(chunk.obs)[g, env]
-    assert batch.obs.dtype == jnp.float32 and batch.recurrent_state.h.dtype == jnp.float32
+    assert batch.obs.dtype == jnp.float32 and batch.start_state.h.dtype == jnp.float32
     assert np.abs(np.asarray(batch.obs) - ref).max() <= tol
 
 
@@ -245,20 +267,17 @@ def test_memory_bytes():
     assert memory_bytes(cfg, 50, (32, 32, 1), [(1, 128), (1, 128)]) == 50_000 * (1024 + 11 + 1024) + 5
 
 
-def test_sequence_masks_around_episode_boundary():
+def test_loss_mask_around_episode_boundary():
     is_first = jnp.array([
         [False, False, False, True, False, False],  # a new episode starts at obs 3
         [True, False, False, False, False, False],  # window starts on a first obs
     ])
-    m = sequence_masks(is_first, burn_in=2)
-    np.testing.assert_array_equal(m["reset"], is_first)
     # loss_mask[t]: t >= 2 and obs t+1 is not first. Row 0: transition 2 (obs 2 -> obs 3) crosses -> masked.
-    np.testing.assert_array_equal(m["loss_mask"], [[False, False, False, True, True],
-                                                   [False, False, True, True, True]])
-    m0 = sequence_masks(is_first, burn_in=0)
-    np.testing.assert_array_equal(m0["loss_mask"], [[True, True, False, True, True], [True] * 5])
+    np.testing.assert_array_equal(loss_mask(is_first, burn_in=2), [[False, False, False, True, True],
+                                                                   [False, False, True, True, True]])
+    np.testing.assert_array_equal(loss_mask(is_first, burn_in=0), [[True, True, False, True, True], [True] * 5])
     with pytest.raises(ValueError, match="burn_in"):
-        sequence_masks(is_first, burn_in=5)
+        loss_mask(is_first, burn_in=5)
 
 
 @pytest.mark.parametrize("kwargs, num_envs, match", [
@@ -268,6 +287,8 @@ def test_sequence_masks_around_episode_boundary():
     (dict(period=0), 1, "period"),
     (dict(sequence_length=10, period=11), 1, "period"),
     (dict(batch_size=0), 1, "batch_size"),
+    (dict(sequence_length=4, burn_in=3), 1, "burn_in"),
+    (dict(burn_in=-1), 1, "burn_in"),
     (dict(obs_dtype="int8"), 1, "obs_dtype"),
     (dict(state_dtype="float64"), 1, "state_dtype"),
     (dict(capacity_steps=-5), 1, "capacity_steps"),

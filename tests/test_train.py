@@ -105,8 +105,8 @@ def test_every_variant_observation_and_augmentation_traces(variant, obs_mode, au
 
 
 # ------------------------------------------------------------------------------------------ learner plumbing
-def _batch(key, cfg, is_first=None, terminated=None):
-    """A hand-made sampled batch [B, L, ...] (random obs/actions/rewards, random stored LSTM state)."""
+def _window(key, cfg, is_first=None, terminated=None):
+    """Hand-made sampled windows [B, L, ...] as stored (random obs/actions/rewards, random stored LSTM state)."""
     B, L = cfg.batch_size, cfg.sequence_length
     ks = jax.random.split(key, 5)
     n = cfg.network
@@ -120,33 +120,52 @@ def _batch(key, cfg, is_first=None, terminated=None):
         terminated=z if terminated is None else terminated,
         truncated=z,
         is_first=z if is_first is None else is_first,
-        recurrent_state=(h, c),
+        recurrent_state=RecurrentState(h=h, c=c, frames=None),
     )
+
+
+def _as_batch(window, cfg=SMOKE):
+    """The SequenceBatch the replay's sample makes of these windows."""
+    return replay_lib.sequence_batch(window, cfg.burn_in)
+
+
+def test_sampled_batch_carries_the_network_state(trainer):
+    """The trainer's replay hands the learner a SequenceBatch whose start state is the network's RecurrentState in
+    the network's layout (abstractly: nothing compiles)."""
+    cfg = SMOKE
+    state = jax.eval_shape(trainer.replay.init)
+    batch = jax.eval_shape(trainer.replay.sample, state, jax.ShapeDtypeStruct((2,), jnp.uint32))
+    B, L, n = cfg.batch_size, cfg.sequence_length, cfg.network
+    assert isinstance(batch, replay_lib.SequenceBatch) and batch.burn_in == cfg.burn_in
+    assert batch.obs.shape == (B, L, *cfg.env.obs_shape) and batch.loss_mask.shape == (B, L - 1)
+    assert isinstance(batch.start_state, RecurrentState) and batch.start_state.frames is None
+    assert batch.start_state.h.shape == batch.start_state.c.shape == (n.lstm_layers, B, n.lstm)
 
 
 def test_burn_in_gets_no_gradient(trainer, learner, loss_fn):
     params, target = learner
     cfg, burn = SMOKE, SMOKE.burn_in
-    batch = _batch(jax.random.PRNGKey(1), cfg)
+    window = _window(jax.random.PRNGKey(1), cfg)
 
     def loss(obs, h):
-        return loss_fn(params, target, batch.replace(obs=obs, recurrent_state=(h, batch.recurrent_state[1])))
+        stored = window.recurrent_state.replace(h=h)
+        return loss_fn(params, target, _as_batch(window.replace(obs=obs, recurrent_state=stored)))
 
-    g_obs, g_h = jax.jit(jax.grad(loss, argnums=(0, 1)))(batch.obs, batch.recurrent_state[0])
+    g_obs, g_h = jax.jit(jax.grad(loss, argnums=(0, 1)))(window.obs, window.recurrent_state.h)
     g_obs, g_h = np.asarray(g_obs), np.asarray(g_h)
     assert np.all(g_obs[:, :burn] == 0.0), "burn-in observations must not receive gradient"
     assert np.all(g_h == 0.0), "the stored recurrent state is an input, not a parameter"
     assert np.all(np.abs(g_obs[:, burn:-1]).sum(axis=(0, 2, 3, 4)) > 0)
     # Rewards reach the loss only through the (stop-gradient) targets: perturb them instead of differentiating.
-    base = float(loss_fn(params, target, batch))
+    base = float(loss_fn(params, target, _as_batch(window)))
     for t in range(cfg.sequence_length):
-        changed = float(loss_fn(params, target, batch.replace(reward=batch.reward.at[:, t].add(5.0))))
+        changed = float(loss_fn(params, target, _as_batch(window.replace(reward=window.reward.at[:, t].add(5.0)))))
         if t < burn or t == cfg.sequence_length - 1:  # burn-in rewards; the last step is only a bootstrap obs
             assert changed == base, f"reward of step {t} must not enter the loss"
         else:
             assert changed != base, f"reward of trained step {t} must enter the loss"
     # and the parameters do get a gradient
-    gp = jax.jit(jax.grad(lambda p: loss_fn(p, target, batch)))(params)
+    gp = jax.jit(jax.grad(lambda p: loss_fn(p, target, _as_batch(window))))(params)
     assert sum(float(jnp.abs(x).sum()) for x in jax.tree.leaves(gp)) > 0
 
 
@@ -159,25 +178,26 @@ def test_loss_masks_the_episode_crossing_and_matches_hand_plumbing(trainer, lear
     is_first[:, burn + 3] = True
     terminated = np.zeros((B, L), bool)
     terminated[:, burn + 1] = True
-    batch = _batch(jax.random.PRNGKey(3), cfg, jnp.asarray(is_first), jnp.asarray(terminated))
-    loss = loss_fn(params, target, batch)
+    window = _window(jax.random.PRNGKey(3), cfg, jnp.asarray(is_first), jnp.asarray(terminated))
+    loss = loss_fn(params, target, _as_batch(window))
 
-    # By hand: both nets run over the WHOLE window from the stored state of step 0 (one call, no burn-in split).
-    h0, c0 = (jnp.moveaxis(x[:, 0], 0, 1) for x in batch.recurrent_state)
+    # By hand, from the stored windows: both nets run over the WHOLE window from the stored state of step 0 (one
+    # call, no burn-in split).
+    h0, c0 = (jnp.moveaxis(x[:, 0], 0, 1) for x in (window.recurrent_state.h, window.recurrent_state.c))
     s0 = RecurrentState(h=h0, c=c0, frames=jnp.zeros((B, 0)))
-    q_fn = jax.jit(lambda p: trainer.q_values(p, batch.obs, batch.is_first, s0)[0])
+    q_fn = jax.jit(lambda p: trainer.q_values(p, window.obs, window.is_first, s0)[0])
     q_on, q_tg = q_fn(params), q_fn(target)
     mask = np.ones((B, T_), np.float32)
     mask[:, 2] = 0.0  # transition burn+2: terminal obs -> first obs of the next episode
     expected, _ = sequence_td_loss(
-        q_on[:, burn:], q_tg[:, burn:], batch.action[:, burn:-1], batch.reward[:, burn:-1] * cfg.reward_scale,
-        batch.terminated[:, burn:-1], batch.truncated[:, burn:-1], jnp.asarray(mask), trainer.td)
+        q_on[:, burn:], q_tg[:, burn:], window.action[:, burn:-1], window.reward[:, burn:-1] * cfg.reward_scale,
+        window.terminated[:, burn:-1], window.truncated[:, burn:-1], jnp.asarray(mask), trainer.td)
     np.testing.assert_allclose(float(loss), float(expected), rtol=2e-5)
 
     def perturbed(t, what):
         if what == "reward":
-            return batch.replace(reward=batch.reward.at[:, t].add(10.0))
-        return batch.replace(action=(batch.action.at[:, t].add(1)) % 11)
+            return _as_batch(window.replace(reward=window.reward.at[:, t].add(10.0)))
+        return _as_batch(window.replace(action=(window.action.at[:, t].add(1)) % 11))
 
     for what in ("reward", "action"):
         same = loss_fn(params, target, perturbed(burn + 2, what))
@@ -193,13 +213,15 @@ def test_stored_recurrent_state_is_the_actors_state():
     params = state.learner.params
     actor, chunk1, _, _ = rollout(params, state.actor, jnp.int32(0), jax.random.PRNGKey(5))
     actor, chunk2, stats, _ = rollout(params, actor, jnp.int32(80), jax.random.PRNGKey(6))
-    assert int(stats["episodes"]) > 0
-    h, c = (np.asarray(x) for x in chunk2.recurrent_state)  # [N, T, layers, units]
-    assert np.all(np.asarray(chunk1.recurrent_state[0])[:, 0] == 0.0)  # fresh actors start from zeros
+    assert int(stats.episodes) > 0
+    stored = chunk2.recurrent_state  # the network's own state type, without the frame history
+    assert isinstance(stored, RecurrentState) and stored.frames is None
+    h, c = np.asarray(stored.h), np.asarray(stored.c)  # [N, T, layers, units]
+    assert np.all(np.asarray(chunk1.recurrent_state.h)[:, 0] == 0.0)  # fresh actors start from zeros
     assert np.abs(h).sum() > 0
     # Recompute the carries by stepping the network from the stored state of the chunk's first step.
-    s = RecurrentState(h=jnp.moveaxis(chunk2.recurrent_state[0][:, 0], 0, 1),
-                       c=jnp.moveaxis(chunk2.recurrent_state[1][:, 0], 0, 1), frames=jnp.zeros((cfg.num_envs, 0)))
+    s = RecurrentState(h=jnp.moveaxis(stored.h[:, 0], 0, 1), c=jnp.moveaxis(stored.c[:, 0], 0, 1),
+                       frames=jnp.zeros((cfg.num_envs, 0)))
     step = jax.jit(lambda s, o, r: tr.q_values(params, o, r, s)[1])
     for t in range(cfg.rollout_steps):
         s = step(s, chunk2.obs[:, t:t + 1], chunk2.is_first[:, t:t + 1])
@@ -291,13 +313,15 @@ def test_bootstrap_lost_turns_terminations_into_bootstrapped_ends(trainer, learn
     nothing else in the prepared batch does."""
     params, target = learner
     term = jnp.zeros((SMOKE.batch_size, SMOKE.sequence_length), bool).at[:, SMOKE.burn_in + 2].set(True)
-    batch = _batch(jax.random.PRNGKey(5), SMOKE, terminated=term)
+    batch = _as_batch(_window(jax.random.PRNGKey(5), SMOKE, terminated=term))
     boot = T.Trainer(dataclasses.replace(SMOKE, bootstrap_lost=True))
     plain_prep = trainer.prepare(params, target, batch, jax.random.PRNGKey(0))
     boot_prep = boot.prepare(params, target, batch, jax.random.PRNGKey(0))
-    assert bool(plain_prep["terminated"].any()) and not bool(boot_prep["terminated"].any())
-    np.testing.assert_array_equal(np.asarray(boot_prep["truncated"]),
-                                  np.asarray(plain_prep["truncated"] | plain_prep["terminated"]))
-    for k in ("obs", "reward", "action", "mask", "q_target"):
-        np.testing.assert_array_equal(np.asarray(boot_prep[k]), np.asarray(plain_prep[k]))
+    assert isinstance(plain_prep, T.PreparedBatch)
+    plain, booted = plain_prep.td, boot_prep.td
+    assert bool(plain.terminated.any()) and not bool(booted.terminated.any())
+    np.testing.assert_array_equal(np.asarray(booted.truncated), np.asarray(plain.truncated | plain.terminated))
+    np.testing.assert_array_equal(np.asarray(boot_prep.obs), np.asarray(plain_prep.obs))
+    for k in ("reward", "action", "mask", "q_target"):
+        np.testing.assert_array_equal(np.asarray(getattr(booted, k)), np.asarray(getattr(plain, k)))
     assert float(trainer.trained_loss(params, plain_prep)[0]) != float(boot.trained_loss(params, boot_prep)[0])
