@@ -33,11 +33,12 @@ from typing import Any
 
 import jax
 import numpy as np
+from jax._src import distributed as jax_distributed  # the coordination-service client (no public handle)
 from jax.sharding import Mesh, NamedSharding
 from jax.sharding import PartitionSpec as P
 
 __all__ = ["P", "DATA_AXIS", "initialize", "make_mesh", "replicated", "runner_shardings", "check_divisible",
-           "check_seeds_divisible", "constrain_envs", "constrain_batch", "local_copy", "is_primary",
+           "check_seeds_divisible", "constrain_envs", "constrain_batch", "local_copy", "is_primary", "barrier",
            "ShardingError"]
 
 DATA_AXIS = "data"
@@ -76,6 +77,17 @@ def initialize(coordinator_address: str | None = None, num_processes: int | None
     jax.distributed.initialize(coordinator_address=address, num_processes=num_processes, process_id=process_id,
                                initialization_timeout=timeout_s)
     return True
+
+
+def barrier(name: str, timeout_s: int = 600) -> None:
+    """Block until every process of a multi-host job reaches ``name``; a no-op in a single-process run.
+
+    Goes through JAX's coordination service (its timeout is ours to set), not through gloo: gloo's first
+    collective gives up after a fixed 30 s, and two processes can reach it further apart than that when start-up
+    and compilation run on a loaded machine."""
+    if jax.process_count() == 1:
+        return
+    jax_distributed.global_state.client.wait_at_barrier(name, timeout_in_ms=timeout_s * 1000)
 
 
 def is_primary() -> bool:

@@ -3,6 +3,7 @@ vmapped program and evaluated on the SAME held-out episodes (fixed evaluation ke
 policy). Results go to OUT/<arm>/ (run folders seed_k/) and OUT/<arm>/heldout.json; `report` prints the table.
 
     python scripts/learning_arms.py train base see grid boot all --seeds 3 --out runs/arms
+    python scripts/learning_arms.py train rgbd color --seeds 3 --out runs/arms       # Table I's inputs
     python scripts/learning_arms.py eval base see grid boot all baselines --out runs/arms
     python scripts/learning_arms.py train long --seeds 1 --out runs/arms      # the shipped agent
     python scripts/learning_arms.py report --out runs/arms
@@ -40,6 +41,9 @@ ARMS = {
     "all": lambda c: dataclasses.replace(_net(c, coord_channels=True, pooled_skip=True, pools=(True, True, False)),
                                          bootstrap_lost=True),
 }
+# Table I's inputs at the quick budget: 'all' seeing colour or colour + depth instead of depth.
+ARMS["rgbd"] = lambda c: dataclasses.replace(ARMS["all"](c), env=dataclasses.replace(c.env, obs_mode="rgbd"))
+ARMS["color"] = lambda c: dataclasses.replace(ARMS["all"](c), env=dataclasses.replace(c.env, obs_mode="color"))
 # The longer CPU preset (the shipped agent): 'all' with 3x the env steps, slower exploration decay, a bigger replay
 # (the same TrainConfig as `ramavt train --preset long`, without its end-of-training evaluation).
 ARMS["long"] = lambda c: dataclasses.replace(ARMS["all"](c), total_env_steps=1_152_000, eps_decay_steps=400_000,
@@ -80,8 +84,11 @@ def batched_rollout(tracking_env, params_b, policy, key, num_steps):
     return length, ret, lost
 
 
-def heldout_setup(resolution: int, episodes: int, targets=targets_lib.TEST_TARGETS):
-    cfg = env_lib.EnvConfig(camera=env_lib.CameraConfig(resolution=resolution), targets=tuple(targets))
+def heldout_setup(resolution: int, episodes: int, targets=targets_lib.TEST_TARGETS, obs_mode: str = "depth"):
+    """The held-out episodes: the reset states depend only on the key and the targets, not on the input mode, so
+    depth, colour and RGBD agents see the same episodes."""
+    cfg = env_lib.EnvConfig(camera=env_lib.CameraConfig(resolution=resolution), targets=tuple(targets),
+                            obs_mode=obs_mode)
     tracking_env = env_lib.TrackingEnv(cfg)
     params = tracking_env.eval_params()
     ids = jnp.repeat(jnp.arange(len(targets)), episodes)
@@ -102,7 +109,8 @@ def evaluate_arm(out: Path, arm: str, episodes: int, key: jax.Array, max_steps: 
     seed_dirs = sorted((out / arm).glob("seed_*")) or [out / arm]
     loaded = [runs.load_policy(d) for d in seed_dirs]
     config = loaded[0].config
-    tracking_env, params_b, ids = heldout_setup(config.env.camera.resolution, episodes)
+    tracking_env, params_b, ids = heldout_setup(config.env.camera.resolution, episodes,
+                                                obs_mode=config.env.obs_mode)
     stacked = jax.tree.map(lambda *xs: jnp.stack(xs), *[lr.params for lr in loaded])
 
     @jax.jit

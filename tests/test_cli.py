@@ -37,6 +37,7 @@ def test_render_unknown_target_is_a_clear_error(tmp_path, capsys):
         cli.main(["--debug", "render", "--target", "Enterprise", "--steps", "2", "--out", str(tmp_path / "x.gif")])
 
 
+@pytest.mark.slow  # a benchmark run in a subprocess on two forced devices (about 40 s idle)
 def test_bench_scaling_offered_and_splits_envs_over_two_forced_cpu_devices(tmp_path, capsys):
     """`ramavt bench scaling` is a choice; one tiny worker process with 2 forced CPU devices holds the env state
     split over both (2 envs each) and the parent writes JSON and the plot."""

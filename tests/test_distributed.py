@@ -40,6 +40,9 @@ def _worker(*args, devices=4, timeout=400) -> dict:
 
 
 # ============================================================================================ devices
+# Slow (about 100 s on an idle 2-core machine: two compiles of the chunk on 4 forced devices); the default suite
+# still splits a multi-seed program over devices (test_seeds_are_split_over_devices_whole).
+@pytest.mark.slow
 def test_sharded_run_equals_unsharded_run_and_uses_every_device():
     r = _worker("shard", 2)
     assert r["device_count"] == 4
@@ -137,6 +140,8 @@ def _free_port() -> int | None:
         return None
 
 
+# Slow: two training processes and a reference run (about 100 s idle, 300 s on a loaded 2-core machine).
+@pytest.mark.slow
 def test_two_process_run_on_loopback_matches_a_single_process_run(tmp_path):
     port = _free_port()
     if port is None:

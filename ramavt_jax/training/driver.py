@@ -267,6 +267,7 @@ def run(config: TrainConfig, out_dir, seed: int = 0, resume=True, progress: bool
 def _run_locked(config, f: _Folders, config_json, resume, max_chunks, tracking_env, num_devices, progress, primary,
                 stop: StopSignals, say) -> RunSummary:
     prog, state, mesh = _start(config, f, num_devices, tracking_env, progress, say)
+    distributed.barrier("ramavt_compiled")  # processes compile at different speeds; the next step is collective
     if stop.signum is not None:
         raise TrainingInterrupted(f"{stop.name} while compiling: nothing was trained or written", stop.signum)
     if f.resuming:
