@@ -30,6 +30,8 @@ def fast(small_env):
         step=jax.jit(small_env.step),
         vreset=jax.jit(jax.vmap(small_env.reset, in_axes=(0, None))),
         vstep=jax.jit(jax.vmap(small_env.step, in_axes=(0, 0, 0, None))),
+        step_env=jax.jit(small_env.step_env),
+        score=jax.jit(small_env.score),
     )
 
 
@@ -73,11 +75,11 @@ def test_observation_modes(mode, channels):
     assert float(obs.max()) > 0.0  # a capsule 4 m ahead on the boresight is visible
 
 
-def test_jit_matches_no_jit(small_env, params):
+def test_jit_matches_no_jit(small_env, params, fast):
     key = jax.random.key(3)
     with jax.disable_jit():
         ref = rollout(small_env, params, key, 1, actions=[5])
-    out = rollout(small_env, params, key, 1, actions=[5], step_fn=jax.jit(small_env.step), reset_fn=jax.jit(small_env.reset))
+    out = rollout(small_env, params, key, 1, actions=[5], step_fn=fast["step"], reset_fn=fast["reset"])
     tree_equal(ref[1], out[1], atol=1e-5)
     tree_equal(ref[0], out[0], atol=1e-5)
 
@@ -97,8 +99,8 @@ def test_vmap_over_params_domain_randomisation(small_env, params):
     speeds = jnp.array([0.5, 1.0, 2.0])
     batch_params = jax.vmap(lambda s: params.replace(speed=s))(speeds)
     keys = jax.random.split(jax.random.key(5), 3)
-    obs, state = jax.vmap(small_env.reset)(keys, batch_params)
-    _, state, *_ = jax.vmap(small_env.step)(keys, state, jnp.full(3, 5), batch_params)
+    obs, state = jax.jit(jax.vmap(small_env.reset))(keys, batch_params)
+    _, state, *_ = jax.jit(jax.vmap(small_env.step))(keys, state, jnp.full(3, 5), batch_params)
     # action 5 (+z) for one step from rest: trapezoid gives 0.5 * speed * dt along the boresight
     chaser_cam = jax.vmap(lambda s: env.HILL_FROM_CAM.T @ s.chaser_pos)(state)
     np.testing.assert_allclose(chaser_cam[:, 2], 0.5 * speeds * 0.1, rtol=1e-5)
@@ -120,26 +122,26 @@ def test_no_key_reuse(small_env, params):
         jax.block_until_ready(out[0])
 
 
-def test_reward_hand_computed(small_env, params):
-    _, state = small_env.reset(jax.random.key(0), params)
+def test_reward_hand_computed(params, fast):
+    _, state = fast["reset"](jax.random.key(0), params)
     # place the target 2 m right of and 4 m ahead of the camera (visible: atan(2/4) < 30 deg)
     pos_cam = jnp.array([2.0, 0.0, 4.0])
     state = state.replace(target_pos=env.HILL_FROM_CAM @ pos_cam, chaser_pos=jnp.zeros(3), lost_steps=jnp.asarray(0))
-    _, reward, _, _, info = small_env.score(state, params)
+    _, reward, _, _, info = fast["score"](state, params)
     assert bool(info["in_view"])
     np.testing.assert_allclose(reward, 1.0 - 0.5 * np.sqrt(2.0**2 + 1.0**2), rtol=1e-6)
     # out of view (60 deg FOV: x/z = 1 > tan 30) -> -5 - 0.5 * distance
     pos_cam = jnp.array([4.0, 0.0, 4.0])
     state = state.replace(target_pos=env.HILL_FROM_CAM @ pos_cam)
-    _, reward, _, _, info = small_env.score(state, params)
+    _, reward, _, _, info = fast["score"](state, params)
     assert not bool(info["in_view"]) and bool(info["lost"])
     np.testing.assert_allclose(reward, -5.0 - 0.5 * np.sqrt(16.0 + 1.0), rtol=1e-6)
 
 
-def test_terminated_after_patience_not_truncated(small_env):
+def test_terminated_after_patience_not_truncated(small_env, fast):
     p = small_env.default_params(lost_patience=3, init_z_min=40.0, init_z_max=41.0, target_vel_std=0.0)
-    step = jax.jit(small_env.step_env)
-    _, state = small_env.reset(jax.random.key(0), p)
+    step = fast["step_env"]
+    _, state = fast["reset"](jax.random.key(0), p)
     flags = []
     for k in jax.random.split(jax.random.key(1), 6):
         _, state, _, term, trunc, info = step(k, state, jnp.asarray(0), p)
@@ -149,10 +151,10 @@ def test_terminated_after_patience_not_truncated(small_env):
     assert not any(f[1] for f in flags) and all(f[2] for f in flags)
 
 
-def test_truncated_at_max_steps_not_terminated(small_env):
+def test_truncated_at_max_steps_not_terminated(small_env, fast):
     p = small_env.default_params(max_steps=5, init_z_min=5.0, init_z_max=5.01, init_xy_std=0.0, target_vel_std=0.0)
-    step = jax.jit(small_env.step)
-    _, state = small_env.reset(jax.random.key(0), p)
+    step = fast["step"]
+    _, state = fast["reset"](jax.random.key(0), p)
     results = []
     for k in jax.random.split(jax.random.key(1), 5):
         _, state, _, term, trunc, _ = step(k, state, jnp.asarray(0), p)
@@ -161,16 +163,16 @@ def test_truncated_at_max_steps_not_terminated(small_env):
     assert int(state.steps) == 0  # auto-reset drew a fresh episode
 
 
-def test_same_step_autoreset_keeps_final_observation(small_env):
+def test_same_step_autoreset_keeps_final_observation(small_env, fast):
     p = small_env.default_params(max_steps=2)
-    _, state = small_env.reset(jax.random.key(0), p)
+    _, state = fast["reset"](jax.random.key(0), p)
     key = jax.random.key(11)
-    _, state, *_ = small_env.step(jax.random.key(2), state, jnp.asarray(0), p)
-    obs, new_state, _, term, trunc, info = small_env.step(key, state, jnp.asarray(0), p)
+    _, state, *_ = fast["step"](jax.random.key(2), state, jnp.asarray(0), p)
+    obs, new_state, _, term, trunc, info = fast["step"](key, state, jnp.asarray(0), p)
     assert bool(trunc)
     # the final observation is what a step without reset would have shown from the same physics
     # default params have no actuator noise, delay or image noise, so the keys of the two calls need not match
-    final_ref = small_env.step_env(key, state, jnp.asarray(0), p)
+    final_ref = fast["step_env"](key, state, jnp.asarray(0), p)
     np.testing.assert_allclose(info["final_observation"], final_ref[0], atol=1e-6)
     assert not np.allclose(np.asarray(obs), np.asarray(info["final_observation"]))
     assert int(new_state.steps) == 0 and int(new_state.lost_steps) == 0
@@ -318,9 +320,10 @@ def test_large_user_target_is_seen_as_the_small_one_at_a_scaled_stand_off(tmp_pa
     ratio = 5.0 / 2.4  # stand-off per radius that holds the 5x model exactly 5x farther (default: 2)
     p_small, p_big = small.eval_params(standoff_per_radius=ratio), big.eval_params(standoff_per_radius=ratio)
     assert float(p_big.catalogue.bound_radius[0]) == pytest.approx(12.0, rel=1e-3)
+    reset_small, reset_big = jax.jit(small.reset), jax.jit(big.reset)
     for seed in range(3):
-        obs_s, st_s = jax.jit(small.reset)(jax.random.key(seed), p_small)
-        obs_b, st_b = jax.jit(big.reset)(jax.random.key(seed), p_big)
+        obs_s, st_s = reset_small(jax.random.key(seed), p_small)
+        obs_b, st_b = reset_big(jax.random.key(seed), p_big)
         assert float(st_b.scale) == pytest.approx(5.0, rel=1e-3) and float(st_s.scale) == pytest.approx(1.0, rel=1e-4)
         np.testing.assert_allclose(env.relative_position(st_b), 5.0 * env.relative_position(st_s), rtol=1e-4)
         np.testing.assert_allclose(env.desired_position(st_b, p_big), [0.0, 0.0, 25.0], rtol=1e-3)
@@ -336,11 +339,11 @@ def test_oracle_holds_a_large_user_target_at_its_stand_off(tmp_path):
                                         targets=(str(_enlarged_satellite(tmp_path, 5.0)),)))
     p = big.eval_params(max_steps=150)
     policy = baselines.oracle_policy()
-    step = jax.jit(big.step_env)
+    step, act = jax.jit(big.step_env), jax.jit(policy.act)
     obs, state = big.reset(jax.random.key(3), p)
     pstate = policy.init(jax.random.key(0))
     for k in jax.random.split(jax.random.key(4), 150):
-        action, pstate = policy.act(k, pstate, obs, state, p)
+        action, pstate = act(k, pstate, obs, state, p)
         obs, state, reward, term, trunc, info = step(k, state, action, p)
         assert not bool(term)
     assert float(state.scale) == pytest.approx(4.8, rel=1e-3)  # 2 x 12 m / 5 m
