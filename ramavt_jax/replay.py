@@ -71,12 +71,13 @@ class ReplayConfig:
     Attributes:
       capacity_steps: env steps kept (total over envs; must be divisible by ``num_envs``).  This is the memory
         budget, *not* the total number of training timesteps.
-      sequence_length: steps per sampled window = burn-in + trained transitions + 1 (the bootstrap observation).
+      burn_in: leading steps of each window that only warm up the recurrent state (no loss; fixes
+        :attr:`SequenceBatch.loss_mask`).
+      train_len: trained transitions per window, after the burn-in.  A window has :attr:`sequence_length` =
+        ``burn_in + train_len + 1`` steps (the last one only gives the bootstrap observation).
       period: stride between admissible window starts (1 = any start; ``sequence_length - 1`` = windows share
         only their end points).  The grid is anchored at the oldest stored step.
       batch_size: windows per sample.
-      burn_in: leading steps of each window that only warm up the recurrent state (no loss); fixes
-        :attr:`SequenceBatch.loss_mask`.  Must leave a trained transition: ``0 <= burn_in < sequence_length - 1``.
       obs_dtype: storage dtype of observations: ``'uint8'`` (float [0, 1] quantised to 1/255, error <= 1/510),
         ``'float16'`` or ``'float32'``.  Samples are always float32.
       state_dtype: storage dtype of the recurrent state (``'float32'``, ``'bfloat16'``, ``'float16'``); samples
@@ -85,37 +86,28 @@ class ReplayConfig:
         least ``sequence_length`` per env is always required.
     """
 
-    capacity_steps: int = 50_000
-    sequence_length: int = 13
+    capacity_steps: int = 64_000
+    burn_in: int = 10
+    train_len: int = 20
     period: int = 1
-    batch_size: int = 64
-    burn_in: int = 0
+    batch_size: int = 32
     obs_dtype: str = "uint8"
     state_dtype: str = "float32"
     min_fill_steps: int = 0
 
     def __post_init__(self):
-        for name in ("capacity_steps", "sequence_length", "period", "batch_size", "burn_in", "min_fill_steps"):
+        for name in ("capacity_steps", "burn_in", "train_len", "period", "batch_size", "min_fill_steps"):
             value = getattr(self, name)
             if not isinstance(value, (int, np.integer)) or isinstance(value, bool):
                 raise ValueError(f"ReplayConfig.{name} must be an int, got {value!r}")
-        if self.capacity_steps <= 0:
-            raise ValueError(f"ReplayConfig.capacity_steps must be > 0, got {self.capacity_steps}")
-        if self.sequence_length < 2:
-            raise ValueError(
-                f"ReplayConfig.sequence_length must be >= 2 (burn-in + trained steps + 1 bootstrap observation), "
-                f"got {self.sequence_length}"
-            )
+        for name, lo in (("capacity_steps", 1), ("burn_in", 0), ("train_len", 1), ("batch_size", 1)):
+            if getattr(self, name) < lo:
+                raise ValueError(f"ReplayConfig.{name} must be >= {lo}, got {getattr(self, name)}")
         if not 1 <= self.period <= self.sequence_length:
             raise ValueError(
                 f"ReplayConfig.period must be in [1, sequence_length={self.sequence_length}] (a larger stride "
                 f"leaves steps that are never sampled), got {self.period}"
             )
-        if self.batch_size < 1:
-            raise ValueError(f"ReplayConfig.batch_size must be >= 1, got {self.batch_size}")
-        if not 0 <= self.burn_in < self.sequence_length - 1:
-            raise ValueError(f"ReplayConfig.burn_in must be in [0, sequence_length - 1 = {self.sequence_length - 1}) "
-                             f"so that some transition trains, got {self.burn_in}")
         if self.obs_dtype not in _OBS_DTYPES:
             raise ValueError(f"ReplayConfig.obs_dtype must be one of {sorted(_OBS_DTYPES)}, got {self.obs_dtype!r}")
         if self.state_dtype not in _STATE_DTYPES:
@@ -127,6 +119,10 @@ class ReplayConfig:
                 f"ReplayConfig.min_fill_steps must be in [0, capacity_steps={self.capacity_steps}], "
                 f"got {self.min_fill_steps}"
             )
+
+    @property
+    def sequence_length(self) -> int:
+        return self.burn_in + self.train_len + 1
 
     def steps_per_env(self, num_envs: int) -> int:
         """Length of each env's circular time axis (validates the config against ``num_envs``)."""

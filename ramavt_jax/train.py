@@ -32,8 +32,9 @@ from flax import struct
 from ramavt_jax import distributed
 from ramavt_jax import env as env_lib
 from ramavt_jax import replay as replay_lib
+from ramavt_jax.augment import augment_batch
 from ramavt_jax.baselines import Policy
-from ramavt_jax.losses import TDBatch, TDConfig, td_loss
+from ramavt_jax.losses import TDBatch, td_loss
 from ramavt_jax.network import NetworkConfig, RecurrentState, init_params, initial_state, make_network
 from ramavt_jax.train_config import PRESETS, TrainConfig, preset  # noqa: F401 (re-exported: config lives there)
 
@@ -145,29 +146,24 @@ class Trainer:
     with :func:`distributed.runner_shardings` as in/out shardings.
     """
 
-    def __init__(self, config: TrainConfig, tracking_env: env_lib.TrackingEnv | None = None, mesh=None):
-        distributed.check_divisible(config.num_envs, mesh)
-        self.config = config
-        self.mesh = mesh
+    def __init__(self, config: TrainConfig, tracking_env: env_lib.TrackingEnv | None = None, mesh=None,
+                 debug_nan_at_update: int = -1):
+        """``debug_nan_at_update`` (a test hook, not configuration): the loss and gradients become NaN from this
+        gradient step on (-1 = off)."""
+        distributed.check_divisible(config.acting.num_envs, mesh)
+        self.config, self.mesh, self.debug_nan_at_update = config, mesh, debug_nan_at_update
         self.env = tracking_env if tracking_env is not None else env_lib.TrackingEnv(config.env)
         self.env_params = self.env.default_params(**dict(config.env_params))
         self.obs_shape = tuple(config.env.obs_shape)
         self.net = make_network(config.network)
-        self.td = TDConfig(gamma=config.gamma, n_step=config.n_step, double_q=config.double_q,
-                           value_rescale=config.value_rescale, huber_delta=config.huber_delta)
-        lr_tx = optax.adam(config.lr, eps=config.adam_eps)
-        self.optimizer = (optax.chain(optax.clip_by_global_norm(config.max_grad_norm), lr_tx)
-                          if config.max_grad_norm > 0 else lr_tx)
-        self.augment_fn = None
-        if config.augment:
-            from ramavt_jax import augment as aug
-            aug_cfg = config.augment_config or aug.AugmentConfig(crop=False, flip=False, rot90=False)
-            self.augment_fn = functools.partial(aug.augment_batch, config=aug_cfg)
-        self.replay = replay_lib.make_replay(
-            replay_lib.ReplayConfig(capacity_steps=config.replay_capacity, sequence_length=config.sequence_length,
-                                    period=config.sample_period, batch_size=config.batch_size,
-                                    burn_in=config.burn_in, obs_dtype=config.obs_dtype),
-            config.num_envs, self._example_transition())
+        learner = config.learner
+        self.td = learner.td
+        lr_tx = optax.adam(learner.lr, eps=learner.adam_eps)
+        self.optimizer = (optax.chain(optax.clip_by_global_norm(learner.max_grad_norm), lr_tx)
+                          if learner.max_grad_norm > 0 else lr_tx)
+        self.augment_fn = (functools.partial(augment_batch, config=learner.augment_config) if learner.augment
+                           else None)
+        self.replay = replay_lib.make_replay(config.replay, config.acting.num_envs, self._example_transition())
 
     # ---------------------------------------------------------------- helpers
     def _example_transition(self) -> replay_lib.Transition:
@@ -190,7 +186,7 @@ class Trainer:
     def _shard_batch(self, batch: replay_lib.SequenceBatch) -> replay_lib.SequenceBatch:
         """Split a sampled batch over the mesh along B (data-parallel gradients) when B divides. The start state is
         in the network's layout, B on axis 1."""
-        if self.mesh is None or self.config.batch_size % self.mesh.devices.size:
+        if self.mesh is None or self.config.replay.batch_size % self.mesh.devices.size:
             return batch
         rest = distributed.constrain_envs(batch.replace(start_state=None), self.mesh)
         return rest.replace(start_state=distributed.constrain_envs(batch.start_state, self.mesh, 1))
@@ -206,7 +202,7 @@ class Trainer:
                                  frames=distributed.constrain_envs(ns.frames, m)))
 
     def epsilon(self, env_steps: jax.Array) -> jax.Array:
-        c = self.config
+        c = self.config.acting
         frac = jnp.clip(env_steps / max(c.eps_decay_steps, 1), 0.0, 1.0) if c.eps_decay_steps else 1.0
         return c.eps_start + (c.eps_end - c.eps_start) * frac
 
@@ -216,23 +212,23 @@ class Trainer:
 
     # ---------------------------------------------------------------- init
     def init(self, key: jax.Array) -> RunnerState:
-        c = self.config
+        c, n = self.config, self.config.acting.num_envs
         key = _raw_key(key)
         key, k_net, k_env = jax.random.split(key, 3)
         params = init_params(c.network, k_net, self.obs_shape)["params"]
         learner = LearnerState(params=params, target_params=jax.tree.map(jnp.copy, params),
                                opt_state=self.optimizer.init(params), updates=jnp.zeros((), jnp.int32))
         obs, env_state = self._per_device(jax.vmap(lambda k: self.env.reset(k, self.env_params)))(
-            jax.random.split(k_env, c.num_envs))
-        actor = self._shard_actor(ActorState(env_state=env_state, obs=obs, is_first=jnp.ones((c.num_envs,), bool),
-                                             net_state=initial_state(c.network, c.num_envs, self.obs_shape)))
+            jax.random.split(k_env, n))
+        actor = self._shard_actor(ActorState(env_state=env_state, obs=obs, is_first=jnp.ones((n,), bool),
+                                             net_state=initial_state(c.network, n, self.obs_shape)))
         return RunnerState(learner=learner, actor=actor, replay=self.replay.init(), key=key,
                            env_steps=jnp.zeros((), jnp.int32), chunk=jnp.zeros((), jnp.int32))
 
     # ---------------------------------------------------------------- acting
     def act_step(self, params, actor: ActorState, epsilon: jax.Array, key: jax.Array):
         """One epsilon-greedy step of all envs: (actor, Transition [N, ...] (state [layers, N, units]), stats)."""
-        c = self.config
+        c = self.config.acting
         k_eps, k_rand, k_env = jax.random.split(key, 3)
         q, net_state = self.q_values(params, actor.obs[:, None], actor.is_first[:, None], actor.net_state)
         greedy = jnp.argmax(q[:, 0], axis=-1).astype(jnp.int32)
@@ -253,7 +249,7 @@ class Trainer:
 
     def rollout(self, params, actor: ActorState, env_steps: jax.Array, key: jax.Array):
         """``rollout_steps`` acting steps. Returns (actor, chunk [N, T, ...] in replay layout, summed stats, eps)."""
-        c = self.config
+        c = self.config.acting
 
         def body(carry: _RolloutCarry, k):
             eps = self.epsilon(carry.env_steps)
@@ -282,11 +278,11 @@ class Trainer:
             _, state = self.q_values(params, obs[:, :burn], batch.reset[:, :burn], state)
         sg = jax.lax.stop_gradient
         terminated, truncated = batch.terminated[:, burn:], batch.truncated[:, burn:]
-        if c.bootstrap_lost:  # see TrainConfig.bootstrap_lost
+        if c.learner.bootstrap_lost:  # see LearnerConfig.bootstrap_lost
             terminated, truncated = jnp.zeros_like(terminated), truncated | terminated
         td = TDBatch(q_target=sg(q_target[:, burn:]), action=batch.action[:, burn:],
-                     reward=sg(batch.reward[:, burn:] * c.reward_scale), terminated=terminated, truncated=truncated,
-                     mask=batch.loss_mask[:, burn:])
+                     reward=sg(batch.reward[:, burn:] * c.learner.reward_scale), terminated=terminated,
+                     truncated=truncated, mask=batch.loss_mask[:, burn:])
         return PreparedBatch(obs=obs[:, burn:], reset=batch.reset[:, burn:], state=sg(state), td=td)
 
     def trained_loss(self, params, prepared: PreparedBatch):
@@ -304,13 +300,13 @@ class Trainer:
 
     def update(self, learner: LearnerState, replay_state, key: jax.Array):
         """One gradient step on a fresh sample. Returns (learner, LearnStats)."""
-        c = self.config
+        c = self.config.learner
         k_sample, k_aug = jax.random.split(key)
         batch = self._shard_batch(self.replay.sample(replay_state, k_sample))
         prepared = self.prepare(learner.params, learner.target_params, batch, k_aug)
         (loss, aux), grads = jax.value_and_grad(self.trained_loss, has_aux=True)(learner.params, prepared)
-        if c.debug_nan_at_update >= 0:
-            poison = learner.updates >= c.debug_nan_at_update
+        if self.debug_nan_at_update >= 0:
+            poison = learner.updates >= self.debug_nan_at_update
             loss = jnp.where(poison, jnp.nan, loss)
             grads = jax.tree.map(lambda g: jnp.where(poison, jnp.nan, g), grads)
         updates, opt_state = self.optimizer.update(grads, learner.opt_state, learner.params)
@@ -327,7 +323,7 @@ class Trainer:
     def learn(self, learner: LearnerState, replay_state, env_steps: jax.Array, key: jax.Array):
         """``updates_per_iteration`` steps if the replay is ready, else none. Returns (learner, summed LearnStats)."""
         c = self.config
-        ready = (env_steps >= c.learning_starts) & self.replay.can_sample(replay_state)
+        ready = (env_steps >= c.learner.learning_starts) & self.replay.can_sample(replay_state)
 
         def do(learner):
             learner, stats = jax.lax.scan(lambda l, k: self.update(l, replay_state, k), learner,
@@ -358,7 +354,7 @@ class Trainer:
     def chunk(self, runner: RunnerState) -> tuple[RunnerState, ChunkMetrics]:
         """``iterations_per_chunk`` iterations in one lax.scan (jit this; metrics are [iterations])."""
         runner, metrics = jax.lax.scan(lambda r, _: self.iteration(r), runner, None,
-                                       length=self.config.iterations_per_chunk)
+                                       length=self.config.run.iterations_per_chunk)
         return runner.replace(chunk=runner.chunk + 1), metrics
 
     def train(self, key: jax.Array) -> dict:

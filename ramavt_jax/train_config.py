@@ -1,62 +1,63 @@
-"""Training configuration: `TrainConfig` (frozen, validated) and the named presets 'quick', 'paper', 'smoke'."""
+"""Training configuration: one frozen, validated config per concern (``acting``, ``replay``, ``learner``, ``run``,
+beside the env's and the network's own), composed into `TrainConfig`, and the named presets.
+
+Each group checks its own values when it is built; `TrainConfig` checks once, at construction, how the groups fit
+together (window vs replay rows, whole gradient steps per iteration, ...). ``TrainConfig.to_dict`` is the
+config.json form and ``TrainConfig.from_dict`` reads it back, including the flat form written before the groups.
+"""
 
 from __future__ import annotations
 
 import dataclasses
+import typing
 from typing import Any
 
 import numpy as np
 
 from ramavt_jax import env as env_lib
 from ramavt_jax.augment import AugmentConfig
+from ramavt_jax.losses import TDConfig
 from ramavt_jax.network import NetworkConfig
 from ramavt_jax.render import CameraConfig
+from ramavt_jax.replay import ReplayConfig
+
+__all__ = ["ActingConfig", "ReplayConfig", "LearnerConfig", "RunConfig", "TrainConfig", "FLAT_NAMES",
+           "upgrade_dict", "PRESETS", "preset"]
 
 
-def _fail(msg: str):
-    raise ValueError(f"TrainConfig: {msg}")
-
-
-def _integer(config, name: str, lo: int | None = None) -> None:
-    v = getattr(config, name)
-    if isinstance(v, bool) or not isinstance(v, (int, np.integer)):
-        _fail(f"{name} must be an int, got {v!r}")
-    if lo is not None and v < lo:
-        _fail(f"{name} must be >= {lo}, got {v}")
+def _check_ints(owner: str, config, lows: dict[str, int]) -> None:
+    """``{field: lowest value}``: each must be an int (not a bool) and at least that; one-line ValueError."""
+    for name, lo in lows.items():
+        v = getattr(config, name)
+        if isinstance(v, bool) or not isinstance(v, (int, np.integer)):
+            raise ValueError(f"{owner}: {name} must be an int, got {v!r}")
+        if v < lo:
+            raise ValueError(f"{owner}: {name} must be >= {lo}, got {v}")
 
 
 @dataclasses.dataclass(frozen=True)
-class TrainConfig:
-    """Everything a training run needs. Frozen; validated on construction. Sizes in env steps are totals over envs.
-
-    Derived values are properties (nothing is written back): ``sequence_length``, ``env_steps_per_iteration``,
-    ``updates_per_iteration``, ``env_steps_per_chunk``, ``num_chunks``.
-    """
-
-    env: env_lib.EnvConfig = env_lib.EnvConfig(camera=CameraConfig(resolution=64), autoreset="next_step")
-    env_params: tuple = ()  # ((name, value), ...) overrides of EnvParams for TRAINING (evaluation uses eval_params)
-    network: NetworkConfig = NetworkConfig()
-    # ---- acting
+class ActingConfig:
+    """The acting envs and their epsilon-greedy exploration."""
 
     num_envs: int = 64  # parallel envs (they all act every step)
     rollout_steps: int = 20  # env steps per env per iteration
-    iterations_per_chunk: int = 25  # iterations per jitted chunk (the host logs and checkpoints between chunks)
-    total_env_steps: int = 1_280_000  # training length, env steps over all envs (a multiple of a chunk's)
     eps_start: float = 0.9  # epsilon-greedy from eps_start to eps_end (the original schedule: 0.9 -> 0.1)
     eps_end: float = 0.1  # final exploration rate
     eps_decay_steps: int = 800_000  # linear over this many env steps (all envs together)
-    # ---- replay
 
-    replay_capacity: int = 64_000  # env steps kept (all envs); divisible by num_envs
-    burn_in: int = 10  # window steps run from the stored recurrent state without gradient before the trained ones
-    train_len: int = 20  # trained transitions per sampled window (window = burn_in + train_len + 1 observations)
-    sample_period: int = 1  # stride between admissible window starts
-    batch_size: int = 32  # windows per gradient step
-    learning_starts: int = 20_000  # env steps stored before the first update
-    obs_dtype: str = "uint8"  # replay storage of observations
+    def __post_init__(self):
+        _check_ints("ActingConfig", self, dict(num_envs=1, rollout_steps=1, eps_decay_steps=0))
+        for name in ("eps_start", "eps_end"):
+            if not 0.0 <= getattr(self, name) <= 1.0:
+                raise ValueError(f"ActingConfig: {name} must be in [0, 1], got {getattr(self, name)}")
+
+
+@dataclasses.dataclass(frozen=True)
+class LearnerConfig:
+    """When and how much the learner trains, the optimiser, the TD targets and the sampled windows' augmentation."""
+
+    learning_starts: int = 20_000  # env steps (all envs) before the first update
     replay_ratio: float = 1.0  # trained frames (batch_size * train_len) per env frame
-    # ---- learner
-
     lr: float = 5e-4  # Adam learning rate
     adam_eps: float = 1e-4  # Adam epsilon
     max_grad_norm: float = 10.0  # 0 = no clipping
@@ -75,36 +76,139 @@ class TrainConfig:
     # the lost final observation values it as if the episode went on, which removes that incentive. The env's
     # reward and episode rules (and therefore evaluation) are unchanged.
     bootstrap_lost: bool = False
-    augment: bool = False  # augment the sampled windows' images (augment_config)
-    # augment.AugmentConfig; None = cutout only. Crops, flips and rotations move the target in the image, and the
-    # target's image position and size are the state here: they would change the correct action.
-    augment_config: Any = None
-    # ---- host driver
+    augment: bool = False  # augment the sampled windows' images with augment_config
+    # Cutout only by default: crops, flips and rotations move the target in the image, and the target's image
+    # position and size are the state here, so they would change the correct action.
+    augment_config: AugmentConfig = AugmentConfig(crop=False, flip=False, rot90=False)
 
+    def __post_init__(self):
+        _check_ints("LearnerConfig", self, dict(learning_starts=0, n_step=1, target_period=1))
+        fail = lambda msg: ValueError(f"LearnerConfig: {msg}")  # noqa: E731
+        if not 0.0 <= self.gamma <= 1.0:
+            raise fail(f"gamma must be in [0, 1], got {self.gamma}")
+        if not self.lr > 0 or not self.adam_eps > 0:
+            raise fail(f"lr and adam_eps must be > 0, got lr={self.lr}, adam_eps={self.adam_eps}")
+        if not self.max_grad_norm >= 0:
+            raise fail(f"max_grad_norm must be >= 0 (0 = no clipping), got {self.max_grad_norm}")
+        if not self.reward_scale > 0:
+            raise fail(f"reward_scale must be > 0, got {self.reward_scale}")
+        if self.huber_delta is not None and not self.huber_delta > 0:
+            raise fail(f"huber_delta must be None (MSE) or > 0, got {self.huber_delta}")
+        if self.target_update not in ("polyak", "period"):
+            raise fail(f"target_update must be 'polyak' or 'period', got {self.target_update!r}")
+        if not 0.0 < self.polyak_tau <= 1.0:
+            raise fail(f"polyak_tau must be in (0, 1], got {self.polyak_tau}")
+        if not self.replay_ratio > 0:
+            raise fail(f"replay_ratio must be > 0, got {self.replay_ratio}")
+        if not isinstance(self.augment_config, AugmentConfig):
+            raise fail(f"augment_config must be an augment.AugmentConfig, got {type(self.augment_config).__name__}")
+
+    @property
+    def td(self) -> TDConfig:
+        """The loss's view of these settings (losses.TDConfig)."""
+        return TDConfig(gamma=self.gamma, n_step=self.n_step, double_q=self.double_q,
+                        value_rescale=self.value_rescale, huber_delta=self.huber_delta)
+
+
+@dataclasses.dataclass(frozen=True)
+class RunConfig:
+    """The run's length and what the host does between chunks: logs, checkpoints, the final evaluation."""
+
+    total_env_steps: int = 1_280_000  # training length, env steps over all envs (a multiple of a chunk's)
+    iterations_per_chunk: int = 25  # iterations per jitted chunk (the host logs and checkpoints between chunks)
     eval_episodes: int = 32  # per split at the end (0 = no final evaluation)
     eval_max_steps: int = 1000  # episode cap of the final evaluation
     checkpoint_every_chunks: int = 10  # 0 = only at the end / on interrupt
     checkpoint_replay: bool = True  # store the replay buffer too: resume is bit-exact
     keep_checkpoints: int = 2  # the newest checkpoints kept (older ones are deleted)
     tensorboard: bool = False  # also log to out/tb (needs tensorboardX)
-    debug_nan_at_update: int = -1  # tests: the loss becomes NaN from this gradient step on (-1 = off)
+
+    def __post_init__(self):
+        _check_ints("RunConfig", self, dict(total_env_steps=1, iterations_per_chunk=1, eval_episodes=0,
+                                            eval_max_steps=1, checkpoint_every_chunks=0, keep_checkpoints=1))
+
+
+_GROUPS = {"acting": ActingConfig, "replay": ReplayConfig, "learner": LearnerConfig, "run": RunConfig}
+# {name: (group, field)}: every group field by its own name (the names are unique across the groups), plus the two
+# fields the flat TrainConfig (before the groups) named differently. Routes TrainConfig.override's keywords, the
+# fields of an old config.json and the flat command-line flags of earlier versions.
+FLAT_NAMES = {f.name: (g, f.name) for g, cls in _GROUPS.items() for f in dataclasses.fields(cls)}
+FLAT_NAMES.update(replay_capacity=("replay", "capacity_steps"), sample_period=("replay", "period"))
+_DROPPED = ("debug_nan_at_update",)  # flat fields that are no longer configuration (a test hook of the trainer)
+
+
+def upgrade_dict(data: dict) -> dict:
+    """A config dict (``TrainConfig.to_dict()`` form) with any flat fields of the format before the groups moved
+    into their groups; a dict already in the current form comes back equal. Fields it lacks stay absent."""
+    out: dict = {}
+    for key, value in data.items():
+        if key in _DROPPED:
+            continue
+        if key in FLAT_NAMES:
+            group, name = FLAT_NAMES[key]
+            out.setdefault(group, {})[name] = value
+        elif key in _GROUPS and isinstance(value, dict):
+            out.setdefault(key, {}).update(value)
+        else:
+            out[key] = value
+    learner = out.get("learner", {})
+    if learner.get("augment_config", {}) is None:  # the flat format's "no config" meant the default (cutout only)
+        del learner["augment_config"]
+    return out
+
+
+def _build(cls, data: dict):
+    """A (nested) config dataclass from its dict form: lists become tuples; missing fields take their defaults."""
+    hints = typing.get_type_hints(cls)
+    kwargs = {}
+    for f in dataclasses.fields(cls):
+        if f.name in data:
+            value, sub = data[f.name], hints.get(f.name)
+            kwargs[f.name] = _build(sub, value) if dataclasses.is_dataclass(sub) and isinstance(value, dict) \
+                else _tuplify(value)
+    return cls(**kwargs)
+
+
+def _tuplify(x):
+    return tuple(_tuplify(v) for v in x) if isinstance(x, list) else x
+
+
+def _fail(msg: str):
+    raise ValueError(f"TrainConfig: {msg}")
+
+
+@dataclasses.dataclass(frozen=True)
+class TrainConfig:
+    """Everything a training run needs: the groups, composed. Frozen; validated once on construction (each group
+    checks its own values; this class how they fit together). Sizes in env steps are totals over envs.
+
+    Derived values are properties (nothing is written back): ``sequence_length``, ``env_steps_per_iteration``,
+    ``updates_per_iteration``, ``env_steps_per_chunk``, ``num_chunks``. ``override(lr=1e-3, ...)`` replaces group
+    fields by their own names.
+    """
+
+    env: env_lib.EnvConfig = env_lib.EnvConfig(camera=CameraConfig(resolution=64), autoreset="next_step")
+    env_params: tuple = ()  # ((name, value), ...) overrides of EnvParams for TRAINING (evaluation uses eval_params)
+    network: NetworkConfig = NetworkConfig()
+    acting: ActingConfig = ActingConfig()
+    replay: ReplayConfig = ReplayConfig()
+    learner: LearnerConfig = LearnerConfig()
+    run: RunConfig = RunConfig()
 
     def __post_init__(self):
         if isinstance(self.env_params, dict):
             object.__setattr__(self, "env_params", tuple(sorted(self.env_params.items())))
         self._check_parts()
-        self._check_values()
         self._check_sizes()
 
     def _check_parts(self) -> None:
-        """The nested configs and overrides: types, and what the trainer supports."""
-        if not isinstance(self.env, env_lib.EnvConfig):
-            _fail(f"env must be an env.EnvConfig, got {type(self.env).__name__}")
+        """The groups' types, and what the trainer supports of the env and network configs."""
+        for name, cls in dict(env=env_lib.EnvConfig, network=NetworkConfig, **_GROUPS).items():
+            if not isinstance(getattr(self, name), cls):
+                _fail(f"{name} must be a {cls.__name__}, got {type(getattr(self, name)).__name__}")
         if self.env.autoreset != "next_step":
             _fail("env.autoreset must be 'next_step' for training (the final observation of every episode is stored "
                   f"and truncation bootstraps from it), got {self.env.autoreset!r}")
-        if not isinstance(self.network, NetworkConfig):
-            _fail(f"network must be a network.NetworkConfig, got {type(self.network).__name__}")
         if self.network.num_actions != env_lib.NUM_ACTIONS:
             _fail(f"network.num_actions={self.network.num_actions} but the env has {env_lib.NUM_ACTIONS} actions")
         if self.network.norm == "batch":
@@ -114,89 +218,75 @@ class TrainConfig:
         for item in self.env_params:
             if not (isinstance(item, tuple) and len(item) == 2 and item[0] in known):
                 _fail(f"env_params must be (name, value) pairs naming EnvParams fields {sorted(known)}, got {item!r}")
-        if self.augment and self.augment_config is not None and not isinstance(self.augment_config, AugmentConfig):
-            _fail(f"augment_config must be an augment.AugmentConfig, got {type(self.augment_config).__name__}")
-
-    def _check_values(self) -> None:
-        """Each number on its own: types and ranges."""
-        for name in ("num_envs", "rollout_steps", "iterations_per_chunk", "total_env_steps", "replay_capacity",
-                     "train_len", "sample_period", "batch_size", "n_step", "target_period", "eval_max_steps",
-                     "keep_checkpoints"):
-            _integer(self, name, 1)
-        for name in ("eps_decay_steps", "burn_in", "learning_starts", "eval_episodes", "checkpoint_every_chunks"):
-            _integer(self, name, 0)
-        _integer(self, "debug_nan_at_update", -1)
-        for name in ("eps_start", "eps_end", "gamma"):
-            if not 0.0 <= getattr(self, name) <= 1.0:
-                _fail(f"{name} must be in [0, 1], got {getattr(self, name)}")
-        if not self.lr > 0 or not self.adam_eps > 0:
-            _fail(f"lr and adam_eps must be > 0, got lr={self.lr}, adam_eps={self.adam_eps}")
-        if not self.max_grad_norm >= 0:
-            _fail(f"max_grad_norm must be >= 0 (0 = no clipping), got {self.max_grad_norm}")
-        if not self.reward_scale > 0:
-            _fail(f"reward_scale must be > 0, got {self.reward_scale}")
-        if self.huber_delta is not None and not self.huber_delta > 0:
-            _fail(f"huber_delta must be None (MSE) or > 0, got {self.huber_delta}")
-        if self.target_update not in ("polyak", "period"):
-            _fail(f"target_update must be 'polyak' or 'period', got {self.target_update!r}")
-        if not 0.0 < self.polyak_tau <= 1.0:
-            _fail(f"polyak_tau must be in (0, 1], got {self.polyak_tau}")
-        if self.obs_dtype not in ("uint8", "float16", "float32"):
-            _fail(f"obs_dtype must be 'uint8', 'float16' or 'float32', got {self.obs_dtype!r}")
-        if not self.replay_ratio > 0:
-            _fail(f"replay_ratio must be > 0, got {self.replay_ratio}")
 
     def _check_sizes(self) -> None:
-        """How the sizes fit together: chunks, replay rows, windows, gradient steps per iteration."""
-        if self.n_step > self.train_len:
-            _fail(f"n_step={self.n_step} must be <= train_len={self.train_len}")
+        """How the groups' sizes fit together: chunks, replay rows, windows, gradient steps per iteration."""
+        a, r, lr, run = self.acting, self.replay, self.learner, self.run
+        if lr.n_step > r.train_len:
+            _fail(f"learner.n_step={lr.n_step} must be <= replay.train_len={r.train_len}")
         n = self.env_steps_per_chunk
-        if self.total_env_steps % n:
-            _fail(f"total_env_steps={self.total_env_steps} must be a multiple of the env steps per chunk "
-                  f"(num_envs * rollout_steps * iterations_per_chunk = {n}); try "
-                  f"{max(1, round(self.total_env_steps / n)) * n}")
-        if self.replay_capacity % self.num_envs:
-            _fail(f"replay_capacity={self.replay_capacity} must be divisible by num_envs={self.num_envs}")
-        per_env = self.replay_capacity // self.num_envs
-        if per_env < max(self.sequence_length, self.rollout_steps):
-            _fail(f"replay_capacity={self.replay_capacity} leaves {per_env} steps per env, fewer than the window "
-                  f"(burn_in + train_len + 1 = {self.sequence_length}) or rollout_steps ({self.rollout_steps})")
-        if self.sample_period > self.sequence_length:
-            _fail(f"sample_period={self.sample_period} must be <= the window length {self.sequence_length}")
-        if self.learning_starts > self.replay_capacity:
-            _fail(f"learning_starts={self.learning_starts} exceeds replay_capacity={self.replay_capacity}")
-        if self.learning_starts > self.total_env_steps:
-            _fail(f"learning_starts={self.learning_starts} exceeds total_env_steps={self.total_env_steps}: nothing "
-                  f"would be learned")
-        exact = self.replay_ratio * self.env_steps_per_iteration / (self.batch_size * self.train_len)
+        if run.total_env_steps % n:
+            _fail(f"run.total_env_steps={run.total_env_steps} must be a multiple of the env steps per chunk "
+                  f"(acting.num_envs * acting.rollout_steps * run.iterations_per_chunk = {n}); try "
+                  f"{max(1, round(run.total_env_steps / n)) * n}")
+        if r.capacity_steps % a.num_envs:
+            _fail(f"replay.capacity_steps={r.capacity_steps} must be divisible by acting.num_envs={a.num_envs}")
+        per_env = r.capacity_steps // a.num_envs
+        if per_env < max(r.sequence_length, a.rollout_steps):
+            _fail(f"replay.capacity_steps={r.capacity_steps} leaves {per_env} steps per env, fewer than the window "
+                  f"(burn_in + train_len + 1 = {r.sequence_length}) or acting.rollout_steps ({a.rollout_steps})")
+        if lr.learning_starts > r.capacity_steps:
+            _fail(f"learner.learning_starts={lr.learning_starts} exceeds replay.capacity_steps={r.capacity_steps}")
+        if lr.learning_starts > run.total_env_steps:
+            _fail(f"learner.learning_starts={lr.learning_starts} exceeds run.total_env_steps={run.total_env_steps}: "
+                  f"nothing would be learned")
+        exact = lr.replay_ratio * self.env_steps_per_iteration / (r.batch_size * r.train_len)
         if exact < 1 - 1e-9 or abs(exact - round(exact)) > 1e-6:
-            _fail(f"replay_ratio={self.replay_ratio} gives {exact:.4g} gradient steps per iteration (replay_ratio * "
-                  f"num_envs * rollout_steps / (batch_size * train_len)); it must be a whole number >= 1")
-        if not self.network.recurrent and self.burn_in < self.network.frame_stack - 1:
+            _fail(f"learner.replay_ratio={lr.replay_ratio} gives {exact:.4g} gradient steps per iteration "
+                  f"(replay_ratio * num_envs * rollout_steps / (batch_size * train_len)); it must be a whole number "
+                  f">= 1")
+        if not self.network.recurrent and r.burn_in < self.network.frame_stack - 1:
             _fail(f"variant 'drlavt' rebuilds its {self.network.frame_stack}-frame stack from the window's own "
-                  f"observations during burn-in: burn_in must be >= frame_stack - 1 = {self.network.frame_stack - 1}, "
-                  f"got {self.burn_in}")
+                  f"observations during burn-in: replay.burn_in must be >= frame_stack - 1 = "
+                  f"{self.network.frame_stack - 1}, got {r.burn_in}")
 
     # ---- derived (read-only)
     @property
     def sequence_length(self) -> int:
-        return self.burn_in + self.train_len + 1
+        return self.replay.sequence_length
 
     @property
     def env_steps_per_iteration(self) -> int:
-        return self.num_envs * self.rollout_steps
+        return self.acting.num_envs * self.acting.rollout_steps
 
     @property
     def updates_per_iteration(self) -> int:
-        return int(round(self.replay_ratio * self.env_steps_per_iteration / (self.batch_size * self.train_len)))
+        per_update = self.replay.batch_size * self.replay.train_len
+        return int(round(self.learner.replay_ratio * self.env_steps_per_iteration / per_update))
 
     @property
     def env_steps_per_chunk(self) -> int:
-        return self.env_steps_per_iteration * self.iterations_per_chunk
+        return self.env_steps_per_iteration * self.run.iterations_per_chunk
 
     @property
     def num_chunks(self) -> int:
-        return self.total_env_steps // self.env_steps_per_chunk
+        return self.run.total_env_steps // self.env_steps_per_chunk
+
+    # ---- changing and serialising
+    def override(self, **fields: Any) -> "TrainConfig":
+        """A copy with fields replaced: this class's own (``env=``, ``learner=``, ...) and any group's field by its
+        own name (``lr=1e-3`` is ``learner.lr``; see FLAT_NAMES). Validated once, as a whole."""
+        top = {k: v for k, v in fields.items() if k in _TOP_FIELDS}
+        groups: dict[str, dict] = {}
+        for key, value in fields.items():
+            if key not in _TOP_FIELDS:
+                if key not in FLAT_NAMES:
+                    _fail(f"unknown field {key!r}: fields are {sorted(_TOP_FIELDS)} or a group's field by name")
+                group, name = FLAT_NAMES[key]
+                groups.setdefault(group, {})[name] = value
+        for group, changes in groups.items():
+            top[group] = dataclasses.replace(top.get(group, getattr(self, group)), **changes)
+        return dataclasses.replace(self, **top)
 
     def to_dict(self) -> dict:
         """JSON-friendly nested dict (for config.json and checkpoint metadata)."""
@@ -210,6 +300,15 @@ class TrainConfig:
             return x
         return conv(self)
 
+    @classmethod
+    def from_dict(cls, data: dict) -> "TrainConfig":
+        """The config of a ``to_dict()`` dict (config.json's "config"), current or flat (older) form: lists become
+        tuples, fields it lacks take their defaults, unknown keys are ignored."""
+        return _build(cls, upgrade_dict(data))
+
+
+_TOP_FIELDS = {f.name for f in dataclasses.fields(TrainConfig)}
+
 
 def _quick() -> TrainConfig:
     """The README main job (the earlier, cheaper-encoder version took 5.6 min on 2 CPU cores): the task at 32x32 depth with a small RAMAVT
@@ -221,19 +320,19 @@ def _quick() -> TrainConfig:
         network=NetworkConfig(variant="ramavt", channels=(16, 32, 32), kernels=(3, 3, 3), strides=(2, 1, 1),
                               pools=(True, True, False), se_reduction=4, attention_heads=4, dense=128, lstm=128,
                               lstm_layers=1, head=128, coord_channels=True, pooled_skip=True),
-        num_envs=64, rollout_steps=20, iterations_per_chunk=25, total_env_steps=384_000,
-        eps_start=1.0, eps_end=0.05, eps_decay_steps=200_000,
-        replay_capacity=64_000, burn_in=10, train_len=20, batch_size=32, learning_starts=10_240,
-        replay_ratio=2.0, lr=5e-4, gamma=0.97, n_step=5, reward_scale=0.1, target_update="polyak", polyak_tau=0.01,
-        bootstrap_lost=True, eval_episodes=32, checkpoint_every_chunks=5,
+        acting=ActingConfig(num_envs=64, rollout_steps=20, eps_start=1.0, eps_end=0.05, eps_decay_steps=200_000),
+        replay=ReplayConfig(capacity_steps=64_000, burn_in=10, train_len=20, batch_size=32),
+        learner=LearnerConfig(learning_starts=10_240, replay_ratio=2.0, lr=5e-4, gamma=0.97, n_step=5,
+                              reward_scale=0.1, target_update="polyak", polyak_tau=0.01, bootstrap_lost=True),
+        run=RunConfig(total_env_steps=384_000, iterations_per_chunk=25, eval_episodes=32, checkpoint_every_chunks=5),
     )
 
 
 def _long() -> TrainConfig:
     """The quick preset with 3x the env steps (1.15M), exploration decaying over 400k steps and a 128k-step replay:
     3x the quick preset's compute. The shipped pretrained agent was trained with it."""
-    return dataclasses.replace(_quick(), total_env_steps=1_152_000, eps_decay_steps=400_000, replay_capacity=128_000,
-                               checkpoint_every_chunks=6)
+    return _quick().override(total_env_steps=1_152_000, eps_decay_steps=400_000, capacity_steps=128_000,
+                             checkpoint_every_chunks=6)
 
 
 def _paper() -> TrainConfig:
@@ -243,11 +342,12 @@ def _paper() -> TrainConfig:
     return TrainConfig(
         env=env_lib.EnvConfig(camera=CameraConfig(resolution=256), autoreset="next_step"),
         network=NetworkConfig(variant="ramavt"),
-        num_envs=16, rollout_steps=20, iterations_per_chunk=10, total_env_steps=2_000_000,
-        eps_start=0.9, eps_end=0.1, eps_decay_steps=1_000_000,
-        replay_capacity=50_000, burn_in=4, train_len=8, batch_size=64, learning_starts=10_000,
-        replay_ratio=1.6, lr=1e-4, gamma=0.99, n_step=1, double_q=False, reward_scale=1.0, target_update="period",
-        target_period=1000, checkpoint_every_chunks=20, eval_episodes=32,
+        acting=ActingConfig(num_envs=16, rollout_steps=20, eps_start=0.9, eps_end=0.1, eps_decay_steps=1_000_000),
+        replay=ReplayConfig(capacity_steps=50_000, burn_in=4, train_len=8, batch_size=64),
+        learner=LearnerConfig(learning_starts=10_000, replay_ratio=1.6, lr=1e-4, gamma=0.99, n_step=1, double_q=False,
+                              reward_scale=1.0, target_update="period", target_period=1000),
+        run=RunConfig(total_env_steps=2_000_000, iterations_per_chunk=10, checkpoint_every_chunks=20,
+                      eval_episodes=32),
     )
 
 
@@ -257,9 +357,11 @@ def _smoke() -> TrainConfig:
         env=env_lib.EnvConfig(camera=CameraConfig(resolution=16), autoreset="next_step"),
         network=NetworkConfig(variant="origin", channels=(8, 8), kernels=(3, 3), strides=(1, 1), pools=(True, True),
                               dense=32, lstm=32, lstm_layers=1, head=32),
-        num_envs=8, rollout_steps=10, iterations_per_chunk=4, total_env_steps=1280, eps_decay_steps=1280,
-        replay_capacity=800, burn_in=3, train_len=5, batch_size=4, learning_starts=160, replay_ratio=0.5, n_step=2,
-        eval_episodes=4, eval_max_steps=50, checkpoint_every_chunks=2,
+        acting=ActingConfig(num_envs=8, rollout_steps=10, eps_decay_steps=1280),
+        replay=ReplayConfig(capacity_steps=800, burn_in=3, train_len=5, batch_size=4),
+        learner=LearnerConfig(learning_starts=160, replay_ratio=0.5, n_step=2),
+        run=RunConfig(total_env_steps=1280, iterations_per_chunk=4, eval_episodes=4, eval_max_steps=50,
+                      checkpoint_every_chunks=2),
     )
 
 
@@ -267,8 +369,8 @@ PRESETS = {"quick": _quick, "long": _long, "paper": _paper, "smoke": _smoke}
 
 
 def preset(name: str, **overrides: Any) -> TrainConfig:
-    """A named configuration ('quick' | 'paper' | 'smoke'); keyword overrides replace top-level fields."""
+    """A named configuration ('quick' | 'long' | 'paper' | 'smoke'); keyword overrides as in TrainConfig.override."""
     if name not in PRESETS:
         raise ValueError(f"unknown preset {name!r}; choose one of {sorted(PRESETS)}")
     cfg = PRESETS[name]()
-    return dataclasses.replace(cfg, **overrides) if overrides else cfg
+    return cfg.override(**overrides) if overrides else cfg

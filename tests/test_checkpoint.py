@@ -1,7 +1,6 @@
 """Checkpoints: exact round trip, bit-identical resume, NaN stop keeps the last good checkpoint, Ctrl-C saves,
 clear errors for missing checkpoints and mismatched configs."""
 
-import dataclasses
 import json
 from pathlib import Path
 
@@ -16,7 +15,7 @@ from ramavt_jax.cli.train import train_and_evaluate
 from ramavt_jax.training import driver, run_folder
 from ramavt_jax.training.checkpoint import CheckpointNotFoundError, CheckpointStore, has_checkpoint
 
-SMOKE = dataclasses.replace(T.preset("smoke"), eval_episodes=0, checkpoint_every_chunks=1)
+SMOKE = T.preset("smoke", eval_episodes=0, checkpoint_every_chunks=1)
 
 
 @struct.dataclass
@@ -82,9 +81,9 @@ def test_resume_is_bit_identical(tmp_path):
 
 
 def test_nan_stops_training_and_keeps_the_last_good_checkpoint(tmp_path):
-    cfg = dataclasses.replace(SMOKE, debug_nan_at_update=16)  # updates 0-5 in chunk 1, then 8 per chunk
+    cfg = SMOKE
     with pytest.raises(T.TrainingDivergedError, match=r"diverged at chunk 3 .*NOT saved.*chunk 2"):
-        driver.run(cfg, tmp_path / "nan", progress=False)
+        driver.run(cfg, tmp_path / "nan", progress=False, debug_nan_at_update=16)  # updates 0-5, then 8 per chunk
     store = CheckpointStore(tmp_path / "nan" / "checkpoints", create=False)
     assert store.latest_step() == 2
     trainer = T.Trainer(cfg)
@@ -140,23 +139,54 @@ def test_other_config_is_refused_before_writing_and_a_run_can_be_extended(tmp_pa
     out = tmp_path / "run"
     driver.run(SMOKE, out, seed=3, progress=False, max_chunks=2)
     before = (out / "config.json").read_bytes()
-    with pytest.raises(run_folder.RunFolderError, match=r"another config: lr 0.0005 -> 0.001.*--no-resume") as e:
-        driver.run(dataclasses.replace(SMOKE, lr=1e-3), out, seed=3, progress=False)
+    with pytest.raises(run_folder.RunFolderError, match=r"another config: learner.lr 0.0005 -> 0.001.*--no-resume") \
+            as e:
+        driver.run(SMOKE.override(lr=1e-3), out, seed=3, progress=False)
     assert len(str(e.value).splitlines()) == 1
     assert (out / "config.json").read_bytes() == before  # nothing was overwritten
-    longer = dataclasses.replace(SMOKE, total_env_steps=2 * SMOKE.total_env_steps)
+    longer = SMOKE.override(total_env_steps=2 * SMOKE.run.total_env_steps)
     done = driver.run(longer, out, seed=3, progress=False)
     assert done["chunks_done"] == 2 * SMOKE.num_chunks
-    assert json.loads((out / "config.json").read_text())["config"]["total_env_steps"] == longer.total_env_steps
+    assert json.loads((out / "config.json").read_text())["config"]["run"]["total_env_steps"] == 2560
     rows = _rows(out / "metrics.jsonl")
     assert [r["chunk"] for r in rows] == list(range(1, 2 * SMOKE.num_chunks + 1))
     ref = _rows(Path(full_run["out_dir"]) / "metrics.jsonl")
     assert json.dumps(rows[:SMOKE.num_chunks]) == json.dumps(ref)  # the first half is the reference run
 
 
+def _flat(config_dict: dict) -> dict:
+    """A config dict in the flat form written before the config groups (the shipped agent's config.json)."""
+    flat = {k: v for k, v in config_dict.items() if k not in ("acting", "replay", "learner", "run")}
+    for group in ("acting", "replay", "learner", "run"):
+        flat.update(config_dict[group])
+    flat["replay_capacity"], flat["sample_period"] = flat.pop("capacity_steps"), flat.pop("period")
+    del flat["state_dtype"], flat["min_fill_steps"]
+    return dict(flat, augment_config=None, debug_nan_at_update=-1)
+
+
+def test_a_run_folder_written_before_the_config_groups_resumes(tmp_path, full_run):
+    """Its config.json and checkpoint metadata hold the flat config: the resume compares them in the new form."""
+    out = tmp_path / "run"
+    driver.run(SMOKE, out, seed=3, progress=False, max_chunks=2)
+    saved = json.loads((out / "config.json").read_text())
+    (out / "config.json").write_text(json.dumps(dict(saved, config=_flat(saved["config"]))))
+    metas = [p for p in (out / "checkpoints").rglob("*") if p.is_file() and b'"_num_leaves"' in p.read_bytes()]
+    assert metas
+    for p in metas:
+        meta = json.loads(p.read_text())
+        p.write_text(json.dumps(dict(meta, config=_flat(meta["config"]))))
+    rest = driver.run(SMOKE, out, seed=3, progress=False)
+    assert rest["chunks_done"] == SMOKE.num_chunks
+    ref = _rows(Path(full_run["out_dir"]) / "metrics.jsonl")
+    assert json.dumps(_rows(out / "metrics.jsonl")) == json.dumps(ref)  # bit-exact continuation
+    (out / "config.json").write_text(json.dumps(dict(saved, config=_flat(saved["config"]))))
+    with pytest.raises(run_folder.RunFolderError, match=r"learner.lr 0.0005 -> 0.001"):  # still compared
+        driver.run(SMOKE.override(lr=1e-3), out, seed=3, progress=False)
+
+
 def test_damaged_newest_checkpoint_falls_back_to_the_older_one(tmp_path, full_run, capsys):
     out = tmp_path / "run"
-    cfg = dataclasses.replace(SMOKE, keep_checkpoints=2)
+    cfg = SMOKE.override(keep_checkpoints=2)
     driver.run(cfg, out, seed=3, progress=False, max_chunks=3)  # checkpoints 2 and 3
     biggest = max((p for p in (out / "checkpoints" / "3").rglob("*") if p.is_file()), key=lambda p: p.stat().st_size)
     biggest.write_bytes(biggest.read_bytes()[: biggest.stat().st_size // 2])  # a truncated data file
@@ -201,7 +231,7 @@ def test_sigterm_saves_the_chunk_in_flight_and_resume_is_bit_identical(tmp_path,
                 os.kill(os.getpid(), signal.SIGTERM)  # what a scheduler sends; handled between chunks
         return real(x)
 
-    cfg = dataclasses.replace(SMOKE, checkpoint_every_chunks=0)  # only the signal makes a checkpoint
+    cfg = SMOKE.override(checkpoint_every_chunks=0)  # only the signal makes a checkpoint
     monkeypatch.setattr(driver.distributed, "local_copy", sigterm_during_second_chunk)
     with pytest.raises(driver.TrainingInterrupted) as e:
         driver.run(cfg, tmp_path / "term", seed=3, progress=False)

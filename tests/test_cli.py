@@ -91,7 +91,7 @@ BAD_INPUTS = {  # id: (arguments, {tmp} filled in, what the one-line message mus
     "render steps zero": (["render", "--steps", "0"], "--steps must be an integer >= 1"),
     "render out is a folder": (["render", "--steps", "2", "--out", "{tmp}/a_folder"], "must end in .gif or .mp4"),
     "render out under a file": (["render", "--steps", "2", "--out", "{tmp}/a_file/x.gif"], "is a file"),
-    "total steps negative": (TRAIN + ["--total-env-steps", "-320"], "total_env_steps must be >= 1"),
+    "total steps negative": (TRAIN + ["--run.total-env-steps", "-320"], "total_env_steps must be >= 1"),
     "total steps not a multiple": (TRAIN + ["--total-env-steps", "1000"], "must be a multiple"),
     "bad learning rate": (TRAIN + ["--lr", "-1"], "lr and adam_eps must be > 0"),
     "seeds zero": (TRAIN + ["--seeds", "0"], "--seeds must be an integer >= 1"),
@@ -135,11 +135,10 @@ def test_read_only_out_is_one_line(tmp_path, capsys):
 
 
 # ============================================================================================ train flags
-def test_every_training_field_is_a_flag_and_preset_picks_the_defaults(monkeypatch, capsys):
-    import dataclasses
-
+def test_every_training_field_is_a_flag_and_preset_picks_the_defaults(monkeypatch):
+    """Grouped flags, the short forms of earlier versions (--network, --obs, a field's own name), --preset."""
     from ramavt_jax.cli import train as cli_train
-    from ramavt_jax.train_config import TrainConfig, preset
+    from ramavt_jax.train_config import preset
 
     seen = {}
 
@@ -149,26 +148,45 @@ def test_every_training_field_is_a_flag_and_preset_picks_the_defaults(monkeypatc
 
     monkeypatch.setattr(cli_train, "train_and_evaluate", fake)
     with pytest.raises(SystemExit):
-        cli.main(["train", "--preset", "smoke", "--lr", "3e-4", "--network.lstm", "48", "--env.camera.resolution",
-                  "24", "--gamma", "0.9", "--network", "drlavt", "--obs", "rgbd", "--augment", "True",
-                  "--no-double-q", "--total-env-steps", "2560", "--env-params", "dist_weight=0.5", "lost_patience=10",
+        cli.main(["train", "--preset", "smoke", "--learner.lr", "3e-4", "--network.lstm", "48",
+                  "--env.camera.resolution", "24", "--gamma", "0.9", "--network", "drlavt", "--obs", "rgbd",
+                  "--augment", "True", "--learner.augment-config.crop", "--no-double-q", "--run.total-env-steps",
+                  "2560", "--env-params", "dist_weight=0.5", "lost_patience=10", "--replay-capacity=1600",
                   "--out", "somewhere"])
     cfg = seen["config"]
     smoke = preset("smoke")
-    assert (cfg.lr, cfg.network.lstm, cfg.env.camera.resolution, cfg.gamma) == (3e-4, 48, 24, 0.9)
-    assert (cfg.network.variant, cfg.env.obs_mode, cfg.augment, cfg.double_q) == ("drlavt", "rgbd", True, False)
-    assert cfg.total_env_steps == 2560 and str(seen["out"]) == "somewhere"
+    assert (cfg.learner.lr, cfg.network.lstm, cfg.env.camera.resolution, cfg.learner.gamma) == (3e-4, 48, 24, 0.9)
+    assert (cfg.network.variant, cfg.env.obs_mode, cfg.learner.augment, cfg.learner.double_q) == ("drlavt", "rgbd",
+                                                                                                 True, False)
+    assert cfg.learner.augment_config.crop and not smoke.learner.augment_config.crop
+    assert cfg.run.total_env_steps == 2560 and cfg.replay.capacity_steps == 1600 and str(seen["out"]) == "somewhere"
     assert dict(cfg.env_params) == {"dist_weight": 0.5, "lost_patience": 10}
-    assert cfg.batch_size == smoke.batch_size and cfg.network.dense == smoke.network.dense  # the preset's values
+    assert cfg.replay.batch_size == smoke.replay.batch_size and cfg.network.dense == smoke.network.dense  # preset's
+
+
+def test_train_help_groups_every_config_field(capsys):
+    """`ramavt train --help` has one section per config group, with every field of it a flag."""
+    import dataclasses
+
+    from ramavt_jax.train_config import TrainConfig
+
     with pytest.raises(SystemExit):
-        cli.main(["train", "--help"])
+        cli.main(["train", "--preset", "smoke", "--help"])
     text = capsys.readouterr().out
-    for f in dataclasses.fields(TrainConfig):
-        if dataclasses.is_dataclass(f.default):
-            for g in dataclasses.fields(f.default):
-                assert f"--{f.name}.{g.name.replace('_', '-')}" in text, g.name
-        elif f.name not in ("augment_config", "debug_nan_at_update"):
-            assert f"--{f.name.replace('_', '-')}" in text, f.name
+    for group in ("env", "env.camera", "network", "acting", "replay", "learner", "learner.augment-config", "run"):
+        assert f"{group} options" in text, group
+
+    def flags(prefix, config):
+        for f in dataclasses.fields(config):
+            value = getattr(config, f.name)
+            if dataclasses.is_dataclass(value):
+                yield from flags(f"{prefix}{f.name.replace('_', '-')}.", value)
+            else:
+                yield f"--{prefix}{f.name.replace('_', '-')}"
+
+    for flag in flags("", TrainConfig()):
+        assert flag in text, flag
+    assert "debug-nan" not in text  # the trainer's test hook is not a flag
 
 
 @pytest.mark.slow

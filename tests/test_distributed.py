@@ -2,7 +2,6 @@
 loopback. Device counts are fixed when JAX starts, so the sharded and multi-host checks run in subprocesses with
 XLA_FLAGS=--xla_force_host_platform_device_count=N."""
 
-import dataclasses
 import json
 import os
 import socket
@@ -19,7 +18,7 @@ from ramavt_jax.training import driver as train_log
 from ramavt_jax.train_config import preset
 
 ROOT = Path(__file__).resolve().parents[1]
-SMOKE = dataclasses.replace(preset("smoke"), eval_episodes=0, checkpoint_every_chunks=1)
+SMOKE = preset("smoke", eval_episodes=0, checkpoint_every_chunks=1)
 
 
 def _env(devices: int) -> dict:

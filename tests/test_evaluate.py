@@ -4,6 +4,7 @@ files for baselines, custom MJCF targets and trained runs, and clear errors."""
 import dataclasses
 import json
 import os
+from pathlib import Path
 
 import jax
 import jax.numpy as jnp
@@ -13,7 +14,7 @@ import pytest
 from ramavt_jax import baselines, render
 from ramavt_jax import env as env_lib
 from ramavt_jax.cli import evaluate as cli_eval
-from ramavt_jax.evaluation import rollouts, runs
+from ramavt_jax.evaluation import pretrained, rollouts, runs
 from ramavt_jax.evaluation import tables as tables_lib
 
 TINY = dict(resolution=16, speed_steps=5, seed=0)
@@ -146,7 +147,7 @@ def _fake_run(run_dir, seed=0):
 
     from ramavt_jax.network import init_params
 
-    cfg = dataclasses.replace(train.preset("smoke"), eval_episodes=0)
+    cfg = train.preset("smoke", eval_episodes=0)
     # the RunnerState's structure without compiling the trainer: zeros everywhere but the network parameters
     abstract = jax.eval_shape(train.Trainer(cfg).init, jax.ShapeDtypeStruct((2,), jnp.uint32))
     state = jax.tree.map(lambda x: np.zeros(x.shape, x.dtype), abstract)
@@ -185,7 +186,7 @@ def test_load_policy_of_a_real_training_run(tmp_path):
     from ramavt_jax import train
     from ramavt_jax.cli.train import train_and_evaluate
 
-    cfg = dataclasses.replace(train.preset("smoke"), eval_episodes=0)
+    cfg = train.preset("smoke", eval_episodes=0)
     summary = train_and_evaluate(cfg, tmp_path / "smoke_s0", seed=0, progress=False)
     loaded = runs.load_policy(tmp_path / "smoke_s0")
     for a, b in zip(jax.tree.leaves(loaded.params), jax.tree.leaves(summary.state.learner.params)):
@@ -218,7 +219,32 @@ def test_config_json_round_trips_to_the_same_train_config(name):
     from ramavt_jax.augment import AugmentConfig
     from ramavt_jax.train_config import TrainConfig, preset
 
-    cfg = dataclasses.replace(preset(name), env_params=(("dist_weight", 0.5), ("lost_patience", 10)), augment=True,
-                              augment_config=AugmentConfig(crop=False, flip=False, rot90=False))
+    cfg = preset(name, env_params=(("dist_weight", 0.5), ("lost_patience", 10)), augment=True,
+                 augment_config=AugmentConfig(crop=True, flip=False, rot90=False), state_dtype="bfloat16")
     text = json.dumps({"seed": 0, "config": cfg.to_dict()}, default=str)
-    assert runs.config_from_dict(TrainConfig, json.loads(text)["config"]) == cfg
+    loaded = TrainConfig.from_dict(json.loads(text)["config"])
+    assert loaded == cfg and type(loaded.learner.augment_config) is AugmentConfig
+    assert set(json.loads(text)["config"]) == {"env", "env_params", "network", "acting", "replay", "learner", "run"}
+
+
+def test_a_flat_config_json_of_earlier_versions_loads_into_the_groups():
+    """The config.json of a run folder written before the config groups (the shipped agent's, too) loads."""
+    from ramavt_jax.augment import AugmentConfig
+    from ramavt_jax.train_config import TrainConfig, preset
+
+    flat = {"env": {"camera": {"resolution": 32}, "autoreset": "next_step"}, "env_params": [["dist_weight", 0.5]],
+            "network": {"variant": "origin", "channels": [8, 8], "kernels": [3, 3], "strides": [1, 1],
+                        "pools": [True, True], "dense": 32, "lstm": 32, "lstm_layers": 1, "head": 32},
+            "num_envs": 8, "rollout_steps": 10, "iterations_per_chunk": 4, "total_env_steps": 1280,
+            "eps_decay_steps": 1280, "replay_capacity": 800, "burn_in": 3, "train_len": 5, "sample_period": 2,
+            "batch_size": 4, "learning_starts": 160, "replay_ratio": 0.5, "n_step": 2, "lr": 3e-4, "augment": True,
+            "augment_config": None, "eval_episodes": 0, "debug_nan_at_update": -1, "a_field_from_the_future": 1}
+    cfg = TrainConfig.from_dict(flat)
+    expected = preset("smoke", sample_period=2, lr=3e-4, augment=True, eval_episodes=0,
+                      env_params=(("dist_weight", 0.5),))
+    assert cfg == expected.override(env=dataclasses.replace(expected.env, camera=dataclasses.replace(
+        expected.env.camera, resolution=32)), eval_max_steps=1000, checkpoint_every_chunks=10)
+    assert cfg.replay.capacity_steps == 800 and cfg.replay.period == 2 and cfg.learner.lr == 3e-4
+    assert cfg.learner.augment_config == AugmentConfig(crop=False, flip=False, rot90=False)  # None meant cutout only
+    shipped = json.loads((Path(pretrained.AGENTS_DIR) / pretrained.DEFAULT_AGENT / "config.json").read_text())
+    assert TrainConfig.from_dict(shipped["config"]) == preset("long", eval_episodes=0)

@@ -112,7 +112,7 @@ def sample_many(replay, state, n_keys=20):
 
 @pytest.fixture(scope="module")
 def filled():
-    cfg = ReplayConfig(capacity_steps=N_ENVS * 400, sequence_length=9, period=1, batch_size=32)
+    cfg = ReplayConfig(capacity_steps=N_ENVS * 400, burn_in=0, train_len=8, period=1, batch_size=32)
     replay = make_replay(cfg, N_ENVS, EXAMPLE)
     state = fill(replay, replay.init(), num_chunks=6, t_chunk=20)  # 120 steps per env, no wrap
     return replay, state, sample_many(replay, state)
@@ -153,7 +153,7 @@ def test_stored_state_matches_actor(filled):
 
 def test_sample_is_a_typed_sequence_batch():
     burn_in, L, B = 3, 7, 16
-    cfg = ReplayConfig(capacity_steps=N_ENVS * 32, sequence_length=L, batch_size=B, burn_in=burn_in)
+    cfg = ReplayConfig(capacity_steps=N_ENVS * 32, burn_in=burn_in, train_len=L - 1 - burn_in, batch_size=B)
     replay = make_replay(cfg, N_ENVS, EXAMPLE)
     state = fill(replay, replay.init(), num_chunks=2, t_chunk=12)
     batch = jax.jit(replay.sample)(state, jax.random.key(2))
@@ -179,7 +179,7 @@ def test_uint8_round_trip(filled):
 
 def test_capacity_wraps_oldest_dropped():
     per_env = 20
-    cfg = ReplayConfig(capacity_steps=N_ENVS * per_env, sequence_length=5, period=1, batch_size=32)
+    cfg = ReplayConfig(capacity_steps=N_ENVS * per_env, burn_in=0, train_len=4, period=1, batch_size=32)
     replay = make_replay(cfg, N_ENVS, EXAMPLE)
     state = replay.init()
     assert not bool(replay.can_sample(state))
@@ -205,7 +205,7 @@ def replay_obs(state):
 
 
 def test_add_and_sample_inside_scan():
-    cfg = ReplayConfig(capacity_steps=N_ENVS * 32, sequence_length=6, period=2, batch_size=8)
+    cfg = ReplayConfig(capacity_steps=N_ENVS * 32, burn_in=0, train_len=5, period=2, batch_size=8)
     replay = make_replay(cfg, N_ENVS, EXAMPLE)
     chunks = [chunk_to_storage(make_chunk(i * 4, 4)) for i in range(10)]
     stacked = jax.tree.map(lambda *x: jnp.stack(x), *chunks)
@@ -235,7 +235,7 @@ def decode_jnp(batch):
 
 @pytest.mark.parametrize("obs_dtype, state_dtype, tol", [("float16", "bfloat16", 1e-3), ("float32", "float32", 0.0)])
 def test_other_storage_dtypes(obs_dtype, state_dtype, tol):
-    cfg = ReplayConfig(capacity_steps=N_ENVS * 16, sequence_length=4, batch_size=32, obs_dtype=obs_dtype,
+    cfg = ReplayConfig(capacity_steps=N_ENVS * 16, burn_in=0, train_len=3, batch_size=32, obs_dtype=obs_dtype,
                        state_dtype=state_dtype)
     replay = make_replay(cfg, N_ENVS, EXAMPLE)
     state = replay.init()
@@ -253,7 +253,7 @@ def test_other_storage_dtypes(obs_dtype, state_dtype, tol):
 def test_memory_bytes():
     # 50,000 steps of 64x64x4 uint8 RGBD: per step 16384 (obs) + 4 (int32 action) + 4 (f32 reward)
     # + 3 (bool flags) + state; the flashbax index (int32) and is_full (bool) add 5 bytes.
-    cfg = ReplayConfig(capacity_steps=50_000, sequence_length=13)
+    cfg = ReplayConfig(capacity_steps=50_000, burn_in=0, train_len=12)
     no_state = memory_bytes(cfg, 50, (64, 64, 4), (0,))
     assert no_state == 50_000 * (16384 + 4 + 4 + 3) + 5 == 819_750_005
     # with the DESIGN network's 2-layer LSTM(512): c and h, [2, 512] float32 each = 8192 bytes per step
@@ -261,7 +261,7 @@ def test_memory_bytes():
     assert lstm == 50_000 * (16384 + 4 + 4 + 3 + 8192) + 5 == 1_229_350_005
     # pytree form, bfloat16 state halves that part
     tree = FakeLSTMState(h=jax.ShapeDtypeStruct((2, 512), jnp.float32), c=jax.ShapeDtypeStruct((2, 512), jnp.float32))
-    cfg16 = ReplayConfig(capacity_steps=50_000, sequence_length=13, state_dtype="bfloat16")
+    cfg16 = ReplayConfig(capacity_steps=50_000, burn_in=0, train_len=12, state_dtype="bfloat16")
     assert memory_bytes(cfg16, 50, (64, 64, 4), tree) == 50_000 * (16384 + 11 + 4096) + 5
     # the PERF_NOTES small net (1-layer LSTM 128) at 32x32 depth
     assert memory_bytes(cfg, 50, (32, 32, 1), [(1, 128), (1, 128)]) == 50_000 * (1024 + 11 + 1024) + 5
@@ -282,13 +282,12 @@ def test_loss_mask_around_episode_boundary():
 
 @pytest.mark.parametrize("kwargs, num_envs, match", [
     (dict(capacity_steps=50_000), 64, "divisible by num_envs"),
-    (dict(capacity_steps=60, sequence_length=31), 3, "fewer than sequence_length"),
-    (dict(sequence_length=1), 1, "sequence_length must be >= 2"),
+    (dict(capacity_steps=60, burn_in=0, train_len=30), 3, "fewer than sequence_length"),
+    (dict(train_len=0), 1, "train_len must be >= 1"),
     (dict(period=0), 1, "period"),
-    (dict(sequence_length=10, period=11), 1, "period"),
+    (dict(burn_in=0, train_len=9, period=11), 1, "period"),
     (dict(batch_size=0), 1, "batch_size"),
-    (dict(sequence_length=4, burn_in=3), 1, "burn_in"),
-    (dict(burn_in=-1), 1, "burn_in"),
+        (dict(burn_in=-1), 1, "burn_in"),
     (dict(obs_dtype="int8"), 1, "obs_dtype"),
     (dict(state_dtype="float64"), 1, "state_dtype"),
     (dict(capacity_steps=-5), 1, "capacity_steps"),
@@ -300,7 +299,7 @@ def test_bad_config(kwargs, num_envs, match):
 
 
 def test_bad_add():
-    replay = make_replay(ReplayConfig(capacity_steps=N_ENVS * 16, sequence_length=4), N_ENVS, EXAMPLE)
+    replay = make_replay(ReplayConfig(capacity_steps=N_ENVS * 16, burn_in=0, train_len=3), N_ENVS, EXAMPLE)
     state = replay.init()
     with pytest.raises(ValueError, match="envs"):
         replay.add(state, jax.tree.map(lambda x: x[:2], chunk_to_storage(make_chunk(0, 4))))
@@ -309,7 +308,7 @@ def test_bad_add():
 
 
 def test_min_fill_steps():
-    cfg = ReplayConfig(capacity_steps=N_ENVS * 40, sequence_length=4, min_fill_steps=N_ENVS * 10)
+    cfg = ReplayConfig(capacity_steps=N_ENVS * 40, burn_in=0, train_len=3, min_fill_steps=N_ENVS * 10)
     replay = make_replay(cfg, N_ENVS, EXAMPLE)
     assert not bool(replay.can_sample(fill(replay, replay.init(), 1, 8)))  # 8 < 10 per env
     assert bool(replay.can_sample(fill(replay, replay.init(), 2, 8)))

@@ -1,7 +1,5 @@
 """Trainer: config validation, burn-in gradients, sequence plumbing, stored recurrent state, vmap over seeds, learning."""
 
-import dataclasses
-
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -15,6 +13,7 @@ from ramavt_jax import train as T
 from ramavt_jax.losses import sequence_td_loss
 from ramavt_jax.network import NetworkConfig, RecurrentState, init_params, initial_state
 from ramavt_jax.render import CameraConfig
+from ramavt_jax.train_config import ActingConfig, LearnerConfig, RunConfig
 
 SMOKE = T.preset("smoke")
 
@@ -42,12 +41,12 @@ def test_presets():
     quick, paper = T.preset("quick"), T.preset("paper")
     assert quick.env.camera.resolution <= 48 and quick.env.obs_mode == "depth"
     assert quick.env_params == ()  # the DESIGN.md task, not an easier one
-    assert paper.env.camera.resolution == 256 and paper.batch_size == 64 and paper.lr == 1e-4
-    assert paper.gamma == 0.99 and paper.replay_capacity == 50_000
+    assert paper.env.camera.resolution == 256 and paper.replay.batch_size == 64 and paper.learner.lr == 1e-4
+    assert paper.learner.gamma == 0.99 and paper.replay.capacity_steps == 50_000
     assert paper.network == NetworkConfig(variant="ramavt")
     for cfg in (quick, paper, SMOKE):
         assert cfg.updates_per_iteration >= 1 and cfg.num_chunks >= 1
-    assert T.preset("quick", lr=1e-3).lr == 1e-3
+    assert T.preset("quick", lr=1e-3).learner.lr == 1e-3  # a group field by its own name
     with pytest.raises(ValueError, match="unknown preset"):
         T.preset("huge")
 
@@ -56,15 +55,15 @@ def test_presets():
     "overrides, message",
     [
         (dict(total_env_steps=1000), "multiple of the env steps per chunk"),
-        (dict(replay_capacity=801), "divisible by num_envs"),
-        (dict(replay_capacity=64), "steps per env"),
+        (dict(capacity_steps=801), "divisible by acting.num_envs"),
+        (dict(replay_capacity=64), "steps per env"),  # the flat (older) name of replay.capacity_steps
         (dict(eps_start=1.5), r"eps_start must be in \[0, 1\]"),
         (dict(gamma=-0.1), "gamma"),
         (dict(lr=0.0), "lr and adam_eps must be > 0"),
-        (dict(n_step=9), "n_step=9 must be <= train_len"),
+        (dict(n_step=9), "n_step=9 must be <= replay.train_len"),
         (dict(replay_ratio=0.3), "whole number"),
         (dict(target_update="soft"), "target_update"),
-        (dict(learning_starts=10_000), "exceeds replay_capacity"),
+        (dict(learning_starts=10_000), "exceeds replay.capacity_steps"),
         (dict(num_envs=0), "num_envs must be >= 1"),
         (dict(batch_size=2.5), "batch_size must be an int"),
         (dict(env=env_lib.EnvConfig(camera=CameraConfig(resolution=16))), "autoreset must be 'next_step'"),
@@ -72,17 +71,41 @@ def test_presets():
               burn_in=2), "burn_in must be >= frame_stack - 1"),
         (dict(network=NetworkConfig(norm="batch")), "norm='batch'"),
         (dict(env_params=(("warp_speed", 9.0),)), "env_params"),
+        (dict(learner=LearnerConfig(learning_starts=0), num_envs=4.0), "ActingConfig: num_envs must be an int"),
+        (dict(warp=9), "unknown field 'warp'"),
     ],
 )
 def test_invalid_configs_raise_clear_errors(overrides, message):
     with pytest.raises(ValueError, match=message):
-        dataclasses.replace(SMOKE, **overrides)
+        SMOKE.override(**overrides)
+
+
+@pytest.mark.parametrize("build, message", [
+    (lambda: ActingConfig(eps_end=2.0), r"^ActingConfig: eps_end must be in \[0, 1\], got 2.0$"),
+    (lambda: LearnerConfig(target_update="soft"), r"^LearnerConfig: target_update must be 'polyak' or 'period'"),
+    (lambda: RunConfig(keep_checkpoints=0), r"^RunConfig: keep_checkpoints must be >= 1, got 0$"),
+    (lambda: replay_lib.ReplayConfig(train_len=0), r"^ReplayConfig.train_len must be >= 1, got 0$"),
+    (lambda: T.TrainConfig(replay=replay_lib.ReplayConfig(capacity_steps=64_010)),
+     r"^TrainConfig: replay.capacity_steps=64010 must be divisible by acting.num_envs=64$"),
+])
+def test_each_group_checks_its_own_values_in_one_line(build, message):
+    """A group's bad value fails when the group is built, naming the group; how groups fit, in TrainConfig."""
+    with pytest.raises(ValueError, match=message) as e:
+        build()
+    assert "\n" not in str(e.value)
+
+
+def test_override_routes_flat_names_to_their_groups():
+    cfg = SMOKE.override(lr=1e-3, sample_period=2, eval_episodes=0, learner=LearnerConfig(learning_starts=0))
+    assert (cfg.learner.lr, cfg.learner.learning_starts, cfg.replay.period, cfg.run.eval_episodes) == (1e-3, 0, 2, 0)
+    assert cfg.acting == SMOKE.acting and cfg.network == SMOKE.network
+    assert not any(hasattr(cfg, name) for name in ("lr", "debug_nan_at_update"))  # no flat fields, no test hooks
 
 
 def test_drlavt_with_enough_burn_in_is_accepted():
     net = NetworkConfig(variant="drlavt", channels=(8,), kernels=(3,), strides=(1,), pools=(True,), drlavt_dense=(16,))
-    cfg = dataclasses.replace(SMOKE, network=net, burn_in=3)
-    assert cfg.burn_in == net.frame_stack - 1
+    cfg = SMOKE.override(network=net, burn_in=3)
+    assert cfg.replay.burn_in == net.frame_stack - 1
 
 
 @pytest.mark.parametrize(
@@ -95,19 +118,19 @@ def test_every_variant_observation_and_augmentation_traces(variant, obs_mode, au
     net = NetworkConfig(variant=variant, channels=(8, 8), kernels=(3, 3), strides=(1, 1), pools=(True, True),
                         dense=16, lstm=16, lstm_layers=2, head=16, attention_heads=2, drlavt_dense=(16,))
     env_cfg = env_lib.EnvConfig(camera=CameraConfig(resolution=16), obs_mode=obs_mode, autoreset="next_step")
-    cfg = dataclasses.replace(SMOKE, network=net, env=env_cfg, augment=augment)
+    cfg = SMOKE.override(network=net, env=env_cfg, augment=augment)
     tr = T.Trainer(cfg)
     state = jax.eval_shape(tr.init, jax.ShapeDtypeStruct((2,), jnp.uint32))
     out, metrics = jax.eval_shape(tr.chunk, state)
-    assert out.actor.obs.shape == (cfg.num_envs, 16, 16, env_lib.OBS_CHANNELS[obs_mode])
-    assert metrics.loss_sum.shape == (cfg.iterations_per_chunk,)
+    assert out.actor.obs.shape == (cfg.acting.num_envs, 16, 16, env_lib.OBS_CHANNELS[obs_mode])
+    assert metrics.loss_sum.shape == (cfg.run.iterations_per_chunk,)
     assert jax.tree.structure(out) == jax.tree.structure(state)
 
 
 # ------------------------------------------------------------------------------------------ learner plumbing
 def _window(key, cfg, is_first=None, terminated=None):
     """Hand-made sampled windows [B, L, ...] as stored (random obs/actions/rewards, random stored LSTM state)."""
-    B, L = cfg.batch_size, cfg.sequence_length
+    B, L = cfg.replay.batch_size, cfg.sequence_length
     ks = jax.random.split(key, 5)
     n = cfg.network
     h = 0.5 * jax.random.normal(ks[3], (B, L, n.lstm_layers, n.lstm))
@@ -126,7 +149,7 @@ def _window(key, cfg, is_first=None, terminated=None):
 
 def _as_batch(window, cfg=SMOKE):
     """The SequenceBatch the replay's sample makes of these windows."""
-    return replay_lib.sequence_batch(window, cfg.burn_in)
+    return replay_lib.sequence_batch(window, cfg.replay.burn_in)
 
 
 def test_sampled_batch_carries_the_network_state(trainer):
@@ -135,8 +158,8 @@ def test_sampled_batch_carries_the_network_state(trainer):
     cfg = SMOKE
     state = jax.eval_shape(trainer.replay.init)
     batch = jax.eval_shape(trainer.replay.sample, state, jax.ShapeDtypeStruct((2,), jnp.uint32))
-    B, L, n = cfg.batch_size, cfg.sequence_length, cfg.network
-    assert isinstance(batch, replay_lib.SequenceBatch) and batch.burn_in == cfg.burn_in
+    B, L, n = cfg.replay.batch_size, cfg.sequence_length, cfg.network
+    assert isinstance(batch, replay_lib.SequenceBatch) and batch.burn_in == cfg.replay.burn_in
     assert batch.obs.shape == (B, L, *cfg.env.obs_shape) and batch.loss_mask.shape == (B, L - 1)
     assert isinstance(batch.start_state, RecurrentState) and batch.start_state.frames is None
     assert batch.start_state.h.shape == batch.start_state.c.shape == (n.lstm_layers, B, n.lstm)
@@ -144,7 +167,7 @@ def test_sampled_batch_carries_the_network_state(trainer):
 
 def test_burn_in_gets_no_gradient(trainer, learner, loss_fn):
     params, target = learner
-    cfg, burn = SMOKE, SMOKE.burn_in
+    cfg, burn = SMOKE, SMOKE.replay.burn_in
     window = _window(jax.random.PRNGKey(1), cfg)
 
     def loss(obs, h):
@@ -171,8 +194,8 @@ def test_burn_in_gets_no_gradient(trainer, learner, loss_fn):
 
 def test_loss_masks_the_episode_crossing_and_matches_hand_plumbing(trainer, learner, loss_fn):
     params, target = learner
-    cfg, burn = SMOKE, SMOKE.burn_in
-    B, L, T_ = cfg.batch_size, cfg.sequence_length, cfg.train_len
+    cfg, burn = SMOKE, SMOKE.replay.burn_in
+    B, L, T_ = cfg.replay.batch_size, cfg.sequence_length, cfg.replay.train_len
     # window: obs 0..L-1. Episode ends at transition burn+1 (obs burn+2 is terminal), obs burn+3 starts a new one.
     is_first = np.zeros((B, L), bool)
     is_first[:, burn + 3] = True
@@ -190,7 +213,7 @@ def test_loss_masks_the_episode_crossing_and_matches_hand_plumbing(trainer, lear
     mask = np.ones((B, T_), np.float32)
     mask[:, 2] = 0.0  # transition burn+2: terminal obs -> first obs of the next episode
     expected, _ = sequence_td_loss(
-        q_on[:, burn:], q_tg[:, burn:], window.action[:, burn:-1], window.reward[:, burn:-1] * cfg.reward_scale,
+        q_on[:, burn:], q_tg[:, burn:], window.action[:, burn:-1], window.reward[:, burn:-1] * cfg.learner.reward_scale,
         window.terminated[:, burn:-1], window.truncated[:, burn:-1], jnp.asarray(mask), trainer.td)
     np.testing.assert_allclose(float(loss), float(expected), rtol=2e-5)
 
@@ -206,7 +229,7 @@ def test_loss_masks_the_episode_crossing_and_matches_hand_plumbing(trainer, lear
 
 
 def test_stored_recurrent_state_is_the_actors_state():
-    cfg = dataclasses.replace(SMOKE, env_params=(("max_steps", 6),))  # episodes end inside the rollout
+    cfg = SMOKE.override(env_params=(("max_steps", 6),))  # episodes end inside the rollout
     tr = T.Trainer(cfg)
     state = jax.jit(tr.init)(jax.random.PRNGKey(4))
     rollout = jax.jit(tr.rollout)
@@ -221,12 +244,12 @@ def test_stored_recurrent_state_is_the_actors_state():
     assert np.abs(h).sum() > 0
     # Recompute the carries by stepping the network from the stored state of the chunk's first step.
     s = RecurrentState(h=jnp.moveaxis(stored.h[:, 0], 0, 1), c=jnp.moveaxis(stored.c[:, 0], 0, 1),
-                       frames=jnp.zeros((cfg.num_envs, 0)))
+                       frames=jnp.zeros((cfg.acting.num_envs, 0)))
     step = jax.jit(lambda s, o, r: tr.q_values(params, o, r, s)[1])
-    for t in range(cfg.rollout_steps):
+    for t in range(cfg.acting.rollout_steps):
         s = step(s, chunk2.obs[:, t:t + 1], chunk2.is_first[:, t:t + 1])
         ref_h = np.moveaxis(np.asarray(s.h), 0, 1)
-        if t + 1 < cfg.rollout_steps:
+        if t + 1 < cfg.acting.rollout_steps:
             np.testing.assert_allclose(h[:, t + 1], ref_h, atol=1e-5)
             np.testing.assert_allclose(c[:, t + 1], np.moveaxis(np.asarray(s.c), 0, 1), atol=1e-5)
     np.testing.assert_allclose(np.asarray(actor.net_state.h), np.asarray(s.h), atol=1e-5)
@@ -244,7 +267,7 @@ def test_stored_recurrent_state_is_the_actors_state():
 # ------------------------------------------------------------------------------------------ seeds
 @pytest.mark.slow  # two compiles of the whole training function (~2-3 min on 2 cores)
 def test_vmapped_seeds_equal_single_seed_runs():
-    cfg = dataclasses.replace(SMOKE, total_env_steps=640)  # 2 chunks, 8 gradient steps... cheap
+    cfg = SMOKE.override(total_env_steps=640)  # 2 chunks, 8 gradient steps... cheap
     train = T.make_train(cfg)
     keys = jax.random.split(jax.random.PRNGKey(7), 2)
     both = jax.jit(jax.vmap(train))(keys)
@@ -277,8 +300,7 @@ def test_greedy_policy_matches_the_network_over_a_sequence(trainer, learner):
 
 
 # ------------------------------------------------------------------------------------------ learning
-EASY = dataclasses.replace(
-    SMOKE,
+EASY = SMOKE.override(
     # An easy task: a static, non-spinning target near r*, a fast chaser (random actions lose it quickly: any step out
     # of view ends the episode), 200-step episodes. The agent must learn from rewards which motions keep it in view.
     env_params=(("init_xy_std", 0.3), ("init_z_max", 6.0), ("init_z_min", 4.0), ("lost_patience", 0),
@@ -312,9 +334,9 @@ def test_bootstrap_lost_turns_terminations_into_bootstrapped_ends(trainer, learn
     """With bootstrap_lost, a 'target lost' termination is bootstrapped like a time limit (the loss changes), and
     nothing else in the prepared batch does."""
     params, target = learner
-    term = jnp.zeros((SMOKE.batch_size, SMOKE.sequence_length), bool).at[:, SMOKE.burn_in + 2].set(True)
+    term = jnp.zeros((SMOKE.replay.batch_size, SMOKE.sequence_length), bool).at[:, SMOKE.replay.burn_in + 2].set(True)
     batch = _as_batch(_window(jax.random.PRNGKey(5), SMOKE, terminated=term))
-    boot = T.Trainer(dataclasses.replace(SMOKE, bootstrap_lost=True))
+    boot = T.Trainer(SMOKE.override(bootstrap_lost=True))
     plain_prep = trainer.prepare(params, target, batch, jax.random.PRNGKey(0))
     boot_prep = boot.prepare(params, target, batch, jax.random.PRNGKey(0))
     assert isinstance(plain_prep, T.PreparedBatch)

@@ -30,7 +30,7 @@ def _run_entries(runs: tuple[Path, ...]) -> tuple[list[tables_lib.Entry], list[L
         lr = load_policy(run_dir)
         loaded.append(lr)
         cfg = lr.config
-        info = {"run_dir": str(run_dir), "variant": cfg.network.variant, "augment": bool(cfg.augment),
+        info = {"run_dir": str(run_dir), "variant": cfg.network.variant, "augment": bool(cfg.learner.augment),
                 "seed": lr.seed, "step": lr.step, "env_steps": lr.meta.get("env_steps")}
         entries.append(tables_lib.Entry(row_name(run_dir), "checkpoint", lr.policy, cfg.env,
                                     rollouts.run_env_overrides(cfg.env_params), cfg.env.obs_mode, info))
@@ -40,7 +40,7 @@ def _run_entries(runs: tuple[Path, ...]) -> tuple[list[tables_lib.Entry], list[L
 def _pretrained_entry(name: str) -> tables_lib.Entry:
     agent = pretrained.load(name)
     cfg = agent.config
-    info = {"variant": cfg.network.variant, "augment": bool(cfg.augment), "pretrained": name, **agent.info}
+    info = {"variant": cfg.network.variant, "augment": bool(cfg.learner.augment), "pretrained": name, **agent.info}
     return tables_lib.Entry(f"pretrained:{name}", "checkpoint", agent.policy, cfg.env,
                             rollouts.run_env_overrides(cfg.env_params), cfg.env.obs_mode, info)
 

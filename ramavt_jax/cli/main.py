@@ -101,7 +101,7 @@ def main(argv: list[str] | None = None) -> None:
             raise
         print("ramavt: interrupted", file=sys.stderr)
         raise SystemExit(INTERRUPTED) from None
-    except (ValueError, OSError, TrainingDivergedError) as e:
+    except (ValueError, OSError, TrainingDivergedError, train.ConfigError) as e:
         if debug:
             raise
         print(f"ramavt: error: {_one_line(e)} (--debug shows the traceback)", file=sys.stderr)

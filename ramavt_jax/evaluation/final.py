@@ -39,8 +39,8 @@ def final_evaluation(config: TrainConfig, params: Any, key: jax.Array, log: Call
         for j, (name, pol) in enumerate((("greedy", policy), ("random", baselines.random_policy()))):
             t = time.time()
             k = jax.random.fold_in(key, 2 * i + j)
-            out.setdefault(split, {})[name] = res = evaluate_policy(config, pol, k, names, config.eval_episodes,
-                                                                    config.eval_max_steps)
+            out.setdefault(split, {})[name] = res = evaluate_policy(config, pol, k, names, config.run.eval_episodes,
+                                                                    config.run.eval_max_steps)
             log(f"final evaluation: {name:<6} on {split:<5} targets ({len(names)}): mean episode length "
                 f"{res['length_mean']:.0f}, return {res['return_mean']:.1f} ({time.time() - t:.0f} s)")
     return out
@@ -50,8 +50,8 @@ def evaluate_run(config: TrainConfig, run_dir: str | Path, seed: int, params: An
                  log: Callable[[str], None] = print) -> dict:
     """Evaluate a finished run's params (key: seed + 10,000) and write ``run_dir/eval.json``; returns the results."""
     t = time.time()
-    log(f"final evaluation of {run_dir}: {config.eval_episodes} episodes per split and policy, up to "
-        f"{config.eval_max_steps} steps ...")
+    log(f"final evaluation of {run_dir}: {config.run.eval_episodes} episodes per split and policy, up to "
+        f"{config.run.eval_max_steps} steps ...")
     results = final_evaluation(config, params, jax.random.PRNGKey(seed + 10_000), log)
     results["eval_wall_s"] = time.time() - t
     (Path(run_dir) / folders.EVAL_FILE).write_text(folders.dumps(results, indent=1))

@@ -19,7 +19,7 @@ import jax
 import numpy as np
 
 from ramavt_jax.baselines import Policy
-from ramavt_jax.evaluation.runs import config_from_dict, load_policy
+from ramavt_jax.evaluation.runs import load_policy
 from ramavt_jax.network import init_params
 from ramavt_jax.train import TrainConfig, greedy_policy
 
@@ -58,7 +58,7 @@ def load(name: str = DEFAULT_AGENT, agents_dir: Path = AGENTS_DIR) -> Pretrained
     if not (folder / "params.npz").is_file():
         raise PretrainedError(f"no pretrained agent {name!r}; available: {', '.join(available(agents_dir)) or 'none'}")
     saved = json.loads((folder / "config.json").read_text())
-    config = config_from_dict(TrainConfig, saved["config"])
+    config = TrainConfig.from_dict(saved["config"])  # the current or the flat (older) form
     obs_shape = tuple(config.env.obs_shape)
     template = jax.eval_shape(lambda k: init_params(config.network, k, obs_shape)["params"], jax.random.key(0))
     with np.load(folder / "params.npz") as arrays:

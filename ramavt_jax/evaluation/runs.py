@@ -5,44 +5,17 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import typing
 from pathlib import Path
 
 import jax
 import jax.numpy as jnp
 
-from ramavt_jax import augment
 from ramavt_jax.baselines import Policy
 from ramavt_jax.train import TrainConfig, Trainer, greedy_policy
 from ramavt_jax.training import run_folder as folders
 from ramavt_jax.training.checkpoint import CheckpointStore
 
-__all__ = ["LoadedRun", "load_policy", "config_from_dict", "row_name"]
-
-
-def config_from_dict(cls, data: dict):
-    """Rebuild a (nested) frozen config dataclass from its to_dict() form: lists become tuples."""
-    hints = typing.get_type_hints(cls)
-    kwargs = {}
-    for f in dataclasses.fields(cls):
-        if f.name not in data:
-            continue
-        value = data[f.name]
-        sub = hints.get(f.name)
-        default = f.default if f.default is not dataclasses.MISSING else None
-        target = sub if dataclasses.is_dataclass(sub) else (type(default) if dataclasses.is_dataclass(default) else None)
-        if f.name == "augment_config" and isinstance(value, dict):
-            target = augment.AugmentConfig
-        if target is not None and isinstance(value, dict):
-            value = config_from_dict(target, value)
-        else:
-            value = _tuplify(value)
-        kwargs[f.name] = value
-    return cls(**kwargs)
-
-
-def _tuplify(x):
-    return tuple(_tuplify(v) for v in x) if isinstance(x, list) else x
+__all__ = ["LoadedRun", "load_policy", "row_name"]
 
 
 def row_name(run_dir: str | Path) -> str:
@@ -72,11 +45,11 @@ def load_policy(run_dir, step: int | None = None, name: str | None = None) -> Lo
         raise FileNotFoundError(f"{cfg_file} not found: --run must name a folder written by `ramavt train` "
                                 f"(config.json, checkpoints/)")
     saved = json.loads(cfg_file.read_text())
-    config = config_from_dict(TrainConfig, saved["config"])
+    config = TrainConfig.from_dict(saved["config"])
     store = CheckpointStore(run_dir / folders.CHECKPOINTS, create=False)
     step = store.latest_step() if step is None else int(step)
     like = jax.eval_shape(Trainer(config).init, jax.ShapeDtypeStruct((2,), jnp.uint32))
-    if not config.checkpoint_replay:
+    if not config.run.checkpoint_replay:
         like = like.replace(replay=None)
     params = jax.tree.map(jnp.asarray, store.restore_subtree(like, lambda s: s.learner.params, step))
     meta = store.read_meta(step)

@@ -20,6 +20,7 @@ import numpy as np
 
 from ramavt_jax import distributed
 from ramavt_jax.train import TrainConfig, TrainingDivergedError
+from ramavt_jax.train_config import upgrade_dict
 from ramavt_jax.training import run_folder as folders
 from ramavt_jax.training.program import _compiled, _Program
 from ramavt_jax.training.checkpoint import CheckpointError, CheckpointNotFoundError, CheckpointStore, has_checkpoint
@@ -110,10 +111,10 @@ def _restore(prog: _Program, state, config: TrainConfig, config_json: dict, f: _
     loaded = []
     for k, src in enumerate(f.sources):
         like = _seed_slice(state, k, num_seeds)
-        like = like if config.checkpoint_replay else like.replace(replay=None)
+        like = like if config.run.checkpoint_replay else like.replace(replay=None)
         st, meta, _ = CheckpointStore(src, create=False).restore_newest_loadable(like, log)
-        diff = {k: v for k, v in folders.config_differences(meta.get("config", {}), config_json,
-                                                           _default_json()).items()
+        saved = upgrade_dict(meta.get("config", {}))  # a checkpoint written before the config groups: flat
+        diff = {k: v for k, v in folders.config_differences(saved, config_json, _default_json()).items()
                 if k not in folders.RESUMABLE_FIELDS}
         if diff:
             raise CheckpointError(f"the checkpoint in {src} was written with another config (differs in "
@@ -125,7 +126,7 @@ def _restore(prog: _Program, state, config: TrainConfig, config_json: dict, f: _
     if num_seeds > 1:
         loaded = [jax.tree.map(lambda *xs: np.stack([np.asarray(x) for x in xs]), *loaded)]
     restored = loaded[0]
-    if not config.checkpoint_replay:
+    if not config.run.checkpoint_replay:
         restored = restored.replace(replay=state.replay)
     return restored if prog.shardings is None else jax.device_put(restored, prog.shardings)
 
@@ -149,7 +150,7 @@ class _Loop:
             one = _seed_slice(state, k, num_seeds)
             meta = {"config": self.config_json, "seed": s, "chunk": self.chunk_no,
                     "env_steps": _host_int(one.env_steps), "updates": _host_int(one.learner.updates)}
-            store.save(self.chunk_no, one if self.config.checkpoint_replay else one.replace(replay=None), meta)
+            store.save(self.chunk_no, one if self.config.run.checkpoint_replay else one.replace(replay=None), meta)
         self.last_saved = self.chunk_no
 
     def record(self, m, wall: float) -> None:
@@ -157,7 +158,7 @@ class _Loop:
         c, num_seeds = self.config, len(self.f.seeds)
         for k in range(num_seeds):
             record = {"chunk": self.chunk_no, **aggregate(_seed_slice(m, k, num_seeds), wall, c.env_steps_per_chunk)}
-            record["trained_frames_per_s"] = record["updates_per_s"] * c.batch_size * c.train_len
+            record["trained_frames_per_s"] = record["updates_per_s"] * c.replay.batch_size * c.replay.train_len
             record["compile_s"] = self.prog.compile_s
             if num_seeds > 1:
                 record["seeds_in_program"] = num_seeds
@@ -167,8 +168,8 @@ class _Loop:
                 raise TrainingDivergedError(
                     f"training diverged at chunk {record['chunk']} (seed {self.f.seeds[k]}, env step "
                     f"{record['env_steps']}): loss={record['loss']}, mean Q={record['q_mean']}. The diverged state "
-                    f"was NOT saved; {where}. Try a lower lr (now {c.lr}), gradient clipping (max_grad_norm) or a "
-                    f"smaller reward_scale.")
+                    f"was NOT saved; {where}. Try a lower learner.lr (now {c.learner.lr}), gradient clipping "
+                    f"(learner.max_grad_norm) or a smaller learner.reward_scale.")
             self.log.add(k, record)
         self.log.advance(c.env_steps_per_chunk * num_seeds)
 
@@ -180,7 +181,7 @@ def _finite_params(state) -> bool:
 
 def _train_chunks(loop: _Loop, state, end: int, stop: StopSignals, say):
     """Run chunks until ``end`` or a stop signal (then the chunk in flight is logged and saved first)."""
-    every = loop.config.checkpoint_every_chunks
+    every = loop.config.run.checkpoint_every_chunks
     try:
         while loop.chunk_no < end:
             t = time.time()
@@ -210,17 +211,17 @@ def _train_chunks(loop: _Loop, state, end: int, stop: StopSignals, say):
     return state
 
 
-def _start(config: TrainConfig, f: _Folders, num_devices, tracking_env, progress: bool, say):
+def _start(config: TrainConfig, f: _Folders, num_devices, tracking_env, say, debug_nan_at_update: int):
     """Compile (or reuse) the program and build the initial or restored state; (program, state, mesh)."""
     mesh = distributed.make_mesh(num_devices)
     if mesh is not None and len(f.seeds) == 1:
-        distributed.check_divisible(config.num_envs, mesh)
+        distributed.check_divisible(config.acting.num_envs, mesh)
     distributed.check_seeds_divisible(len(f.seeds), mesh)
     t = time.time()
     where = "1 device" if mesh is None else f"{mesh.devices.size} devices"
     say(f"compiling the training chunk ({config.network.variant}, {config.env.obs_shape}, {len(f.seeds)} seed(s), "
         f"{where}) ...")
-    prog = _compiled(config, tracking_env, len(f.seeds), mesh)
+    prog = _compiled(config, tracking_env, len(f.seeds), mesh, debug_nan_at_update)
     say(f"compiled in {time.time() - t:.1f} s")
     keys = (np.stack([np.asarray(jax.random.PRNGKey(s)) for s in f.seeds]) if len(f.seeds) > 1
             else jax.random.PRNGKey(f.seeds[0]))
@@ -229,7 +230,7 @@ def _start(config: TrainConfig, f: _Folders, num_devices, tracking_env, progress
 
 def run(config: TrainConfig, out_dir, seed: int = 0, resume=True, progress: bool = True,
         max_chunks: int | None = None, tracking_env=None, num_seeds: int = 1,
-        num_devices: int | None = None) -> RunSummary:
+        num_devices: int | None = None, debug_nan_at_update: int = -1) -> RunSummary:
     """Train ``config`` into ``out_dir``; returns a :class:`RunSummary` (a JSON-friendly dict: counters, timings,
     memory, the last metrics record) whose ``.state`` is the final RunnerState.
 
@@ -243,6 +244,7 @@ def run(config: TrainConfig, out_dir, seed: int = 0, resume=True, progress: bool
       falls back to the newest that loads); False starts fresh (existing checkpoints are deleted); a path resumes
       from that checkpoint folder (error if none is there).
     max_chunks: stop after this many chunks in this call (a checkpoint is saved), e.g. to split a run.
+    debug_nan_at_update: a test hook: the loss becomes NaN from this gradient step on (-1 = off).
     Raises TrainingDivergedError on a NaN/inf loss (the last good checkpoint is kept), RunFolderError when the
     folder is locked by another process, not writable or holds another config. SIGINT / SIGTERM: the chunk in
     flight is logged and checkpointed, then TrainingInterrupted (a KeyboardInterrupt) is raised. In a multi-host
@@ -258,15 +260,15 @@ def run(config: TrainConfig, out_dir, seed: int = 0, resume=True, progress: bool
     try:
         with StopSignals(say if primary else (lambda msg: None)) as stop:
             return _run_locked(config, f, config_json, resume, max_chunks, tracking_env, num_devices, progress,
-                               primary, stop, say)
+                               primary, stop, say, debug_nan_at_update)
     finally:
         if f.lock is not None:
             f.lock.close()
 
 
 def _run_locked(config, f: _Folders, config_json, resume, max_chunks, tracking_env, num_devices, progress, primary,
-                stop: StopSignals, say) -> RunSummary:
-    prog, state, mesh = _start(config, f, num_devices, tracking_env, progress, say)
+                stop: StopSignals, say, debug_nan_at_update: int) -> RunSummary:
+    prog, state, mesh = _start(config, f, num_devices, tracking_env, say, debug_nan_at_update)
     distributed.barrier("ramavt_compiled")  # processes compile at different speeds; the next step is collective
     if stop.signum is not None:
         raise TrainingInterrupted(f"{stop.name} while compiling: nothing was trained or written", stop.signum)
@@ -282,7 +284,7 @@ def _run_locked(config, f: _Folders, config_json, resume, max_chunks, tracking_e
             (d / folders.CONFIG_FILE).write_text(json.dumps({"seed": s, "config": config_json}, indent=1))
     start = _host_int(state.chunk)
     log = Log(config, f.dirs, start if f.resuming else None, primary, progress)
-    stores = [CheckpointStore(d / folders.CHECKPOINTS, keep=config.keep_checkpoints) for d in f.dirs]
+    stores = [CheckpointStore(d / folders.CHECKPOINTS, keep=config.run.keep_checkpoints) for d in f.dirs]
     loop = _Loop(config, prog, f, log, stores, config_json, start, start if f.resuming else None)
     end = config.num_chunks if max_chunks is None else min(config.num_chunks, start + max_chunks)
     train_t0 = time.time()

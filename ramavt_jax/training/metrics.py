@@ -59,7 +59,7 @@ class Log:
             return
         for p, recs in zip(self.paths, self.records):
             folders.write_metrics(p, recs)
-        if config.tensorboard:
+        if config.run.tensorboard:
             from tensorboardX import SummaryWriter
 
             self.writers = [SummaryWriter(str(d / "tb")) for d in dirs]
@@ -67,7 +67,7 @@ class Log:
             from tqdm.auto import tqdm
 
             n, start = len(dirs), resumed_at or 0
-            self.bar = tqdm(total=config.total_env_steps * n, initial=start * config.env_steps_per_chunk * n,
+            self.bar = tqdm(total=config.run.total_env_steps * n, initial=start * config.env_steps_per_chunk * n,
                             unit="step", unit_scale=True, dynamic_ncols=True, desc="train")
 
     def add(self, k: int, record: dict) -> None:

@@ -12,6 +12,7 @@ import numpy as np
 
 from ramavt_jax import distributed
 from ramavt_jax.train import TrainConfig, Trainer
+from ramavt_jax.train_config import RunConfig
 
 __all__ = ["compiled_program"]
 
@@ -26,11 +27,8 @@ class _Program:
     memory: dict  # bytes: state per seed, replay per seed, XLA temp of the chunk
 
 
-_COMPILED: dict = {}  # (config, seeds, mesh, env id) -> _Program; repeated runs, resumes and tests compile once
-# fields that do not change the compiled chunk (learning_starts does; it is kept in the key separately because the
-# shortened total_env_steps would fail validation with it)
-_HOST_ONLY = dict(eval_episodes=0, eval_max_steps=1, checkpoint_every_chunks=0, checkpoint_replay=True,
-                  keep_checkpoints=1, tensorboard=False)
+# (config, seeds, mesh, env id, NaN hook) -> _Program; repeated runs, resumes and tests compile once
+_COMPILED: dict = {}
 
 
 def _tree_bytes(tree) -> int:
@@ -52,15 +50,24 @@ def _jit_pair(trainer: Trainer, num_seeds: int, mesh):
     return init, chunk, abstract, shardings
 
 
-def _compiled(config: TrainConfig, tracking_env, num_seeds: int = 1, mesh=None) -> _Program:
+def _cache_key(config: TrainConfig) -> TrainConfig:
+    """The config with what does not change the compiled chunk set to constants: the run group but its
+    iterations_per_chunk. learning_starts does change it; it is zeroed here (and kept in the cache key beside)
+    only because the shortened total_env_steps would fail validation with it."""
+    run = RunConfig(total_env_steps=config.env_steps_per_chunk, iterations_per_chunk=config.run.iterations_per_chunk)
+    return config.override(run=run, learning_starts=0)
+
+
+def _compiled(config: TrainConfig, tracking_env, num_seeds: int = 1, mesh=None,
+              debug_nan_at_update: int = -1) -> _Program:
     """Trainer, jitted init and AOT-compiled chunk for a config: one program for ``num_seeds`` seeds (vmapped when
-    > 1), with the envs and replay split over ``mesh`` when given. Cached per (config, seeds, mesh)."""
-    key = (dataclasses.replace(config, learning_starts=0, total_env_steps=config.env_steps_per_chunk, **_HOST_ONLY),
-           config.learning_starts, num_seeds, mesh, id(tracking_env))
+    > 1), with the envs and replay split over ``mesh`` when given. Cached per (config, seeds, mesh).
+    ``debug_nan_at_update``: the Trainer's test hook."""
+    key = (_cache_key(config), config.learner.learning_starts, num_seeds, mesh, id(tracking_env), debug_nan_at_update)
     if key not in _COMPILED:
         distributed.check_seeds_divisible(num_seeds, mesh)
         # several seeds: the seed axis is split over the devices and each seed's program runs whole on one device
-        trainer = Trainer(config, tracking_env, mesh if num_seeds == 1 else None)
+        trainer = Trainer(config, tracking_env, mesh if num_seeds == 1 else None, debug_nan_at_update)
         t0 = time.time()
         init, chunk, abstract, shardings = _jit_pair(trainer, num_seeds, mesh)
         compiled = chunk.lower(abstract).compile()

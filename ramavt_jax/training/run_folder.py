@@ -7,7 +7,7 @@ Layout (one seed; ``--seeds N`` writes one such folder per seed, ``out/seed_<k>/
     out/checkpoints/<chunk>/ orbax checkpoints (the last ``keep_checkpoints``)
     out/eval.json            final greedy and random-agent evaluation (written by the evaluation layer)
     out/training_curves.png  (written by the figures layer)
-    out/tb/                  TensorBoard events (config.tensorboard)
+    out/tb/                  TensorBoard events (config.run.tensorboard)
     out/.lock                held by the process training into the folder
 """
 
@@ -23,6 +23,8 @@ from typing import Any
 
 import numpy as np
 
+from ramavt_jax.train_config import upgrade_dict
+
 __all__ = ["CONFIG_FILE", "METRICS_FILE", "CHECKPOINTS", "EVAL_FILE", "CURVES_FILE", "RESUMABLE_FIELDS",
            "seed_dir", "seed_folders", "is_seed_dir", "to_strict_json", "dumps", "read_metrics", "append_metrics",
            "write_metrics", "config_differences", "check_config", "RunFolderError", "RunLock", "check_writable"]
@@ -32,8 +34,8 @@ CURVES_FILE = "training_curves.png"
 LOCK_FILE = ".lock"
 # TrainConfig fields that may change when a run is resumed: they do not change the compiled chunk or the
 # checkpointed state (a larger total_env_steps extends the run)
-RESUMABLE_FIELDS = ("total_env_steps", "eval_episodes", "eval_max_steps", "checkpoint_every_chunks",
-                    "keep_checkpoints", "tensorboard")
+RESUMABLE_FIELDS = ("run.total_env_steps", "run.eval_episodes", "run.eval_max_steps", "run.checkpoint_every_chunks",
+                    "run.keep_checkpoints", "run.tensorboard")
 _SEED_DIR = re.compile(r"seed_\d+")
 
 
@@ -120,7 +122,8 @@ def check_config(run_dir: Path, config_json: dict, seed: int, defaults: dict | N
         saved = json.loads(path.read_text())
     except (OSError, ValueError) as e:
         raise RunFolderError(f"cannot read {path} ({e}); resume with --no-resume or train into a new --out") from None
-    diff = config_differences(saved.get("config", {}), config_json, defaults)
+    # a folder written before the config groups holds the flat form: compared in the current one
+    diff = config_differences(upgrade_dict(saved.get("config", {})), config_json, defaults)
     fixed = {k: v for k, v in diff.items() if k not in RESUMABLE_FIELDS}
     if saved.get("seed") != seed:
         fixed["seed"] = (saved.get("seed"), seed)
