@@ -163,9 +163,9 @@ def train_config(num_envs: int, iterations_per_chunk: int):
     from ramavt_jax import train_config as tc
 
     base = tc.preset("quick")
-    per_iter = num_envs * base.rollout_steps
-    frames_per_update = base.batch_size * base.train_len
-    updates = max(1, round(base.replay_ratio * per_iter / frames_per_update))  # keep the preset's ratio (2) if whole
+    per_iter = num_envs * base.acting.rollout_steps
+    frames_per_update = base.replay.batch_size * base.replay.train_len
+    updates = max(1, round(base.learner.replay_ratio * per_iter / frames_per_update))  # keep the preset's ratio (2) if whole
     return tc.preset(
         "quick", num_envs=num_envs, iterations_per_chunk=iterations_per_chunk,
         total_env_steps=per_iter * iterations_per_chunk,
@@ -190,7 +190,7 @@ def train_point(envs_per_device: int, mesh, num_devices: int, iterations_per_chu
     t_warm = time.perf_counter()
     while not learning:  # chunks until every iteration of a chunk learns (the first one compiles nothing: AOT)
         if warm >= max_warmup_chunks:
-            raise RuntimeError(f"no learning after {warm} chunks (learning_starts={cfg.learning_starts})")
+            raise RuntimeError(f"no learning after {warm} chunks (learning_starts={cfg.learner.learning_starts})")
         state, m = prog.chunk(state)
         m = jax.device_get(m)
         warm += 1
@@ -205,18 +205,18 @@ def train_point(envs_per_device: int, mesh, num_devices: int, iterations_per_chu
         jax.block_until_ready(state)
         walls.append(time.perf_counter() - t)
         updates.append(int(np.asarray(m.updates).sum()))
-    expected = cfg.updates_per_iteration * cfg.iterations_per_chunk
+    expected = cfg.updates_per_iteration * cfg.run.iterations_per_chunk
     wall = statistics.median(walls)
     ups = statistics.median(u / w for u, w in zip(updates, walls))
-    frames_per_update = cfg.batch_size * cfg.train_len
+    frames_per_update = cfg.replay.batch_size * cfg.replay.train_len
     return dict(
         kind="train", partition="none" if mesh is None else "trainer", devices=num_devices,
         envs_per_device=envs_per_device, num_envs=n, preset="quick",
-        resolution=cfg.env.camera.resolution, batch_size=cfg.batch_size, train_len=cfg.train_len,
-        rollout_steps=cfg.rollout_steps, iterations_per_chunk=cfg.iterations_per_chunk,
-        updates_per_iteration=cfg.updates_per_iteration, replay_ratio=cfg.replay_ratio,
-        learning_starts=cfg.learning_starts, replay_capacity=cfg.replay_capacity,
-        data_parallel_batch=mesh is not None and cfg.batch_size % num_devices == 0,
+        resolution=cfg.env.camera.resolution, batch_size=cfg.replay.batch_size, train_len=cfg.replay.train_len,
+        rollout_steps=cfg.acting.rollout_steps, iterations_per_chunk=cfg.run.iterations_per_chunk,
+        updates_per_iteration=cfg.updates_per_iteration, replay_ratio=cfg.learner.replay_ratio,
+        learning_starts=cfg.learner.learning_starts, replay_capacity=cfg.replay.capacity_steps,
+        data_parallel_batch=mesh is not None and cfg.replay.batch_size % num_devices == 0,
         warmup_chunks=warm, warmup_s=warm_s, replay_can_sample=can_sample, timed_chunks=len(walls),
         chunk_s=wall, chunk_wall_s=walls, updates_per_chunk=updates, all_iterations_learned=all(
             u == expected for u in updates),

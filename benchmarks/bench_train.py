@@ -27,6 +27,7 @@ from ramavt_jax import replay as replay_lib
 from ramavt_jax import train as T
 from ramavt_jax.network import NetworkConfig, count_params
 from ramavt_jax.render import CameraConfig
+from ramavt_jax.train_config import ActingConfig, LearnerConfig, ReplayConfig, RunConfig
 
 VARIANTS = ("ramavt", "drlavt", "origin", "se", "mha")
 
@@ -45,7 +46,7 @@ def _filled_replay(trainer: T.Trainer, key: jax.Array):
     """A full replay of random observations / actions with a few episode starts (the learner's speed does not depend
     on the data)."""
     c = trainer.config
-    n, steps = c.num_envs, trainer.replay.steps_per_env
+    n, steps = c.acting.num_envs, trainer.replay.steps_per_env
     ks = jax.random.split(key, 4)
     ex = trainer._example_transition()
     chunk = replay_lib.Transition(
@@ -67,10 +68,11 @@ def bench_variant(variant: str, resolution: int, num_envs: int, batch_size: int,
     ratio = batch_size * train_len / env_steps
     cfg = T.TrainConfig(
         env=env_lib.EnvConfig(camera=CameraConfig(resolution=resolution), autoreset="next_step"), network=net,
-        num_envs=num_envs, rollout_steps=rollout_steps, iterations_per_chunk=1, total_env_steps=env_steps,
-        replay_capacity=num_envs * max(burn_in + train_len + 1, rollout_steps) * 2, burn_in=burn_in,
-        train_len=train_len, batch_size=batch_size, learning_starts=0, replay_ratio=ratio,
-        n_step=min(5, train_len), eval_episodes=0)
+        acting=ActingConfig(num_envs=num_envs, rollout_steps=rollout_steps),
+        replay=ReplayConfig(capacity_steps=num_envs * max(burn_in + train_len + 1, rollout_steps) * 2,
+                            burn_in=burn_in, train_len=train_len, batch_size=batch_size),
+        learner=LearnerConfig(learning_starts=0, replay_ratio=ratio, n_step=min(5, train_len)),
+        run=RunConfig(iterations_per_chunk=1, total_env_steps=env_steps, eval_episodes=0))
     tr = T.Trainer(cfg)
     key = jax.random.PRNGKey(0)
     state = jax.jit(tr.init)(key)
@@ -139,8 +141,8 @@ def run(variants=VARIANTS, resolution: int = 64, num_envs: int = 64, batch_size:
     if preset is not None:
         cfg = T.preset(preset)
         network, variants = cfg.network, (cfg.network.variant,)
-        resolution, num_envs, batch_size = cfg.env.camera.resolution, cfg.num_envs, cfg.batch_size
-        burn_in, train_len, rollout_steps = cfg.burn_in, cfg.train_len, cfg.rollout_steps
+        resolution, num_envs, batch_size = cfg.env.camera.resolution, cfg.acting.num_envs, cfg.replay.batch_size
+        burn_in, train_len, rollout_steps = cfg.replay.burn_in, cfg.replay.train_len, cfg.acting.rollout_steps
     for v in variants:
         t = time.time()
         row = bench_variant(v, resolution, num_envs, batch_size, burn_in, train_len, rollout_steps, repeats, network)

@@ -8,6 +8,8 @@ import json
 import sys
 from pathlib import Path
 
+from ramavt_jax.train_config import upgrade_dict
+
 
 def main(root: str = "runs/repro") -> None:
     root = Path(root)
@@ -22,14 +24,15 @@ def main(root: str = "runs/repro") -> None:
     print("|---|---|---|---|---|---|---|---|---|")
     for ev in sorted(root.glob("**/eval.json")):
         run = ev.parent
-        cfg = json.loads((run / "config.json").read_text())["config"]
+        cfg = upgrade_dict(json.loads((run / "config.json").read_text())["config"])  # old folders: flat
         e = json.loads(ev.read_text())
         name = str(run.relative_to(root))
         wall = walls.get(name.split("/")[0], "")
         g = {s: e[s]["greedy"] for s in ("train", "test")}
-        print(f"| {name} | {cfg['network']['variant']} | {cfg['env']['obs_mode']} | {cfg['augment']} | "
-              f"{cfg['total_env_steps']:,} | {wall} | {g['train']['length_mean']:.1f} / {g['test']['length_mean']:.1f} | "
-              f"{g['train']['return_mean']:.1f} / {g['test']['return_mean']:.1f} | "
+        print(f"| {name} | {cfg['network']['variant']} | {cfg['env']['obs_mode']} | {cfg['learner']['augment']} "
+              f"| {cfg['run']['total_env_steps']:,} | {wall} "
+              f"| {g['train']['length_mean']:.1f} / {g['test']['length_mean']:.1f} "
+              f"| {g['train']['return_mean']:.1f} / {g['test']['return_mean']:.1f} | "
               f"{e['test']['random']['length_mean']:.1f} |")
 
 
