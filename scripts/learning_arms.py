@@ -36,25 +36,24 @@ def _net(cfg, **kw):
 # encoder blind to depth scale and position, 'target lost' as a terminal state); 'all' combines the changes and is
 # the quick preset of today (arm_config checks that).
 def _base(c):
-    return dataclasses.replace(_net(c, coord_channels=False, pooled_skip=False, pools=(True, True, True)),
-                               bootstrap_lost=False)
+    return _net(c, coord_channels=False, pooled_skip=False, pools=(True, True, True)).override(bootstrap_lost=False)
 
 
 ARMS = {
     "base": _base,
     "see": lambda c: _net(_base(c), coord_channels=True, pooled_skip=True),  # depth scale + position visible
     "grid": lambda c: _net(_base(c), pools=(True, True, False)),  # 4x4 feature map (16 attention tokens) at 32x32
-    "boot": lambda c: dataclasses.replace(_base(c), bootstrap_lost=True),  # no incentive to lose the target
-    "all": lambda c: dataclasses.replace(_net(_base(c), coord_channels=True, pooled_skip=True,
-                                              pools=(True, True, False)), bootstrap_lost=True),
+    "boot": lambda c: _base(c).override(bootstrap_lost=True),  # no incentive to lose the target
+    "all": lambda c: _net(_base(c), coord_channels=True, pooled_skip=True,
+                          pools=(True, True, False)).override(bootstrap_lost=True),
 }
 # Table I's inputs at the quick budget: 'all' seeing colour or colour + depth instead of depth.
 ARMS["rgbd"] = lambda c: dataclasses.replace(ARMS["all"](c), env=dataclasses.replace(c.env, obs_mode="rgbd"))
 ARMS["color"] = lambda c: dataclasses.replace(ARMS["all"](c), env=dataclasses.replace(c.env, obs_mode="color"))
 # The longer CPU preset (the shipped agent): 'all' with 3x the env steps, slower exploration decay, a bigger replay
 # (the same TrainConfig as `ramavt train --preset long`, without its end-of-training evaluation).
-ARMS["long"] = lambda c: dataclasses.replace(ARMS["all"](c), total_env_steps=1_152_000, eps_decay_steps=400_000,
-                                             replay_capacity=128_000, checkpoint_every_chunks=6)
+ARMS["long"] = lambda c: ARMS["all"](c).override(total_env_steps=1_152_000, eps_decay_steps=400_000,
+                                                 replay_capacity=128_000, checkpoint_every_chunks=6)
 
 
 def arm_config(name: str, preset: str = "quick", **overrides):
