@@ -1,6 +1,7 @@
 """Tests for ramavt_jax.network / layers: shapes, resets, acting == learning, im2col == lax conv, maps."""
 
 import dataclasses
+import functools
 
 import flax.linen as nn
 import jax
@@ -32,11 +33,18 @@ def small(variant="ramavt", **kw):
     return NetworkConfig(variant=variant, **{**SMALL, **kw})
 
 
-def _setup(cfg, obs_shape=(32, 32, 1), b=2, t=6, seed=0):
+def _setup(cfg, obs_shape=(32, 32, 1), b=2, t=4, seed=0):
     k1, k2 = jax.random.split(jax.random.key(seed))
     variables = init_params(cfg, k1, obs_shape)
     obs = jax.random.uniform(k2, (b, t, *obs_shape))
     return make_network(cfg), variables, obs
+
+
+@functools.partial(jax.jit, static_argnums=0)
+def _apply(cfg, variables, obs, reset, state):
+    """make_network(cfg).apply, jitted once per config and shape for the whole module: an eager apply dispatches the
+    scans op by op (several times slower than compiling on a 2-core CPU)."""
+    return make_network(cfg).apply(variables, obs, reset, state)
 
 
 def _random_state(cfg, b, obs_shape, seed=1):
@@ -49,10 +57,10 @@ def _random_state(cfg, b, obs_shape, seed=1):
 @pytest.mark.parametrize("variant,res,ch", [(v, 32, 1) for v in VARIANTS] + [("ramavt", 84, 3), ("drlavt", 64, 4)])
 def test_shapes_small(variant, res, ch):
     cfg = small(variant)
-    net, variables, obs = _setup(cfg, (res, res, ch), b=2, t=3)
+    _, variables, obs = _setup(cfg, (res, res, ch), b=2, t=4)
     state = initial_state(cfg, 2, (res, res, ch))
-    q, new = jax.jit(net.apply)(variables, obs, jnp.zeros((2, 3), bool), state)
-    assert q.shape == (2, 3, cfg.num_actions) and q.dtype == jnp.float32
+    q, new = _apply(cfg, variables, obs, jnp.zeros((2, 4), bool), state)
+    assert q.shape == (2, 4, cfg.num_actions) and q.dtype == jnp.float32
     assert jax.tree_util.tree_map(jnp.shape, new) == jax.tree_util.tree_map(jnp.shape, state)
     assert np.all(np.isfinite(q))
 
@@ -81,10 +89,10 @@ def test_default_config_params_and_shapes(variant):
 def test_reset_equals_fresh_sequence(variant):
     cfg = small(variant)
     b, t, cut = 2, 7, 3
-    net, variables, obs = _setup(cfg, b=b, t=t)
+    _, variables, obs = _setup(cfg, b=b, t=t)
     reset = jnp.zeros((b, t), bool).at[:, cut].set(True)
     state = _random_state(cfg, b, obs.shape[2:])  # arbitrary carried state: must not leak past the reset
-    apply = jax.jit(net.apply)
+    apply = functools.partial(_apply, cfg)
     q, _ = apply(variables, obs, reset, state)
     fresh_reset = jnp.zeros((b, t - cut), bool).at[:, 0].set(True)
     q2, _ = apply(variables, obs[:, cut:], fresh_reset, _random_state(cfg, b, obs.shape[2:], seed=7))
@@ -98,11 +106,11 @@ def test_reset_equals_fresh_sequence(variant):
 def test_acting_equals_unroll(variant):
     cfg = small(variant)
     b, t = 3, 8
-    net, variables, obs = _setup(cfg, b=b, t=t)
+    _, variables, obs = _setup(cfg, b=b, t=t)
     reset = jnp.zeros((b, t), bool).at[:, 0].set(True).at[1, 4].set(True)
     state0 = initial_state(cfg, b, obs.shape[2:])
-    q_seq, s_seq = jax.jit(net.apply)(variables, obs, reset, state0)
-    step = jax.jit(lambda o, r, s: net.apply(variables, o, r, s))
+    q_seq, s_seq = _apply(cfg, variables, obs, reset, state0)
+    step = functools.partial(_apply, cfg, variables)
     s, qs = state0, []
     for i in range(t):
         q, s = step(obs[:, i : i + 1], reset[:, i : i + 1], s)
@@ -123,19 +131,25 @@ def test_im2col_equals_lax_conv(k, s, size):
     def lax_fn(x, w):
         return conv.apply({"params": {"kernel": w}}, x)
 
-    y1, y2 = conv2d_im2col(x, kernel, s), lax_fn(x, kernel)
-    assert y1.shape == y2.shape
+    def im2col_fn(x, w):
+        return conv2d_im2col(x, w, s)
+
+    @jax.jit  # one program for both outputs and both gradients (eager: dozens of small compiles)
+    def outputs_and_grads(x, w, g):
+        grads = [jax.grad(lambda x, w, f=f: jnp.sum(f(x, w) * g), argnums=(0, 1))(x, w) for f in (im2col_fn, lax_fn)]
+        return im2col_fn(x, w), lax_fn(x, w), grads
+
+    shape1, shape2 = jax.eval_shape(im2col_fn, x, kernel).shape, jax.eval_shape(lax_fn, x, kernel).shape
+    assert shape1 == shape2
+    y1, y2, (g1, g2) = outputs_and_grads(x, kernel, jax.random.normal(kg, shape1))
     np.testing.assert_allclose(y1, y2, atol=1e-4, rtol=1e-4)
-    g = jax.random.normal(kg, y1.shape)
-    g1 = jax.grad(lambda x, w: jnp.sum(conv2d_im2col(x, w, s) * g), argnums=(0, 1))(x, kernel)
-    g2 = jax.grad(lambda x, w: jnp.sum(lax_fn(x, w) * g), argnums=(0, 1))(x, kernel)
     for a, b in zip(g1, g2):
         np.testing.assert_allclose(a, b, atol=1e-3, rtol=1e-4)
 
 
 def test_network_conv_impls_share_params_and_agree():
     cfg = small("ramavt")
-    net, variables, obs = _setup(cfg, (33, 33, 2), t=3)
+    _, variables, obs = _setup(cfg, (33, 33, 2), t=3)
     cfg_orig = dataclasses.replace(cfg, pool_first=False, norm="none")
     assert count_params(jax.eval_shape(lambda k: init_params(cfg_orig, k, (33, 33, 2)), jax.random.key(0))) > 0
     cfg_lax = dataclasses.replace(cfg, conv_impl="lax")
@@ -143,8 +157,8 @@ def test_network_conv_impls_share_params_and_agree():
     assert jax.tree_util.tree_structure(v2) == jax.tree_util.tree_structure(variables)
     reset = jnp.zeros((2, 3), bool)
     s = initial_state(cfg, 2)
-    q1, _ = net.apply(variables, obs, reset, s)
-    q2, _ = make_network(cfg_lax).apply(variables, obs, reset, s)
+    q1, _ = _apply(cfg, variables, obs, reset, s)
+    q2, _ = _apply(cfg_lax, variables, obs, reset, s)
     np.testing.assert_allclose(q1, q2, atol=1e-4)
 
 
@@ -153,7 +167,7 @@ def test_attention_maps(variant):
     cfg = small(variant)
     variables = init_params(cfg, jax.random.key(0), (64, 64, 1))
     obs = jax.random.uniform(jax.random.key(1), (64, 64, 1))
-    maps = attention_maps(variables["params"], cfg, obs)
+    maps = jax.jit(attention_maps, static_argnums=1)(variables["params"], cfg, obs)
     expected = {f"block{i}" for i in range(1, 5)} | ({"mha"} if cfg.use_mha else set())
     assert set(maps) == expected
     assert maps["block1"].shape == (16, 16) and maps["block4"].shape == (1, 1)
@@ -169,13 +183,17 @@ def test_batchnorm_train_and_eval():
     assert "batch_stats" in variables
     reset = jnp.zeros((2, 4), bool)
     s = initial_state(cfg, 2)
-    (q, _), upd = net.apply(variables, obs, reset, s, train=True, mutable=["batch_stats"])
+    train_apply = jax.jit(lambda v, o, r, s: net.apply(v, o, r, s, train=True, mutable=["batch_stats"]))
+    (q, _), upd = train_apply(variables, obs, reset, s)
     assert q.shape == (2, 4, 11)
     changed = jax.tree_util.tree_map(lambda a, b: bool(jnp.any(a != b)), upd["batch_stats"], variables["batch_stats"])
     assert any(jax.tree_util.tree_leaves(changed))
-    q_eval, _ = net.apply(variables, obs, reset, s)  # running averages: deterministic, frame-local
-    q_one, _ = net.apply(variables, obs[:1], reset[:1], jax.tree_util.tree_map(lambda x: x, initial_state(cfg, 1)))
-    np.testing.assert_allclose(q_eval[:1], q_one, atol=1e-5)
+    # running averages: deterministic and frame-local, so sequence 0's q does not depend on what sequence 1 shows
+    q_eval, _ = _apply(cfg, variables, obs, reset, s)
+    other = obs.at[1].set(jax.random.uniform(jax.random.key(5), obs.shape[1:]))
+    q_other, _ = _apply(cfg, variables, other, reset, s)
+    np.testing.assert_allclose(q_eval[0], q_other[0], atol=1e-5)
+    assert not np.allclose(q_eval[1], q_other[1], atol=1e-5)
 
 
 def test_grad_finite_and_bf16():
@@ -191,8 +209,8 @@ def test_grad_finite_and_bf16():
     g = jax.jit(jax.grad(loss))(variables["params"])
     assert all(np.all(np.isfinite(x)) for x in jax.tree_util.tree_leaves(g))
     cfg16 = dataclasses.replace(cfg, dtype="bfloat16")
-    q16, _ = make_network(cfg16).apply(variables, obs, reset, s)
-    q32, _ = net.apply(variables, obs, reset, s)
+    q16, _ = _apply(cfg16, variables, obs, reset, s)
+    q32, _ = _apply(cfg, variables, obs, reset, s)
     assert q16.dtype == jnp.float32
     np.testing.assert_allclose(q16, q32, atol=0.1, rtol=0.1)
 
@@ -272,6 +290,6 @@ def test_coordinate_channels_and_skip_shapes():
     np.testing.assert_allclose(np.asarray(x[0, 0, :, 2]), np.linspace(-1, 1, 8), atol=1e-6)
     np.testing.assert_allclose(np.asarray(x[0, :, 0, 3]), np.linspace(-1, 1, 8), atol=1e-6)
     cfg = small("ramavt", pooled_skip=True, coord_channels=True)
-    net, variables, obs = _setup(cfg)
-    q, _ = net.apply(variables, obs, jnp.zeros(obs.shape[:2], bool), initial_state(cfg, obs.shape[0]))
+    _, variables, obs = _setup(cfg)
+    q, _ = _apply(cfg, variables, obs, jnp.zeros(obs.shape[:2], bool), initial_state(cfg, obs.shape[0]))
     assert q.shape == (*obs.shape[:2], cfg.num_actions) and bool(jnp.all(jnp.isfinite(q)))
