@@ -339,11 +339,11 @@ def test_oracle_holds_a_large_user_target_at_its_stand_off(tmp_path):
                                         targets=(str(_enlarged_satellite(tmp_path, 5.0)),)))
     p = big.eval_params(max_steps=150)
     policy = baselines.oracle_policy()
-    step, act = jax.jit(big.step_env), jax.jit(policy.act)
+    step = jax.jit(big.step_env)
     obs, state = big.reset(jax.random.key(3), p)
     pstate = policy.init(jax.random.key(0))
     for k in jax.random.split(jax.random.key(4), 150):
-        action, pstate = act(k, pstate, obs, state, p)
+        action, pstate = policy.act(k, pstate, obs, state, p)
         obs, state, reward, term, trunc, info = step(k, state, action, p)
         assert not bool(term)
     assert float(state.scale) == pytest.approx(4.8, rel=1e-3)  # 2 x 12 m / 5 m
