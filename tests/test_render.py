@@ -345,6 +345,8 @@ def test_specialised_kernels_match_general_cast():
 
     rng = np.random.default_rng(7)
     cam = R.CameraConfig(resolution=32)
+    jitted = {}  # kernel -> its jitted cast (every type has the same shapes: the general one compiles once)
+    cast = lambda kernel: jitted.setdefault(kernel, jax.jit(lambda cols, x, y: kernel(cols, x, y, cam.near)))
     for gtype, kernel in [(targets.SPHERE, intersect.cast_ellipsoid), (targets.ELLIPSOID, intersect.cast_ellipsoid),
                           (targets.BOX, intersect.cast_box), (targets.CYLINDER, intersect.cast_cylinder)]:
         g = 16
@@ -361,8 +363,8 @@ def test_specialised_kernels_match_general_cast():
         s = np.asarray(R.camera_rays(cam))
         x, y = jnp.asarray(s[..., 0])[None], jnp.asarray(s[..., 1])[None]  # [1, H, W]
         cols = [table[:, i, None, None] for i in range(table.shape[1])]
-        ref = np.asarray(intersect.cast(cols, x, y, cam.near))
-        out = np.asarray(kernel(cols, x, y, cam.near))
+        ref = np.asarray(cast(intersect.cast)(cols, x, y))
+        out = np.asarray(cast(kernel)(cols, x, y))
         assert np.isfinite(ref).sum() > 50, gtype
         np.testing.assert_array_equal(np.isfinite(out), np.isfinite(ref))
         fin = np.isfinite(ref)
@@ -418,11 +420,13 @@ def test_find_pair_is_searchsorted(e):
     rng = np.random.default_rng(e)
     counts = rng.integers(0, 5, (2, e)) * (rng.random((2, e)) < 0.6)
     ends = np.cumsum(counts, axis=-1).astype(np.int32)
-    levels = _search_levels(jnp.asarray(ends))
-    for cls in (0, 1):
-        k = np.arange(max(int(ends[cls, -1]), 1), dtype=np.int32)
-        got = np.asarray(_find_pair(levels, jnp.full(k.shape, cls, jnp.int32), jnp.asarray(k)))
-        np.testing.assert_array_equal(got, np.searchsorted(ends[cls], k, side="right"))
+    # every item of both rows (and, for the shorter row, items past its end) in one jitted call: one compilation
+    # per e instead of dozens of eager op compilations
+    k = np.arange(max(int(ends.max()), 1), dtype=np.int32)
+    cls, kk = np.repeat(np.arange(2, dtype=np.int32), k.size), np.tile(k, 2)
+    got = np.asarray(jax.jit(lambda e_, c, q: _find_pair(_search_levels(e_), c, q))(ends, cls, kk))
+    for c in (0, 1):
+        np.testing.assert_array_equal(got[cls == c], np.searchsorted(ends[c], k, side="right"))
 
 
 def test_add_noise_matches_the_plain_formula_and_skips_when_off():
