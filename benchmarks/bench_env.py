@@ -9,7 +9,7 @@ thread) on the same targets and poses as the env's envs.
 
 Each point jit-compiles a `lax.scan` of 10 vmapped `env.step` calls with random actions over the training targets
 (same_step auto-reset with the final observation in info: two renders per step, the second culled for envs that
-did not finish), warms it up (the envs reach the tracked regime of DESIGN.md's initial distribution), then reports
+did not finish), warms it up (the envs reach the tracked regime of the env's initial distribution), then reports
 the median of timed calls. The 1-minute load average is printed beside every figure: other jobs on the machine
 lower the absolute numbers; the ratios to the interleaved baseline are the robust figures.
 """

@@ -4,7 +4,7 @@
 
 mjx.ray casts one ray against every geom of an MJX model; we vmap it over the pixels of a frame and over envs
 (each env = the same catalogue target at its own pose, set through qpos of the free joint). A `<material>` is
-added because mjx.ray fails on models without one (PERF_NOTES). Known gap measured here too: mjx.ray does not
+added because mjx.ray fails on models without one. Known gap measured here too: mjx.ray does not
 intersect cylinders, so targets with cylinders render with holes; we report the fraction of pixels that disagree.
 """
 

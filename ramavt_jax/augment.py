@@ -1,4 +1,4 @@
-"""Image augmentation for sequences (RAD-style, DESIGN.md *orig*): crop-and-resize, cutout, flips, rot90.
+"""Image augmentation for sequences (RAD-style, as the original code): crop-and-resize, cutout, flips, rot90.
 
 One random draw is applied to EVERY frame of a sequence (a recurrent agent must see a consistent world).
 Pure, jit-able, vmappable: ``augment_batch`` vmaps ``augment_sequence`` over sequences with per-sequence keys.

@@ -13,7 +13,7 @@ from flax import struct
 
 from ramavt_jax import dynamics
 from ramavt_jax import targets as targets_lib
-from ramavt_jax.render import CameraConfig
+from ramavt_jax.render import OBSERVATION_MODES, CameraConfig
 
 # 11 velocity commands in the camera frame (original SNCOAT action set), scaled by EnvParams.speed.
 # Module constants are numpy, not jnp: importing the package must not start a JAX backend (a multi-host run calls
@@ -29,7 +29,7 @@ ACTIONS = np.array(
     dtype=np.float32,
 )
 NUM_ACTIONS = ACTIONS.shape[0]
-OBS_CHANNELS = {"depth": 1, "color": 3, "rgbd": 4}
+OBS_CHANNELS = OBSERVATION_MODES  # one home: the renderer defines the modes and their channels
 
 # Hill coordinates of the camera axes (columns): hill = HILL_FROM_CAM @ cam.
 HILL_FROM_CAM = np.array([[0.0, -1.0, 0.0], [0.0, 0.0, 1.0], [-1.0, 0.0, 0.0]], dtype=np.float32)

@@ -3,7 +3,7 @@
 Everything here is shape-agnostic in the spatial size so one set of parameters works for any resolution
 with the same channel count. Layout is NHWC throughout.
 
-Speed notes (2-core CPU, see ``benchmarks/bench_network.py`` and ``/work/shared/PERF_NOTES.md``):
+Speed notes (2-core CPU, measured with ``benchmarks/bench_network.py``):
 - ``Im2colConv`` (pad + k*k strided slices + one matmul) is much faster than XLA's convolution on CPU,
   above all in the backward pass. It stores its kernel exactly like ``flax.linen.Conv`` (``kernel``,
   ``[k, k, C_in, C_out]``) so the two implementations share parameter trees.
@@ -133,7 +133,7 @@ class SqueezeExcite(nn.Module):
 class AttentionGate(nn.Module):
     """Multi-head self-attention over the spatial positions as tokens; the output multiplies the features.
 
-    x: [N, h, w, C] -> x * MHA(x) (elementwise gating, DESIGN.md). No positional encoding (the flatten that
+    x: [N, h, w, C] -> x * MHA(x) (elementwise gating, as the original). No positional encoding (the flatten that
     follows keeps positions). With a 1x1 feature map (64x64 input with the default backbone) there is a
     single token: the attention weights are 1 and the gate is a learned linear map of the features.
     """

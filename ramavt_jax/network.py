@@ -63,7 +63,8 @@ DTYPES = {"float32": jnp.float32, "bfloat16": jnp.bfloat16}
 
 @dataclasses.dataclass(frozen=True)
 class NetworkConfig:
-    """Q-network hyper-parameters (DESIGN.md, Network). Validated on construction."""
+    """Q-network hyper-parameters (docs/design.md lists where they depart from the original). Validated on
+    construction."""
 
     variant: str = "ramavt"
     num_actions: int = 11

@@ -263,7 +263,7 @@ def test_memory_bytes():
     tree = FakeLSTMState(h=jax.ShapeDtypeStruct((2, 512), jnp.float32), c=jax.ShapeDtypeStruct((2, 512), jnp.float32))
     cfg16 = ReplayConfig(capacity_steps=50_000, burn_in=0, train_len=12, state_dtype="bfloat16")
     assert memory_bytes(cfg16, 50, (64, 64, 4), tree) == 50_000 * (16384 + 11 + 4096) + 5
-    # the PERF_NOTES small net (1-layer LSTM 128) at 32x32 depth
+    # the small net of the CPU presets (1-layer LSTM 128) at 32x32 depth
     assert memory_bytes(cfg, 50, (32, 32, 1), [(1, 128), (1, 128)]) == 50_000 * (1024 + 11 + 1024) + 5
 
 

@@ -40,7 +40,7 @@ def loss_fn(trainer):
 def test_presets():
     quick, paper = T.preset("quick"), T.preset("paper")
     assert quick.env.camera.resolution <= 48 and quick.env.obs_mode == "depth"
-    assert quick.env_params == ()  # the DESIGN.md task, not an easier one
+    assert quick.env_params == ()  # the original task, not an easier one
     assert paper.env.camera.resolution == 256 and paper.replay.batch_size == 64 and paper.learner.lr == 1e-4
     assert paper.learner.gamma == 0.99 and paper.replay.capacity_steps == 50_000
     assert paper.network == NetworkConfig(variant="ramavt")

@@ -179,33 +179,43 @@ def load_numpy(name_or_path: str | os.PathLike, pad_to: int | None = None) -> tu
     bound_radius = float(np.max(np.linalg.norm(geom_pos, axis=1) + rbound))
 
     n = model.ngeom
-    pad = n if pad_to is None else pad_to
-    if pad < n:
-        raise TargetError(f"{path}: has {n} geoms, more than the padding size {pad}")
-
-    def padded(a: np.ndarray, fill: float = 0.0) -> np.ndarray:
-        out = np.full((pad,) + a.shape[1:], fill, dtype=a.dtype)
-        out[:n] = a
-        return out
-
-    eye = np.broadcast_to(np.eye(3), (pad, 3, 3)).copy()
-    eye[:n] = geom_mat
+    if pad_to is not None and pad_to < n:
+        raise TargetError(f"{path}: has {n} geoms, more than the padding size {pad_to}")
     arrays = dict(
-        geom_type=padded(np.asarray(model.geom_type, np.int32)),
-        geom_size=padded(np.asarray(model.geom_size, np.float32)),
-        geom_pos=padded(geom_pos.astype(np.float32)),
-        geom_mat=eye.astype(np.float32),
-        geom_rgb=padded(rgba[:, :3].astype(np.float32)),
-        geom_rbound=padded(rbound.astype(np.float32)),
-        geom_mask=padded(np.ones(n, bool)),
+        geom_type=np.asarray(model.geom_type, np.int32),
+        geom_size=np.asarray(model.geom_size, np.float32),
+        geom_pos=geom_pos.astype(np.float32),
+        geom_mat=geom_mat.astype(np.float32),
+        geom_rgb=rgba[:, :3].astype(np.float32),
+        geom_rbound=rbound.astype(np.float32),
+        geom_mask=np.ones(n, bool),
         bound_radius=np.float32(bound_radius),
         inertia=moments.astype(np.float32),
         mass=np.float32(total_mass),
     )
+    arrays = _pad_geoms(arrays, n if pad_to is None else pad_to)
     type_names = tuple(SUPPORTED_GEOM_TYPES[int(t)] for t in model.geom_type)
     name = str(name_or_path) if str(name_or_path) in CATALOGUE else path.stem
     info = TargetInfo(name, str(path), n, bound_radius, total_mass, tuple(float(m) for m in moments), type_names)
     return arrays, info
+
+
+_GEOM_FIELDS = ("geom_type", "geom_size", "geom_pos", "geom_mat", "geom_rgb", "geom_rbound", "geom_mask")
+
+
+def _pad_geoms(arrays: dict[str, np.ndarray], pad: int) -> dict[str, np.ndarray]:
+    """Per-geom arrays [G, ...] padded to [pad, ...]: padding geoms are masked off, with zero size and an
+    identity rotation."""
+    out = dict(arrays)
+    for k in _GEOM_FIELDS:
+        a = arrays[k]
+        if k == "geom_mat":
+            padded = np.broadcast_to(np.eye(3, dtype=a.dtype), (pad, 3, 3)).copy()
+        else:
+            padded = np.zeros((pad,) + a.shape[1:], a.dtype)
+        padded[: a.shape[0]] = a
+        out[k] = padded
+    return out
 
 
 def load(name_or_path: str | os.PathLike, pad_to: int | None = None) -> TargetModel:
@@ -224,7 +234,7 @@ def load_many(names_or_paths: Sequence[str | os.PathLike], pad_to: int | None = 
         if pad_to < width:
             raise TargetError(f"pad_to={pad_to} is smaller than the largest target ({width} geoms)")
         width = pad_to
-    stacked = [load_numpy(t, width)[0] for t in names_or_paths]
+    stacked = [_pad_geoms(arrays, width) for arrays, _ in loaded]  # each MJCF is parsed once
     batch = {k: jnp.asarray(np.stack([s[k] for s in stacked])) for k in stacked[0]}
     return TargetModel(**batch), [info for _, info in loaded]
 
