@@ -177,11 +177,11 @@ def constrain_envs(tree: Any, mesh: Mesh | None, env_axis: int = 0) -> Any:
         lambda x: jax.lax.with_sharding_constraint(x, NamedSharding(mesh, _split_axis(x.ndim, env_axis))), tree)
 
 
-def constrain_batch(tree: Any, mesh: Mesh | None, batch_size: int) -> Any:
-    """Split a sampled learner batch ([B, ...] leaves) over 'data' when B divides: data-parallel gradients."""
+def constrain_batch(tree: Any, mesh: Mesh | None, batch_size: int, batch_axis: int = 0) -> Any:
+    """Split a sampled learner batch (B at ``batch_axis``) over 'data' when B divides: data-parallel gradients."""
     if mesh is None or batch_size % mesh.devices.size:
         return tree
-    return constrain_envs(tree, mesh, 0)
+    return constrain_envs(tree, mesh, batch_axis)
 
 
 # ============================================================================================ host side

@@ -186,10 +186,9 @@ class Trainer:
     def _shard_batch(self, batch: replay_lib.SequenceBatch) -> replay_lib.SequenceBatch:
         """Split a sampled batch over the mesh along B (data-parallel gradients) when B divides. The start state is
         in the network's layout, B on axis 1."""
-        if self.mesh is None or self.config.replay.batch_size % self.mesh.devices.size:
-            return batch
-        rest = distributed.constrain_envs(batch.replace(start_state=None), self.mesh)
-        return rest.replace(start_state=distributed.constrain_envs(batch.start_state, self.mesh, 1))
+        b = self.config.replay.batch_size
+        rest = distributed.constrain_batch(batch.replace(start_state=None), self.mesh, b)
+        return rest.replace(start_state=distributed.constrain_batch(batch.start_state, self.mesh, b, batch_axis=1))
 
     def _shard_actor(self, actor: ActorState) -> ActorState:
         if self.mesh is None:
