@@ -50,6 +50,14 @@ ARMS = {
 # Table I's inputs at the quick budget: 'all' seeing colour or colour + depth instead of depth.
 ARMS["rgbd"] = lambda c: dataclasses.replace(ARMS["all"](c), env=dataclasses.replace(c.env, obs_mode="rgbd"))
 ARMS["color"] = lambda c: dataclasses.replace(ARMS["all"](c), env=dataclasses.replace(c.env, obs_mode="color"))
+# Train on the evaluation's reward weight (1.0 per metre, not the original training value 0.5): AER is scored with 1.0.
+ARMS["dw1"] = lambda c: ARMS["all"](c).override(env_params=(("dist_weight", 1.0),))
+# Table III's ablation at the quick budget, each one change to the plain DRQN ('origin') as in the paper: + label-
+# preserving augmentation (cutout), + SE, + MHA; 'all' is the RAMAVT row (SE + MHA, no augmentation).
+ARMS["origin"] = lambda c: _net(ARMS["all"](c), variant="origin")
+ARMS["aug"] = lambda c: ARMS["origin"](c).override(augment=True)
+ARMS["se"] = lambda c: _net(ARMS["all"](c), variant="se")
+ARMS["mha"] = lambda c: _net(ARMS["all"](c), variant="mha")
 # The longer CPU preset (the shipped agent): 'all' with 3x the env steps, slower exploration decay, a bigger replay
 # (the same TrainConfig as `ramavt train --preset long`, without its end-of-training evaluation).
 ARMS["long"] = lambda c: ARMS["all"](c).override(total_env_steps=1_152_000, eps_decay_steps=400_000,
