@@ -88,6 +88,9 @@ class NetworkConfig:
     # followed by a per-frame LayerNorm is exactly invariant to a global scaling of the depth image.
     coord_channels: bool = False  # append a hit mask and the pixel coordinates in [-1, 1] to the input channels
     pooled_skip: bool = False  # append the spatial mean of block 1's activations, taken BEFORE its norm, to the output
+    # R2D2's recurrent input: the previous action (one-hot, with one extra 'none' entry at episode starts) is
+    # appended to the LSTM's input, so the LSTM knows the velocity commands it gave and not just what it saw.
+    prev_action: bool = False
 
     def __post_init__(self):
         def fail(msg):
@@ -124,6 +127,8 @@ class NetworkConfig:
             v = getattr(self, name)
             if not isinstance(v, (int, np.integer)) or isinstance(v, bool) or v < 1:
                 fail(f"{name} must be a positive integer, got {v!r}")
+        if self.prev_action and not self.recurrent:
+            fail("prev_action needs a recurrent variant (the previous action is an LSTM input), not 'drlavt'")
         if self.use_mha and self.channels[-1] % self.attention_heads != 0:
             fail(
                 f"attention_heads={self.attention_heads} must divide the last block's channels "
@@ -162,11 +167,14 @@ class RecurrentState:
 
     h, c:   [lstm_layers, B, lstm] LSTM hidden and cell states ([0, B, lstm] for 'drlavt').
     frames: [B, frame_stack - 1, H, W, C] previous frames, oldest first ('drlavt'); [B, 0] otherwise.
+    prev_action: [1, B] int32, the action taken after the last consumed obs (NetworkConfig.prev_action; None
+        otherwise). Laid out like h and c (B on axis 1) so the replay and the sharding treat all three alike.
     """
 
     h: jax.Array
     c: jax.Array
     frames: jax.Array
+    prev_action: jax.Array | None = None
 
 
 def initial_state(config: NetworkConfig, batch: int, obs_shape: tuple | None = None) -> RecurrentState:
@@ -179,7 +187,23 @@ def initial_state(config: NetworkConfig, batch: int, obs_shape: tuple | None = N
         if obs_shape is None or len(obs_shape) != 3:
             raise ValueError("initial_state: variant 'drlavt' needs obs_shape=(H, W, C) for its frame buffer")
         frames = jnp.zeros((batch, config.frame_stack - 1, *obs_shape), jnp.float32)
-    return RecurrentState(h=h, c=h, frames=frames)
+    prev_action = jnp.zeros((1, batch), jnp.int32) if config.prev_action else None
+    return RecurrentState(h=h, c=h, frames=frames, prev_action=prev_action)
+
+
+def previous_actions(config: NetworkConfig, reset: jax.Array, state: RecurrentState,
+                     actions: jax.Array | None) -> jax.Array:
+    """One-hot previous action per step, [B, T, A + 1]: state.prev_action before step 0, ``actions[:, t - 1]``
+    before step t > 0, and the extra 'none' entry A where ``reset`` (an episode's first step has no previous
+    action). ``actions`` [B, T] (the actions taken at each step) is needed only when T > 1."""
+    b, t = reset.shape
+    prev = state.prev_action[0][:, None]  # [B, 1]
+    if t > 1:
+        if actions is None:
+            raise ValueError("QNetwork: a prev_action network needs the window's actions [B, T] when T > 1")
+        prev = jnp.concatenate([prev, actions[:, :-1].astype(prev.dtype)], axis=1)
+    prev = jnp.where(reset, config.num_actions, prev)
+    return jax.nn.one_hot(prev, config.num_actions + 1, dtype=config.jnp_dtype)
 
 
 def stack_frames(obs: jax.Array, reset: jax.Array, frames: jax.Array) -> tuple[jax.Array, jax.Array]:
@@ -253,7 +277,10 @@ class Encoder(nn.Module):
 
 
 class QNetwork(nn.Module):
-    """Q-network. __call__(obs [B, T, H, W, C], reset [B, T] bool, state) -> (q [B, T, A] float32, state)."""
+    """Q-network. __call__(obs [B, T, H, W, C], reset [B, T] bool, state, actions [B, T] | None)
+    -> (q [B, T, A] float32, state). ``actions`` (the actions taken at each step) matter only with
+    ``prev_action``: then the returned state's prev_action is ``actions[:, -1]``, or unchanged without them (the
+    caller, who picks the action after seeing q, sets it)."""
 
     config: NetworkConfig
 
@@ -261,7 +288,8 @@ class QNetwork(nn.Module):
         return initial_state(self.config, batch, obs_shape)
 
     @nn.compact
-    def __call__(self, obs: jax.Array, reset: jax.Array, state: RecurrentState, train: bool = False):
+    def __call__(self, obs: jax.Array, reset: jax.Array, state: RecurrentState, train: bool = False,
+                 actions: jax.Array | None = None):
         cfg = self.config
         if obs.ndim != 5 or reset.shape != obs.shape[:2]:
             raise ValueError(f"QNetwork: expected obs [B, T, H, W, C] and reset [B, T], got {obs.shape} and {reset.shape}")
@@ -274,13 +302,15 @@ class QNetwork(nn.Module):
             obs, frames = stack_frames(obs, reset, state.frames)
         x = Encoder(cfg, name="encoder")(obs.reshape(b * t, *obs.shape[2:]), train)  # [B*T, F]
         if cfg.recurrent:
-            x = nn.relu(nn.Dense(cfg.dense, dtype=dtype, kernel_init=he_init, name="dense")(x))
-            y, (h, c) = LSTMStack(cfg.lstm, cfg.lstm_layers, dtype=dtype, name="lstm")(
-                x.reshape(b, t, -1), reset, (state.h, state.c)
-            )
+            x = nn.relu(nn.Dense(cfg.dense, dtype=dtype, kernel_init=he_init, name="dense")(x)).reshape(b, t, -1)
+            prev_action = state.prev_action
+            if cfg.prev_action:
+                x = jnp.concatenate([x, previous_actions(cfg, reset, state, actions)], axis=-1)
+                prev_action = state.prev_action if actions is None else actions[:, -1:].T.astype(jnp.int32)
+            y, (h, c) = LSTMStack(cfg.lstm, cfg.lstm_layers, dtype=dtype, name="lstm")(x, reset, (state.h, state.c))
             y = nn.relu(nn.Dense(cfg.head, dtype=dtype, kernel_init=he_init, name="head")(y))
             q = nn.Dense(cfg.num_actions, dtype=dtype, kernel_init=lecun_init, name="q")(y)
-            new_state = RecurrentState(h=h, c=c, frames=frames)
+            new_state = RecurrentState(h=h, c=c, frames=frames, prev_action=prev_action)
         else:
             for j, width in enumerate(cfg.drlavt_dense):
                 x = nn.relu(nn.Dense(width, dtype=dtype, kernel_init=he_init, name=f"dense{j}")(x))

@@ -171,7 +171,7 @@ class Trainer:
         return replay_lib.Transition(
             obs=jnp.zeros(self.obs_shape), action=jnp.zeros((), jnp.int32), reward=jnp.zeros(()),
             terminated=jnp.zeros((), bool), truncated=jnp.zeros((), bool), is_first=jnp.zeros((), bool),
-            recurrent_state=RecurrentState(h=s.h[:, 0], c=s.c[:, 0], frames=None))
+            recurrent_state=unbatch_state(s).replace(frames=None))
 
     def _per_device(self, batched_fn):
         """Run a function of per-env arrays ([N, ...] in and out) on each device's own envs (``jax.shard_map``).
@@ -197,17 +197,18 @@ class Trainer:
         return actor.replace(
             env_state=distributed.constrain_envs(actor.env_state, m), obs=distributed.constrain_envs(actor.obs, m),
             is_first=distributed.constrain_envs(actor.is_first, m),
-            net_state=ns.replace(h=distributed.constrain_envs(ns.h, m, 1), c=distributed.constrain_envs(ns.c, m, 1),
-                                 frames=distributed.constrain_envs(ns.frames, m)))
+            net_state=jax.tree.map(lambda x: distributed.constrain_envs(x, m, 1), ns.replace(frames=None)).replace(
+                frames=distributed.constrain_envs(ns.frames, m)))
 
     def epsilon(self, env_steps: jax.Array) -> jax.Array:
         c = self.config.acting
         frac = jnp.clip(env_steps / max(c.eps_decay_steps, 1), 0.0, 1.0) if c.eps_decay_steps else 1.0
         return c.eps_start + (c.eps_end - c.eps_start) * frac
 
-    def q_values(self, params, obs, reset, state):
-        """Online/target forward: obs [B, T, H, W, C], reset [B, T] -> (q [B, T, A], state)."""
-        return self.net.apply({"params": params}, obs, reset, state)
+    def q_values(self, params, obs, reset, state, actions=None):
+        """Online/target forward: obs [B, T, H, W, C], reset [B, T], actions [B, T] (the actions taken; used by
+        prev_action networks) -> (q [B, T, A], state)."""
+        return self.net.apply({"params": params}, obs, reset, state, actions=actions)
 
     # ---------------------------------------------------------------- init
     def init(self, key: jax.Array) -> RunnerState:
@@ -227,7 +228,7 @@ class Trainer:
     # ---------------------------------------------------------------- acting
     def act_step(self, params, actor: ActorState, epsilon: jax.Array, key: jax.Array):
         """One epsilon-greedy step of all envs: (actor, Transition [N, ...] (state [layers, N, units]), stats)."""
-        c = self.config.acting
+        c, c_net = self.config.acting, self.config.network
         k_eps, k_rand, k_env = jax.random.split(key, 3)
         q, net_state = self.q_values(params, actor.obs[:, None], actor.is_first[:, None], actor.net_state)
         greedy = jnp.argmax(q[:, 0], axis=-1).astype(jnp.int32)
@@ -240,6 +241,8 @@ class Trainer:
         transition = replay_lib.Transition(
             obs=actor.obs, action=action, reward=reward, terminated=terminated, truncated=truncated,
             is_first=actor.is_first, recurrent_state=actor.net_state.replace(frames=None))
+        if c_net.prev_action:  # the network saw q before the action was picked: record it for the next step
+            net_state = net_state.replace(prev_action=action[None])
         new_actor = ActorState(env_state=env_state, obs=obs, is_first=info["is_first"], net_state=net_state)
         done = terminated | truncated
         stats = EpisodeStats(episodes=done.sum(), length_sum=jnp.where(done, info["episode_length"], 0).sum(),
@@ -272,9 +275,9 @@ class Trainer:
         else:  # the frame history is not stored: rebuilt during burn-in (burn_in >= frame_stack - 1 is validated)
             frames = jnp.repeat(obs[:, :1], c.network.frame_stack - 1, axis=1)
         state = batch.start_state.replace(frames=frames)
-        q_target, _ = self.q_values(target_params, obs, batch.reset, state)
+        q_target, _ = self.q_values(target_params, obs, batch.reset, state, batch.action)
         if burn:
-            _, state = self.q_values(params, obs[:, :burn], batch.reset[:, :burn], state)
+            _, state = self.q_values(params, obs[:, :burn], batch.reset[:, :burn], state, batch.action[:, :burn])
         sg = jax.lax.stop_gradient
         terminated, truncated = batch.terminated[:, burn:], batch.truncated[:, burn:]
         if c.learner.bootstrap_lost:  # see LearnerConfig.bootstrap_lost
@@ -286,7 +289,7 @@ class Trainer:
 
     def trained_loss(self, params, prepared: PreparedBatch):
         """TD loss over the trained part of the window (gradient w.r.t. params only). Returns (loss, aux)."""
-        q_online, _ = self.q_values(params, prepared.obs, prepared.reset, prepared.state)  # [B, T+1, A]
+        q_online, _ = self.q_values(params, prepared.obs, prepared.reset, prepared.state, prepared.td.action)
         loss, aux = td_loss(q_online, prepared.td, self.td)
         mask = prepared.td.mask.astype(jnp.float32)
         aux = dict(aux, q_mean=(aux["q_taken"] * mask).sum() / jnp.maximum(mask.sum(), 1.0))
@@ -369,6 +372,18 @@ def make_train(config: TrainConfig, tracking_env: env_lib.TrackingEnv | None = N
 
 
 # ============================================================================================ greedy policy
+def unbatch_state(s: RecurrentState) -> RecurrentState:
+    """A batch-of-one state without its batch axis: h, c, prev_action [layers, 1, ...] -> [layers, ...],
+    frames [1, ...] -> [...]."""
+    return jax.tree.map(lambda x: x[:, 0], s.replace(frames=None)).replace(frames=s.frames[0])
+
+
+def batch_state(s: RecurrentState) -> RecurrentState:
+    """The inverse of unbatch_state."""
+    return jax.tree.map(lambda x: x[:, None], s.replace(frames=None)).replace(frames=s.frames[None])
+
+
+
 @struct.dataclass
 class GreedyState:
     net_state: RecurrentState  # per env (no batch axis): h, c [layers, units], frames [K-1, H, W, C]
@@ -381,14 +396,15 @@ def greedy_policy(network: NetworkConfig, params, obs_shape: tuple, name: str = 
 
     def init(key):
         s = initial_state(network, 1, obs_shape)
-        return GreedyState(net_state=RecurrentState(h=s.h[:, 0], c=s.c[:, 0], frames=s.frames[0]),
-                           first=jnp.ones((), bool))
+        return GreedyState(net_state=unbatch_state(s), first=jnp.ones((), bool))
 
     def act(key, pstate: GreedyState, obs, env_state, env_params):
-        s = pstate.net_state
-        batched = RecurrentState(h=s.h[:, None], c=s.c[:, None], frames=s.frames[None])
-        q, new = net.apply({"params": params}, obs[None, None], pstate.first[None, None], batched)
-        new = RecurrentState(h=new.h[:, 0], c=new.c[:, 0], frames=new.frames[0])
-        return jnp.argmax(q[0, 0]).astype(jnp.int32), GreedyState(net_state=new, first=jnp.zeros((), bool))
+        q, new = net.apply({"params": params}, obs[None, None], pstate.first[None, None],
+                           batch_state(pstate.net_state))
+        action = jnp.argmax(q[0, 0]).astype(jnp.int32)
+        new = unbatch_state(new)
+        if network.prev_action:
+            new = new.replace(prev_action=action[None])
+        return action, GreedyState(net_state=new, first=jnp.zeros((), bool))
 
     return Policy(name, init, act)

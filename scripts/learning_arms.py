@@ -52,6 +52,8 @@ ARMS["rgbd"] = lambda c: dataclasses.replace(ARMS["all"](c), env=dataclasses.rep
 ARMS["color"] = lambda c: dataclasses.replace(ARMS["all"](c), env=dataclasses.replace(c.env, obs_mode="color"))
 # Train on the evaluation's reward weight (1.0 per metre, not the original training value 0.5): AER is scored with 1.0.
 ARMS["dw1"] = lambda c: ARMS["all"](c).override(env_params=(("dist_weight", 1.0),))
+# R2D2's recurrent input: the previous action one-hot beside the encoder's features at the LSTM's input.
+ARMS["prev"] = lambda c: _net(ARMS["all"](c), prev_action=True)
 # Table III's ablation at the quick budget, each one change to the plain DRQN ('origin') as in the paper: + label-
 # preserving augmentation (cutout), + SE, + MHA; 'all' is the RAMAVT row (SE + MHA, no augmentation).
 ARMS["origin"] = lambda c: _net(ARMS["all"](c), variant="origin")

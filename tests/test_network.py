@@ -120,6 +120,40 @@ def test_acting_equals_unroll(variant):
         np.testing.assert_allclose(a, bb, atol=1e-5)
 
 
+@functools.partial(jax.jit, static_argnums=0)
+def _apply_actions(cfg, variables, obs, reset, state, actions):
+    return make_network(cfg).apply(variables, obs, reset, state, actions=actions)
+
+
+def test_prev_action_acting_equals_unroll_and_episode_starts_hide_it():
+    """A prev_action network over a window (actions given) equals acting step by step with the caller recording
+    each action in the state; the previous action changes q except at episode starts."""
+    cfg = small("origin", prev_action=True)
+    b, t = 3, 6
+    _, variables, obs = _setup(cfg, b=b, t=t)
+    reset = jnp.zeros((b, t), bool).at[:, 0].set(True).at[1, 3].set(True)
+    actions = jax.random.randint(jax.random.key(3), (b, t), 0, cfg.num_actions)
+    state0 = initial_state(cfg, b)
+    assert state0.prev_action.shape == (1, b)
+    q_seq, s_seq = _apply_actions(cfg, variables, obs, reset, state0, actions)
+    s, qs = state0, []
+    for i in range(t):
+        q, s = _apply(cfg, variables, obs[:, i : i + 1], reset[:, i : i + 1], s)
+        s = s.replace(prev_action=actions[:, i][None])
+        qs.append(q)
+    np.testing.assert_allclose(jnp.concatenate(qs, 1), q_seq, atol=1e-5)
+    for a, bb in zip(jax.tree_util.tree_leaves(s), jax.tree_util.tree_leaves(s_seq)):
+        np.testing.assert_allclose(a, bb, atol=1e-5)
+    q_other, _ = _apply_actions(cfg, variables, obs, reset, state0, (actions + 1) % cfg.num_actions)
+    np.testing.assert_allclose(q_other[:, 0], q_seq[:, 0], atol=1e-6)  # step 0 is an episode start everywhere
+    assert not np.allclose(q_other[0, 1], q_seq[0, 1], atol=1e-4)
+    # row 1 restarts at step 3: from there on its q cannot depend on the actions before the reset
+    q_tail, _ = _apply_actions(cfg, variables, obs, reset, state0, actions.at[1, :3].set(0))
+    np.testing.assert_allclose(q_tail[1, 3:], q_seq[1, 3:], atol=1e-6)
+    with pytest.raises(ValueError, match="actions"):
+        _apply(cfg, variables, obs, reset, state0)
+
+
 @pytest.mark.parametrize("k,s,size", [(3, 2, 16), (3, 1, 9), (1, 1, 6), (5, 2, 7)])
 def test_im2col_equals_lax_conv(k, s, size):
     kx, kk, kg = jax.random.split(jax.random.key(0), 3)
@@ -237,6 +271,7 @@ def test_flops_and_params_positive():
         (dict(lstm_layers=0), "lstm_layers"),
         (dict(num_actions=0), "num_actions"),
         (dict(channels=32), "tuple"),
+        (dict(variant="drlavt", prev_action=True), "prev_action"),
     ],
 )
 def test_bad_config(kw, match):

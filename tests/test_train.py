@@ -1,5 +1,6 @@
 """Trainer: config validation, burn-in gradients, sequence plumbing, stored recurrent state, vmap over seeds, learning."""
 
+import dataclasses
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -109,14 +110,15 @@ def test_drlavt_with_enough_burn_in_is_accepted():
 
 
 @pytest.mark.parametrize(
-    "variant, obs_mode, augment",
-    [("ramavt", "depth", False), ("drlavt", "depth", False), ("se", "rgbd", False), ("mha", "color", True),
-     ("origin", "depth", True)],
+    "variant, obs_mode, augment, prev_action",
+    [("ramavt", "depth", False, False), ("drlavt", "depth", False, False), ("se", "rgbd", False, False),
+     ("mha", "color", True, False), ("origin", "depth", True, False), ("ramavt", "depth", False, True)],
 )
-def test_every_variant_observation_and_augmentation_traces(variant, obs_mode, augment):
+def test_every_variant_observation_and_augmentation_traces(variant, obs_mode, augment, prev_action):
     """The whole chunk (acting, replay, burn-in learner) traces for each option (abstractly: nothing compiles)."""
     net = NetworkConfig(variant=variant, channels=(8, 8), kernels=(3, 3), strides=(1, 1), pools=(True, True),
-                        dense=16, lstm=16, lstm_layers=2, head=16, attention_heads=2, drlavt_dense=(16,))
+                        dense=16, lstm=16, lstm_layers=2, head=16, attention_heads=2, drlavt_dense=(16,),
+                        prev_action=prev_action)
     env_cfg = env_lib.EnvConfig(camera=CameraConfig(resolution=16), obs_mode=obs_mode, autoreset="next_step")
     cfg = SMOKE.override(network=net, env=env_cfg, augment=augment)
     tr = T.Trainer(cfg)
@@ -262,6 +264,27 @@ def test_stored_recurrent_state_is_the_actors_state():
         assert float(chunk2.reward[n, t + 1]) == 0.0 and not done[n, t + 1]
     # the stored obs is quantised only when it enters the buffer, not here
     assert chunk2.obs.dtype == jnp.float32
+
+
+def test_prev_action_is_stored_with_the_state_and_fed_back_by_the_greedy_policy():
+    """With a prev_action network the stored state before step t+1 holds the action taken at step t, and the
+    greedy policy acts as the network does over the same sequence with its own actions given."""
+    cfg = SMOKE.override(network=dataclasses.replace(SMOKE.network, prev_action=True))
+    tr = T.Trainer(cfg)
+    state = jax.jit(tr.init)(jax.random.PRNGKey(4))
+    params = state.learner.params
+    _, chunk, _, _ = jax.jit(tr.rollout)(params, state.actor, jnp.int32(0), jax.random.PRNGKey(5))
+    stored = np.asarray(chunk.recurrent_state.prev_action)[..., 0]  # [N, T]
+    np.testing.assert_array_equal(stored[:, 1:], np.asarray(chunk.action)[:, :-1])
+    policy = T.greedy_policy(cfg.network, params, cfg.env.obs_shape)
+    obs = jax.random.uniform(jax.random.PRNGKey(8), (6, *cfg.env.obs_shape))
+    ps, actions = policy.init(jax.random.PRNGKey(0)), []
+    for t in range(6):
+        a, ps = policy.act(jax.random.PRNGKey(t), ps, obs[t], None, None)
+        actions.append(int(a))
+    reset = jnp.zeros((1, 6), bool).at[0, 0].set(True)
+    q, _ = tr.q_values(params, obs[None], reset, initial_state(cfg.network, 1), jnp.array([actions]))
+    assert actions == np.asarray(jnp.argmax(q[0], -1)).tolist()
 
 
 # ------------------------------------------------------------------------------------------ seeds
