@@ -33,9 +33,9 @@ from ramavt_jax import distributed
 from ramavt_jax import env as env_lib
 from ramavt_jax import replay as replay_lib
 from ramavt_jax.augment import augment_batch
-from ramavt_jax.baselines import Policy
+from ramavt_jax.greedy import GreedyState, greedy_policy, unbatch_state  # noqa: F401 (re-exported)
 from ramavt_jax.losses import TDBatch, td_loss
-from ramavt_jax.network import NetworkConfig, RecurrentState, init_params, initial_state, make_network
+from ramavt_jax.network import RecurrentState, init_params, initial_state, make_network
 from ramavt_jax.train_config import PRESETS, TrainConfig, preset  # noqa: F401 (re-exported: config lives there)
 
 __all__ = [
@@ -369,42 +369,3 @@ class Trainer:
 def make_train(config: TrainConfig, tracking_env: env_lib.TrackingEnv | None = None, mesh=None):
     """purejaxrl-style: returns ``train(key) -> {'runner_state', 'metrics'}``; jit it, vmap it over seeds."""
     return Trainer(config, tracking_env, mesh).train
-
-
-# ============================================================================================ greedy policy
-def unbatch_state(s: RecurrentState) -> RecurrentState:
-    """A batch-of-one state without its batch axis: h, c, prev_action [layers, 1, ...] -> [layers, ...],
-    frames [1, ...] -> [...]."""
-    return jax.tree.map(lambda x: x[:, 0], s.replace(frames=None)).replace(frames=s.frames[0])
-
-
-def batch_state(s: RecurrentState) -> RecurrentState:
-    """The inverse of unbatch_state."""
-    return jax.tree.map(lambda x: x[:, None], s.replace(frames=None)).replace(frames=s.frames[None])
-
-
-
-@struct.dataclass
-class GreedyState:
-    net_state: RecurrentState  # per env (no batch axis): h, c [layers, units], frames [K-1, H, W, C]
-    first: jax.Array  # [] bool
-
-
-def greedy_policy(network: NetworkConfig, params, obs_shape: tuple, name: str = "greedy") -> Policy:
-    """A ``baselines.Policy`` acting greedily with a trained Q-network (per env; evaluate.run_episodes vmaps it)."""
-    net = make_network(network)
-
-    def init(key):
-        s = initial_state(network, 1, obs_shape)
-        return GreedyState(net_state=unbatch_state(s), first=jnp.ones((), bool))
-
-    def act(key, pstate: GreedyState, obs, env_state, env_params):
-        q, new = net.apply({"params": params}, obs[None, None], pstate.first[None, None],
-                           batch_state(pstate.net_state))
-        action = jnp.argmax(q[0, 0]).astype(jnp.int32)
-        new = unbatch_state(new)
-        if network.prev_action:
-            new = new.replace(prev_action=action[None])
-        return action, GreedyState(net_state=new, first=jnp.zeros((), bool))
-
-    return Policy(name, init, act)

@@ -1,0 +1,49 @@
+"""The greedy policy of a trained Q-network, as a ``baselines.Policy`` (one env; vmap it over envs)."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+from flax import struct
+
+from ramavt_jax.baselines import Policy
+from ramavt_jax.network import NetworkConfig, RecurrentState, initial_state, make_network
+
+__all__ = ["GreedyState", "greedy_policy", "unbatch_state", "batch_state"]
+
+
+def unbatch_state(s: RecurrentState) -> RecurrentState:
+    """A batch-of-one state without its batch axis: h, c, prev_action [layers, 1, ...] -> [layers, ...],
+    frames [1, ...] -> [...]."""
+    return jax.tree.map(lambda x: x[:, 0], s.replace(frames=None)).replace(frames=s.frames[0])
+
+
+def batch_state(s: RecurrentState) -> RecurrentState:
+    """The inverse of unbatch_state."""
+    return jax.tree.map(lambda x: x[:, None], s.replace(frames=None)).replace(frames=s.frames[None])
+
+
+@struct.dataclass
+class GreedyState:
+    net_state: RecurrentState  # per env (no batch axis): h, c [layers, units], frames [K-1, H, W, C]
+    first: jax.Array  # [] bool
+
+
+def greedy_policy(network: NetworkConfig, params, obs_shape: tuple, name: str = "greedy") -> Policy:
+    """A ``baselines.Policy`` acting greedily with a trained Q-network (per env; evaluate.run_episodes vmaps it)."""
+    net = make_network(network)
+
+    def init(key):
+        s = initial_state(network, 1, obs_shape)
+        return GreedyState(net_state=unbatch_state(s), first=jnp.ones((), bool))
+
+    def act(key, pstate: GreedyState, obs, env_state, env_params):
+        q, new = net.apply({"params": params}, obs[None, None], pstate.first[None, None],
+                           batch_state(pstate.net_state))
+        action = jnp.argmax(q[0, 0]).astype(jnp.int32)
+        new = unbatch_state(new)
+        if network.prev_action:
+            new = new.replace(prev_action=action[None])
+        return action, GreedyState(net_state=new, first=jnp.zeros((), bool))
+
+    return Policy(name, init, act)
