@@ -195,13 +195,15 @@ def previous_actions(config: NetworkConfig, reset: jax.Array, state: RecurrentSt
                      actions: jax.Array | None) -> jax.Array:
     """One-hot previous action per step, [B, T, A + 1]: state.prev_action before step 0, ``actions[:, t - 1]``
     before step t > 0, and the extra 'none' entry A where ``reset`` (an episode's first step has no previous
-    action). ``actions`` [B, T] (the actions taken at each step) is needed only when T > 1."""
+    action). ``actions`` [B, T] or [B, T - 1] (the actions taken at each step; a window's last obs may have none
+    yet) is needed only when T > 1."""
     b, t = reset.shape
     prev = state.prev_action[0][:, None]  # [B, 1]
     if t > 1:
-        if actions is None:
-            raise ValueError("QNetwork: a prev_action network needs the window's actions [B, T] when T > 1")
-        prev = jnp.concatenate([prev, actions[:, :-1].astype(prev.dtype)], axis=1)
+        if actions is None or actions.shape[1] not in (t - 1, t):
+            raise ValueError(f"QNetwork: a prev_action network needs the window's actions [B, T] or [B, T - 1] "
+                             f"when T > 1, got {None if actions is None else actions.shape} for T = {t}")
+        prev = jnp.concatenate([prev, actions[:, :t - 1].astype(prev.dtype)], axis=1)
     prev = jnp.where(reset, config.num_actions, prev)
     return jax.nn.one_hot(prev, config.num_actions + 1, dtype=config.jnp_dtype)
 
@@ -279,7 +281,7 @@ class Encoder(nn.Module):
 class QNetwork(nn.Module):
     """Q-network. __call__(obs [B, T, H, W, C], reset [B, T] bool, state, actions [B, T] | None)
     -> (q [B, T, A] float32, state). ``actions`` (the actions taken at each step) matter only with
-    ``prev_action``: then the returned state's prev_action is ``actions[:, -1]``, or unchanged without them (the
+    ``prev_action``: then the returned state's prev_action is ``actions[:, T - 1]``, or unchanged without it (the
     caller, who picks the action after seeing q, sets it)."""
 
     config: NetworkConfig
@@ -306,7 +308,8 @@ class QNetwork(nn.Module):
             prev_action = state.prev_action
             if cfg.prev_action:
                 x = jnp.concatenate([x, previous_actions(cfg, reset, state, actions)], axis=-1)
-                prev_action = state.prev_action if actions is None else actions[:, -1:].T.astype(jnp.int32)
+                taken = actions is not None and actions.shape[1] == t  # the last step's action is known
+                prev_action = actions[:, -1:].T.astype(jnp.int32) if taken else state.prev_action
             y, (h, c) = LSTMStack(cfg.lstm, cfg.lstm_layers, dtype=dtype, name="lstm")(x, reset, (state.h, state.c))
             y = nn.relu(nn.Dense(cfg.head, dtype=dtype, kernel_init=he_init, name="head")(y))
             q = nn.Dense(cfg.num_actions, dtype=dtype, kernel_init=lecun_init, name="q")(y)

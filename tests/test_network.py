@@ -150,6 +150,9 @@ def test_prev_action_acting_equals_unroll_and_episode_starts_hide_it():
     # row 1 restarts at step 3: from there on its q cannot depend on the actions before the reset
     q_tail, _ = _apply_actions(cfg, variables, obs, reset, state0, actions.at[1, :3].set(0))
     np.testing.assert_allclose(q_tail[1, 3:], q_seq[1, 3:], atol=1e-6)
+    q_short, s_short = _apply_actions(cfg, variables, obs, reset, state0, actions[:, :-1])  # the window's layout
+    np.testing.assert_allclose(q_short, q_seq, atol=1e-6)
+    np.testing.assert_array_equal(s_short.prev_action, state0.prev_action)  # the last action is not known yet
     with pytest.raises(ValueError, match="actions"):
         _apply(cfg, variables, obs, reset, state0)
 
