@@ -1,0 +1,107 @@
+"""Where a learner update's time goes: each piece of ``Trainer.update`` jitted and timed on its own (median of
+``repeats`` calls after a warm-up), on a full replay of random data, at a training preset's sizes.
+
+    python benchmarks/profile_learner.py                    # quick preset -> benchmarks/results_learner_profile.json
+    python benchmarks/profile_learner.py --preset paper --batch-size 8
+
+Pieces (B windows of L = burn_in + train_len + 1 steps):
+  sample        replay.sample (gather B windows, dequantise)
+  target_fwd    target net over the whole window [B, L]
+  burn_in_fwd   online net over the burn-in [B, burn_in]
+  loss_grad     value_and_grad of the TD loss: online net forward + backward over [B, train_len + 1]
+  encoder_grad  the conv encoder alone, forward + backward over the same B * (train_len + 1) frames
+  optimizer     clip + Adam + Polyak target update
+  update        the whole update as training runs it (the pieces fused by XLA; it can be less than their sum)
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import time
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import optax
+
+from ramavt_jax import train as T
+from ramavt_jax.network import Encoder
+
+from bench_train import _filled_replay, _median_time  # noqa: E402 (benchmarks/ is the script's directory)
+
+
+def profile(preset: str, repeats: int, batch_size: int | None = None) -> dict:
+    cfg = T.preset(preset, eval_episodes=0, learning_starts=0)
+    if batch_size:
+        cfg = cfg.override(batch_size=batch_size)
+    tr = T.Trainer(cfg)
+    key = jax.random.PRNGKey(0)
+    state = jax.jit(tr.init)(key)
+    learner, replay_state = state.learner, _filled_replay(tr, key)
+    params, burn = learner.params, cfg.replay.burn_in
+    sample = jax.jit(tr.replay.sample)
+    batch = sample(replay_state, key)
+    prepare = jax.jit(tr.prepare)
+    prepared = prepare(params, learner.target_params, batch, key)
+    start = batch.start_state.replace(frames=jnp.zeros((batch.obs.shape[0], 0)))
+    target_fwd = jax.jit(lambda p: tr.q_values(p, batch.obs, batch.reset, start, batch.action)[0])
+    burn_fwd = jax.jit(lambda p: tr.q_values(p, batch.obs[:, :burn], batch.reset[:, :burn], start,
+                                             batch.action[:, :burn])[1])
+    loss_grad = jax.jit(jax.value_and_grad(tr.trained_loss, has_aux=True))
+    frames = prepared.obs.reshape(-1, *prepared.obs.shape[2:])
+    encoder = Encoder(cfg.network)
+    enc_params = params["encoder"]
+    encoder_grad = jax.jit(jax.grad(lambda p: jnp.sum(encoder.apply({"params": p}, frames) ** 2)))
+    grads = loss_grad(params, prepared)[1]
+
+    def opt_step(lrn, g):
+        updates, opt_state = tr.optimizer.update(g, lrn.opt_state, lrn.params)
+        new = optax.apply_updates(lrn.params, updates)
+        return new, opt_state, optax.incremental_update(new, lrn.target_params, cfg.learner.polyak_tau)
+
+    optimizer = jax.jit(opt_step)
+    update = jax.jit(tr.update)
+    pieces = {
+        "sample": lambda: sample(replay_state, key),
+        "target_fwd": lambda: target_fwd(learner.target_params),
+        "burn_in_fwd": lambda: burn_fwd(params),
+        "loss_grad": lambda: loss_grad(params, prepared),
+        "encoder_grad": lambda: encoder_grad(enc_params),
+        "optimizer": lambda: optimizer(learner, grads),
+        "update": lambda: update(learner, replay_state, key),
+    }
+    times_ms = {name: 1e3 * _median_time(fn, repeats) for name, fn in pieces.items()}
+    trained = cfg.replay.batch_size * cfg.replay.train_len
+    return {"preset": preset, "batch_size": cfg.replay.batch_size, "burn_in": burn, "train_len": cfg.replay.train_len,
+            "times_ms": times_ms, "updates_per_s": 1e3 / times_ms["update"],
+            "trained_frames_per_s": trained * 1e3 / times_ms["update"]}
+
+
+def main(argv=None) -> None:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--preset", default="quick", choices=sorted(T.PRESETS))
+    p.add_argument("--batch-size", type=int, default=None)
+    p.add_argument("--repeats", type=int, default=20)
+    p.add_argument("--out", default="benchmarks/results_learner_profile.json")
+    a = p.parse_args(argv)
+    t0, load0 = time.time(), os.getloadavg()
+    res = profile(a.preset, a.repeats, a.batch_size)
+    res["machine"] = {"platform": platform.platform(), "cpus": os.cpu_count(), "jax": jax.__version__,
+                      "backend": jax.default_backend(), "loadavg_start": load0, "loadavg_end": os.getloadavg(),
+                      "wall_s": time.time() - t0}
+    total = res["times_ms"]["update"]
+    for name, ms in res["times_ms"].items():
+        print(f"{name:13} {ms:8.2f} ms  {100 * ms / total:5.1f} % of an update")
+    print(f"update: {res['updates_per_s']:.1f}/s, {res['trained_frames_per_s']:.0f} trained frames/s "
+          f"(load {load0[0]:.1f} -> {os.getloadavg()[0]:.1f})")
+    path = Path(a.out)
+    old = json.loads(path.read_text()) if path.exists() else {}
+    old[f"{a.preset}_b{res['batch_size']}"] = res
+    path.write_text(json.dumps(old, indent=1))
+
+
+if __name__ == "__main__":
+    main()
