@@ -218,3 +218,44 @@ def test_sigterm_to_ramavt_train_exits_143_and_the_rerun_resumes(tmp_path):
     again = subprocess.run(cmd, capture_output=True, text=True, env=env, timeout=900)
     assert again.returncode == 0, again.stderr[-2000:]
     assert [json.loads(line)["chunk"] for line in metrics.read_text().splitlines()] == [1, 2, 3, 4]
+
+
+# ------------------------------------------------------------------------------------------ huge-page launcher
+def test_launcher_adds_the_huge_page_tunable_once_and_respects_opt_out():
+    from ramavt_jax.launch import TUNABLE, huge_page_environment
+
+    assert huge_page_environment({"A": "1"}, "linux")["GLIBC_TUNABLES"] == TUNABLE
+    kept = huge_page_environment({"GLIBC_TUNABLES": "glibc.malloc.arena_max=2"}, "linux")["GLIBC_TUNABLES"]
+    assert kept == f"glibc.malloc.arena_max=2:{TUNABLE}"
+    assert huge_page_environment({"GLIBC_TUNABLES": TUNABLE}, "linux") is None  # the re-executed process: no loop
+    assert huge_page_environment({"RAMAVT_HUGEPAGES": "0"}, "linux") is None
+    assert huge_page_environment({}, "darwin") is None
+
+
+def test_console_re_executes_with_the_tunable_and_runs_the_cli_when_it_cannot(monkeypatch):
+    import sys
+
+    import ramavt_jax.cli as cli
+    from ramavt_jax import launch
+
+    calls, ran = [], []
+
+    def fake_execve(exe, args, env):
+        calls.append((exe, args, env))
+        raise OSError("no exec here")
+
+    monkeypatch.setattr(launch.os, "execve", fake_execve)
+    monkeypatch.setattr(cli, "main", lambda: ran.append(True))
+    monkeypatch.delenv("GLIBC_TUNABLES", raising=False)
+    monkeypatch.delenv("RAMAVT_HUGEPAGES", raising=False)
+    monkeypatch.setattr(sys, "argv", ["ramavt", "targets", "list"])
+    launch.console()
+    if sys.platform.startswith("linux"):
+        (exe, args, env), = calls
+        assert exe == sys.executable and args == [sys.executable, "ramavt", "targets", "list"]
+        assert env["GLIBC_TUNABLES"] == launch.TUNABLE
+    assert ran == [True]
+    calls.clear()
+    monkeypatch.setenv("GLIBC_TUNABLES", launch.TUNABLE)
+    launch.console()
+    assert calls == [] and ran == [True, True]
