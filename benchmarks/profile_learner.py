@@ -12,6 +12,9 @@ Pieces (B windows of L = burn_in + train_len + 1 steps):
   encoder_grad  the conv encoder alone, forward + backward over the same B * (train_len + 1) frames
   optimizer     clip + Adam + Polyak target update
   update        the whole update as training runs it (the pieces fused by XLA; it can be less than their sum)
+
+``--trace`` adds a profiler trace of the whole update: every XLA:CPU thunk's exclusive time attributed to the
+innermost line of ramavt_jax that produced it, split into forward and backward (benchmarks/hlo_profile.py).
 """
 
 from __future__ import annotations
@@ -31,9 +34,21 @@ from ramavt_jax import train as T
 from ramavt_jax.network import Encoder
 
 from bench_train import _filled_replay, _median_time  # noqa: E402 (benchmarks/ is the script's directory)
+from hlo_profile import trace_breakdown  # noqa: E402
+from profile_env import _line  # noqa: E402
 
 
-def profile(preset: str, repeats: int, batch_size: int | None = None) -> dict:
+def _label(stack, op_name, thunk):
+    """'forward|backward | file:function: source line' of the innermost ramavt_jax frame of one thunk."""
+    kind = "backward" if "transpose(" in op_name else "forward"
+    own = next(((f, fn, ln) for f, fn, ln in stack if "ramavt_jax/" in f), None)
+    if own is None:
+        return f"{kind} | other (scan, optimizer internals) | {thunk.rsplit('.', 1)[0]}"
+    short = own[0].split("ramavt_jax/")[1]
+    return f"{kind} | {short}:{own[1]}: {_line(own[0], own[2])[:70]}"
+
+
+def profile(preset: str, repeats: int, batch_size: int | None = None, trace: bool = False) -> dict:
     cfg = T.preset(preset, eval_episodes=0, learning_starts=0)
     if batch_size:
         cfg = cfg.override(batch_size=batch_size)
@@ -75,7 +90,11 @@ def profile(preset: str, repeats: int, batch_size: int | None = None) -> dict:
     }
     times_ms = {name: 1e3 * _median_time(fn, repeats) for name, fn in pieces.items()}
     trained = cfg.replay.batch_size * cfg.replay.train_len
-    return {"preset": preset, "batch_size": cfg.replay.batch_size, "burn_in": burn, "train_len": cfg.replay.train_len,
+    breakdown = {}
+    if trace:
+        hlo = update.lower(learner, replay_state, key).compile().as_text()
+        breakdown = trace_breakdown(update, (learner, replay_state, key), repeats, _label, hlo)
+    return {"trace_ms": {k: 1e3 * v for k, v in breakdown.items()},"preset": preset, "batch_size": cfg.replay.batch_size, "burn_in": burn, "train_len": cfg.replay.train_len,
             "times_ms": times_ms, "updates_per_s": 1e3 / times_ms["update"],
             "trained_frames_per_s": trained * 1e3 / times_ms["update"]}
 
@@ -85,10 +104,11 @@ def main(argv=None) -> None:
     p.add_argument("--preset", default="quick", choices=sorted(T.PRESETS))
     p.add_argument("--batch-size", type=int, default=None)
     p.add_argument("--repeats", type=int, default=20)
+    p.add_argument("--trace", action="store_true", help="also attribute the update's time to source lines")
     p.add_argument("--out", default="benchmarks/results_learner_profile.json")
     a = p.parse_args(argv)
     t0, load0 = time.time(), os.getloadavg()
-    res = profile(a.preset, a.repeats, a.batch_size)
+    res = profile(a.preset, a.repeats, a.batch_size, a.trace)
     res["machine"] = {"platform": platform.platform(), "cpus": os.cpu_count(), "jax": jax.__version__,
                       "backend": jax.default_backend(), "loadavg_start": load0, "loadavg_end": os.getloadavg(),
                       "wall_s": time.time() - t0}
@@ -97,6 +117,11 @@ def main(argv=None) -> None:
         print(f"{name:13} {ms:8.2f} ms  {100 * ms / total:5.1f} % of an update")
     print(f"update: {res['updates_per_s']:.1f}/s, {res['trained_frames_per_s']:.0f} trained frames/s "
           f"(load {load0[0]:.1f} -> {os.getloadavg()[0]:.1f})")
+    if res["trace_ms"]:
+        traced = sum(res["trace_ms"].values())
+        print(f"\nprofiler trace of the update ({traced:.1f} ms of thunks per update), top 30:")
+        for name, ms in list(res["trace_ms"].items())[:30]:
+            print(f"  {ms:7.2f} ms {100 * ms / traced:5.1f} %  {name}")
     path = Path(a.out)
     old = json.loads(path.read_text()) if path.exists() else {}
     old[f"{a.preset}_b{res['batch_size']}"] = res
