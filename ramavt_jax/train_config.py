@@ -313,13 +313,14 @@ _TOP_FIELDS = {f.name for f in dataclasses.fields(TrainConfig)}
 def _quick() -> TrainConfig:
     """The README main job (5 min 0 s on an idle 2-core CPU, compile and evaluation included): the task at 32x32
     depth with a small RAMAVT (stride-2 first conv, 16-32-32 channels, a 4x4 final map = 16 attention tokens, dense/LSTM 128) whose encoder
-    sees absolute depth and image position (hit-mask and coordinate channels, pre-norm pooled skip), trained with
-    'target lost' bootstrapped (no incentive to lose the target), replay ratio 2. RESULTS.md has the measurements."""
+    sees absolute depth and image position (hit-mask and coordinate channels, pre-norm pooled skip) and whose LSTM
+    gets the previous action, trained with 'target lost' bootstrapped (no incentive to lose the target), replay
+    ratio 2. RESULTS.md has the measurements."""
     return TrainConfig(
         env=env_lib.EnvConfig(camera=CameraConfig(resolution=32), autoreset="next_step"),
         network=NetworkConfig(variant="ramavt", channels=(16, 32, 32), kernels=(3, 3, 3), strides=(2, 1, 1),
                               pools=(True, True, False), se_reduction=4, attention_heads=4, dense=128, lstm=128,
-                              lstm_layers=1, head=128, coord_channels=True, pooled_skip=True),
+                              lstm_layers=1, head=128, coord_channels=True, pooled_skip=True, prev_action=True),
         acting=ActingConfig(num_envs=64, rollout_steps=20, eps_start=1.0, eps_end=0.05, eps_decay_steps=200_000),
         replay=ReplayConfig(capacity_steps=64_000, burn_in=10, train_len=20, batch_size=32),
         learner=LearnerConfig(learning_starts=10_240, replay_ratio=2.0, lr=5e-4, gamma=0.97, n_step=5,

@@ -33,10 +33,12 @@ def _net(cfg, **kw):
 
 
 # One change per arm against 'base', the quick preset as it was before the learning fixes (a 2x2 final map, an
-# encoder blind to depth scale and position, 'target lost' as a terminal state); 'all' combines the changes and is
-# the quick preset of today (arm_config checks that).
+# encoder blind to depth scale and position, 'target lost' as a terminal state, no previous action); 'all' combines
+# the first three changes, and 'prev' ('all' + the previous action into the LSTM) is the quick preset of today
+# (arm_config checks that).
 def _base(c):
-    return _net(c, coord_channels=False, pooled_skip=False, pools=(True, True, True)).override(bootstrap_lost=False)
+    return _net(c, coord_channels=False, pooled_skip=False, pools=(True, True, True), prev_action=False).override(
+        bootstrap_lost=False)
 
 
 ARMS = {
@@ -60,16 +62,20 @@ ARMS["origin"] = lambda c: _net(ARMS["all"](c), variant="origin")
 ARMS["aug"] = lambda c: ARMS["origin"](c).override(augment=True)
 ARMS["se"] = lambda c: _net(ARMS["all"](c), variant="se")
 ARMS["mha"] = lambda c: _net(ARMS["all"](c), variant="mha")
-# The longer CPU preset (the shipped agent): 'all' with 3x the env steps, slower exploration decay, a bigger replay
-# (the same TrainConfig as `ramavt train --preset long`, without its end-of-training evaluation).
-ARMS["long"] = lambda c: ARMS["all"](c).override(total_env_steps=1_152_000, eps_decay_steps=400_000,
-                                                 replay_capacity=128_000, checkpoint_every_chunks=6)
+# The longer CPU preset (the shipped agent): 'prev' with 3x the env steps, slower exploration decay, a bigger replay
+# (the same TrainConfig as `ramavt train --preset long`, without its end-of-training evaluation; checked).
+_LONGER = dict(total_env_steps=1_152_000, eps_decay_steps=400_000, replay_capacity=128_000, checkpoint_every_chunks=6)
+ARMS["long"] = lambda c: ARMS["prev"](c).override(**_LONGER)
+# The earlier `long` preset and shipped agent, before the previous-action input.
+ARMS["long-noprev"] = lambda c: ARMS["all"](c).override(**_LONGER)
 
 
 def arm_config(name: str, preset: str = "quick", **overrides):
     base = train.preset(preset, eval_episodes=0, **overrides)
-    if preset == "quick" and ARMS["all"](base) != base:
-        raise SystemExit("the quick preset is no longer 'all' of these arms: update ARMS")
+    if preset == "quick" and ARMS["prev"](base) != base:
+        raise SystemExit("the quick preset is no longer 'prev' of these arms: update ARMS")
+    if preset == "quick" and not overrides and ARMS["long"](base) != train.preset("long", eval_episodes=0):
+        raise SystemExit("the long preset is no longer 'long' of these arms: update ARMS")
     return ARMS[name](base)
 
 
