@@ -171,6 +171,7 @@ def main() -> None:
     ap.add_argument("arms", nargs="*")
     ap.add_argument("--out", type=Path, default=Path("runs/arms"))
     ap.add_argument("--seeds", type=int, default=3)
+    ap.add_argument("--first-seed", type=int, default=0, help="train seeds first-seed .. first-seed + seeds - 1")
     ap.add_argument("--preset", default="quick")
     ap.add_argument("--episodes", type=int, default=10, help="held-out episodes per target")
     ap.add_argument("--eval-seed", type=int, default=0)
@@ -179,7 +180,8 @@ def main() -> None:
     for arm in args.arms:
         if args.command == "train":
             t = time.time()
-            train_run(arm_config(arm, args.preset), args.out / arm, seed=0, num_seeds=args.seeds, progress=False)
+            train_run(arm_config(arm, args.preset), args.out / arm, seed=args.first_seed, num_seeds=args.seeds,
+                      progress=False)
             print(f"[{arm}] trained {args.seeds} seeds in {time.time() - t:.0f} s", flush=True)
         elif args.command == "eval" and arm == "baselines":
             res = evaluate_baselines(32, args.episodes, key)
