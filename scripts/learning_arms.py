@@ -62,12 +62,12 @@ ARMS["origin"] = lambda c: _net(ARMS["all"](c), variant="origin")
 ARMS["aug"] = lambda c: ARMS["origin"](c).override(augment=True)
 ARMS["se"] = lambda c: _net(ARMS["all"](c), variant="se")
 ARMS["mha"] = lambda c: _net(ARMS["all"](c), variant="mha")
-# The longer CPU preset (the shipped agent): 'prev' with 3x the env steps, slower exploration decay, a bigger replay
+# The longer CPU preset (the shipped agent): 'all' with 3x the env steps, slower exploration decay, a bigger replay
 # (the same TrainConfig as `ramavt train --preset long`, without its end-of-training evaluation; checked).
 _LONGER = dict(total_env_steps=1_152_000, eps_decay_steps=400_000, replay_capacity=128_000, checkpoint_every_chunks=6)
-ARMS["long"] = lambda c: ARMS["prev"](c).override(**_LONGER)
-# The earlier `long` preset and shipped agent, before the previous-action input.
-ARMS["long-noprev"] = lambda c: ARMS["all"](c).override(**_LONGER)
+ARMS["long"] = lambda c: ARMS["all"](c).override(**_LONGER)
+# The same budget with the previous-action input ('prev', the quick preset's network).
+ARMS["long-prev"] = lambda c: ARMS["prev"](c).override(**_LONGER)
 
 
 def arm_config(name: str, preset: str = "quick", **overrides):
