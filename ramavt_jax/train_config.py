@@ -311,7 +311,7 @@ _TOP_FIELDS = {f.name for f in dataclasses.fields(TrainConfig)}
 
 
 def _quick() -> TrainConfig:
-    """The README main job (5 min 0 s on an idle 2-core CPU, compile and evaluation included): the task at 32x32
+    """The README main job (5 min 15 s on an idle 2-core CPU, compile and evaluation included): the task at 32x32
     depth with a small RAMAVT (stride-2 first conv, 16-32-32 channels, a 4x4 final map = 16 attention tokens, dense/LSTM 128) whose encoder
     sees absolute depth and image position (hit-mask and coordinate channels, pre-norm pooled skip) and whose LSTM
     gets the previous action, trained with 'target lost' bootstrapped (no incentive to lose the target), replay
