@@ -7,7 +7,7 @@ import jax.numpy as jnp
 from flax import struct
 
 from ramavt_jax.baselines import Policy
-from ramavt_jax.network import NetworkConfig, RecurrentState, initial_state, make_network
+from ramavt_jax.network import NetworkConfig, RecurrentState, initial_state, make_network, record_action
 
 __all__ = ["GreedyState", "greedy_policy", "unbatch_state", "batch_state"]
 
@@ -41,9 +41,7 @@ def greedy_policy(network: NetworkConfig, params, obs_shape: tuple, name: str = 
         q, new = net.apply({"params": params}, obs[None, None], pstate.first[None, None],
                            batch_state(pstate.net_state))
         action = jnp.argmax(q[0, 0]).astype(jnp.int32)
-        new = unbatch_state(new)
-        if network.prev_action:
-            new = new.replace(prev_action=action[None])
+        new = unbatch_state(record_action(new, action[None]))
         return action, GreedyState(net_state=new, first=jnp.zeros((), bool))
 
     return Policy(name, init, act)

@@ -4,7 +4,8 @@ XLA on CPU allocates fresh temporaries on every call, and first touches of fresh
 and later) can back malloc's arenas with transparent huge pages, but reads that setting (``GLIBC_TUNABLES``) only
 when a process starts. So the script re-executes itself once with ``glibc.malloc.hugetlb=1`` added, before anything
 heavy is imported: alone, the quick preset's learner update ran 13-19 % faster that way on our idle 2-core VM
-(benchmarks/RESULTS.md); a whole training run gained less than its run-to-run spread. The arithmetic is unchanged. ``RAMAVT_HUGEPAGES=0`` turns this off; a tunable already set is left as it is.
+(benchmarks/RESULTS.md); a whole quick run was not measurably faster than an earlier one without it. The arithmetic
+is unchanged. ``RAMAVT_HUGEPAGES=0`` turns this off; a tunable already set is left as it is.
 """
 
 from __future__ import annotations

@@ -88,9 +88,7 @@ class NetworkConfig:
     # followed by a per-frame LayerNorm is exactly invariant to a global scaling of the depth image.
     coord_channels: bool = False  # append a hit mask and the pixel coordinates in [-1, 1] to the input channels
     pooled_skip: bool = False  # append the spatial mean of block 1's activations, taken BEFORE its norm, to the output
-    # R2D2's recurrent input: the previous action (one-hot, with one extra 'none' entry at episode starts) is
-    # appended to the LSTM's input, so the LSTM knows the velocity commands it gave and not just what it saw.
-    prev_action: bool = False
+    prev_action: bool = False  # R2D2's LSTM input: the previous action (one-hot; a 'none' entry at episode starts)
 
     def __post_init__(self):
         def fail(msg):
@@ -191,12 +189,15 @@ def initial_state(config: NetworkConfig, batch: int, obs_shape: tuple | None = N
     return RecurrentState(h=h, c=h, frames=frames, prev_action=prev_action)
 
 
+def record_action(state: RecurrentState, action: jax.Array) -> RecurrentState:
+    """``state`` with ``action`` [B] recorded as the last action taken (no-op without the previous-action input)."""
+    return state if state.prev_action is None else state.replace(prev_action=action[None].astype(jnp.int32))
+
+
 def previous_actions(config: NetworkConfig, reset: jax.Array, state: RecurrentState,
                      actions: jax.Array | None) -> jax.Array:
-    """One-hot previous action per step, [B, T, A + 1]: state.prev_action before step 0, ``actions[:, t - 1]``
-    before step t > 0, and the extra 'none' entry A where ``reset`` (an episode's first step has no previous
-    action). ``actions`` [B, T] or [B, T - 1] (the actions taken at each step; a window's last obs may have none
-    yet) is needed only when T > 1."""
+    """One-hot previous action per step [B, T, A + 1]: state.prev_action before step 0, ``actions[:, t - 1]`` (
+    [B, T] or [B, T - 1], needed when T > 1) before step t > 0, the extra 'none' entry A where ``reset``."""
     b, t = reset.shape
     prev = state.prev_action[0][:, None]  # [B, 1]
     if t > 1:
@@ -279,10 +280,9 @@ class Encoder(nn.Module):
 
 
 class QNetwork(nn.Module):
-    """Q-network. __call__(obs [B, T, H, W, C], reset [B, T] bool, state, actions [B, T] | None)
-    -> (q [B, T, A] float32, state). ``actions`` (the actions taken at each step) matter only with
-    ``prev_action``: then the returned state's prev_action is ``actions[:, T - 1]``, or unchanged without it (the
-    caller, who picks the action after seeing q, sets it)."""
+    """Q-network. __call__(obs [B, T, H, W, C], reset [B, T] bool, state, actions [B, T] | None) -> (q [B, T, A]
+    float32, state). ``actions`` (taken at each step) matter only with ``prev_action``: the returned state's
+    prev_action is then ``actions[:, T - 1]``, else unchanged (acting code records its pick: record_action)."""
 
     config: NetworkConfig
 

@@ -35,7 +35,7 @@ from ramavt_jax import replay as replay_lib
 from ramavt_jax.augment import augment_batch
 from ramavt_jax.greedy import GreedyState, greedy_policy, unbatch_state  # noqa: F401 (re-exported)
 from ramavt_jax.losses import TDBatch, td_loss
-from ramavt_jax.network import RecurrentState, init_params, initial_state, make_network
+from ramavt_jax.network import RecurrentState, init_params, initial_state, make_network, record_action
 from ramavt_jax.train_config import PRESETS, TrainConfig, preset  # noqa: F401 (re-exported: config lives there)
 
 __all__ = [
@@ -228,7 +228,7 @@ class Trainer:
     # ---------------------------------------------------------------- acting
     def act_step(self, params, actor: ActorState, epsilon: jax.Array, key: jax.Array):
         """One epsilon-greedy step of all envs: (actor, Transition [N, ...] (state [layers, N, units]), stats)."""
-        c, c_net = self.config.acting, self.config.network
+        c = self.config.acting
         k_eps, k_rand, k_env = jax.random.split(key, 3)
         q, net_state = self.q_values(params, actor.obs[:, None], actor.is_first[:, None], actor.net_state)
         greedy = jnp.argmax(q[:, 0], axis=-1).astype(jnp.int32)
@@ -241,9 +241,8 @@ class Trainer:
         transition = replay_lib.Transition(
             obs=actor.obs, action=action, reward=reward, terminated=terminated, truncated=truncated,
             is_first=actor.is_first, recurrent_state=actor.net_state.replace(frames=None))
-        if c_net.prev_action:  # the network saw q before the action was picked: record it for the next step
-            net_state = net_state.replace(prev_action=action[None])
-        new_actor = ActorState(env_state=env_state, obs=obs, is_first=info["is_first"], net_state=net_state)
+        new_actor = ActorState(env_state=env_state, obs=obs, is_first=info["is_first"],
+                               net_state=record_action(net_state, action))
         done = terminated | truncated
         stats = EpisodeStats(episodes=done.sum(), length_sum=jnp.where(done, info["episode_length"], 0).sum(),
                              return_sum=jnp.where(done, info["episode_return"], 0.0).sum())
