@@ -68,6 +68,9 @@ _LONGER = dict(total_env_steps=1_152_000, eps_decay_steps=400_000, replay_capaci
 ARMS["long"] = lambda c: ARMS["all"](c).override(**_LONGER)
 # The same budget with the previous-action input ('prev', the quick preset's network).
 ARMS["long-prev"] = lambda c: ARMS["prev"](c).override(**_LONGER)
+# SE without the attention, the best AER of Table III's single modules, on today's quick preset and on the long budget.
+ARMS["prev-se"] = lambda c: _net(ARMS["prev"](c), variant="se")
+ARMS["long-se"] = lambda c: _net(ARMS["long"](c), variant="se")
 
 
 def arm_config(name: str, preset: str = "quick", **overrides):
