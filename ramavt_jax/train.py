@@ -158,7 +158,10 @@ class Trainer:
         self.net = make_network(config.network)
         learner = config.learner
         self.td = learner.td
-        lr_tx = optax.adam(learner.lr, eps=learner.adam_eps)
+        # learning rate of gradient step k (a float when constant: the optimiser state then has no step count)
+        self.learning_rate = (learner.lr if learner.lr_final is None else optax.cosine_decay_schedule(
+            learner.lr, max(config.total_updates, 1), alpha=learner.lr_final / learner.lr))
+        lr_tx = optax.adam(self.learning_rate, eps=learner.adam_eps)
         self.optimizer = (optax.chain(optax.clip_by_global_norm(learner.max_grad_norm), lr_tx)
                           if learner.max_grad_norm > 0 else lr_tx)
         self.augment_fn = (functools.partial(augment_batch, config=learner.augment_config) if learner.augment

@@ -59,6 +59,9 @@ class LearnerConfig:
     learning_starts: int = 20_000  # env steps (all envs) before the first update
     replay_ratio: float = 1.0  # trained frames (batch_size * train_len) per env frame
     lr: float = 5e-4  # Adam learning rate
+    # None = a constant lr; else cosine decay from lr to lr_final over the run's gradient steps (the late, small
+    # steps refine the distance keeping that the reward's distance term scores)
+    lr_final: float | None = None
     adam_eps: float = 1e-4  # Adam epsilon
     max_grad_norm: float = 10.0  # 0 = no clipping
     gamma: float = 0.97  # discount
@@ -88,6 +91,8 @@ class LearnerConfig:
             raise fail(f"gamma must be in [0, 1], got {self.gamma}")
         if not self.lr > 0 or not self.adam_eps > 0:
             raise fail(f"lr and adam_eps must be > 0, got lr={self.lr}, adam_eps={self.adam_eps}")
+        if self.lr_final is not None and not 0 <= self.lr_final <= self.lr:
+            raise fail(f"lr_final must be None (constant lr) or in [0, lr={self.lr}], got {self.lr_final}")
         if not self.max_grad_norm >= 0:
             raise fail(f"max_grad_norm must be >= 0 (0 = no clipping), got {self.max_grad_norm}")
         if not self.reward_scale > 0:
@@ -263,6 +268,13 @@ class TrainConfig:
     def updates_per_iteration(self) -> int:
         per_update = self.replay.batch_size * self.replay.train_len
         return int(round(self.learner.replay_ratio * self.env_steps_per_iteration / per_update))
+
+    @property
+    def total_updates(self) -> int:
+        """Gradient steps in the whole run: every iteration from the one that reaches learning_starts on."""
+        per_it = self.env_steps_per_iteration
+        waiting = max(-(-self.learner.learning_starts // per_it) - 1, 0)
+        return max(self.run.total_env_steps // per_it - waiting, 0) * self.updates_per_iteration
 
     @property
     def env_steps_per_chunk(self) -> int:

@@ -61,6 +61,7 @@ def test_presets():
         (dict(eps_start=1.5), r"eps_start must be in \[0, 1\]"),
         (dict(gamma=-0.1), "gamma"),
         (dict(lr=0.0), "lr and adam_eps must be > 0"),
+        (dict(lr_final=1.0), r"lr_final must be None \(constant lr\) or in \[0, lr="),
         (dict(n_step=9), "n_step=9 must be <= replay.train_len"),
         (dict(replay_ratio=0.3), "whole number"),
         (dict(target_update="soft"), "target_update"),
@@ -94,6 +95,16 @@ def test_each_group_checks_its_own_values_in_one_line(build, message):
     with pytest.raises(ValueError, match=message) as e:
         build()
     assert "\n" not in str(e.value)
+
+
+def test_lr_final_decays_the_learning_rate_over_the_runs_gradient_steps():
+    assert T.Trainer(SMOKE).learning_rate == SMOKE.learner.lr  # constant by default
+    cfg = SMOKE.override(lr_final=1e-5)
+    schedule = T.Trainer(cfg).learning_rate
+    assert cfg.total_updates > 1
+    np.testing.assert_allclose([schedule(0), schedule(cfg.total_updates), schedule(10 * cfg.total_updates)],
+                               [cfg.learner.lr, 1e-5, 1e-5], rtol=1e-5)
+    assert 1e-5 < float(schedule(cfg.total_updates // 2)) < cfg.learner.lr
 
 
 def test_override_routes_flat_names_to_their_groups():
@@ -351,6 +362,7 @@ def test_learns_an_easy_task():
     print(f"random {rand.length_mean:.1f}, greedy {greedy.length_mean:.1f}, training episodes per chunk "
           f"{np.round(np.asarray(m.episode_length_sum.sum(1) / np.maximum(m.episodes.sum(1), 1)), 1)}")
     assert greedy.length_mean > 1.5 * rand.length_mean, (greedy, rand)
+    assert int(out["runner_state"].learner.updates) == EASY.total_updates  # what an lr schedule decays over
 
 
 def test_bootstrap_lost_turns_terminations_into_bootstrapped_ends(trainer, learner):
