@@ -68,13 +68,14 @@ _LONGER = dict(total_env_steps=1_152_000, eps_decay_steps=400_000, replay_capaci
 ARMS["long"] = lambda c: ARMS["all"](c).override(**_LONGER)
 # The same budget with the previous-action input ('prev', the quick preset's network).
 ARMS["long-prev"] = lambda c: ARMS["prev"](c).override(**_LONGER)
-# SE without the attention, the best AER of Table III's single modules, on today's quick preset and on the long budget.
+# SE without the attention (the best AER of Table III's single modules) on today's quick preset.
 ARMS["prev-se"] = lambda c: _net(ARMS["prev"](c), variant="se")
-ARMS["long-se"] = lambda c: _net(ARMS["long"](c), variant="se")
 # Two levers on distance keeping, each alone on today's quick preset: the evaluation's distance weight in training,
 # and a learning rate decaying (cosine) to a tenth over the run.
 ARMS["prev-dw1"] = lambda c: ARMS["prev"](c).override(env_params=(("dist_weight", 1.0),))
 ARMS["prev-lrdecay"] = lambda c: ARMS["prev"](c).override(lr_final=c.learner.lr / 10)
+# A dueling head (Q = V + mean-centred advantages): the actions' Q differ by a few cm of distance keeping.
+ARMS["prev-duel"] = lambda c: _net(ARMS["prev"](c), dueling=True)
 
 
 def arm_config(name: str, preset: str = "quick", **overrides):

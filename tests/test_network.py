@@ -157,6 +157,27 @@ def test_prev_action_acting_equals_unroll_and_episode_starts_hide_it():
         _apply(cfg, variables, obs, reset, state0)
 
 
+@pytest.mark.parametrize("variant", ["origin", "drlavt"])
+def test_dueling_head_adds_a_value_to_mean_centred_advantages(variant):
+    """Q = V + A - mean(A): shifting the value output shifts every action's Q alike; the advantages' own mean is
+    removed, so shifting all of them together changes nothing."""
+    cfg = small(variant, dueling=True)
+    b, t = 2, 3
+    _, variables, obs = _setup(cfg, b=b, t=t)
+    reset, state = jnp.zeros((b, t), bool).at[:, 0].set(True), initial_state(cfg, b, obs.shape[2:])
+    params = variables["params"]
+    assert params["value"]["kernel"].shape[-1] == 1 and params["q"]["kernel"].shape[-1] == cfg.num_actions
+    q, _ = _apply(cfg, variables, obs, reset, state)
+    moved = {**params, "value": {**params["value"], "bias": params["value"]["bias"] + 2.0},
+             "q": {**params["q"], "bias": params["q"]["bias"] + 5.0}}
+    q_moved, _ = _apply(cfg, {"params": moved}, obs, reset, state)
+    np.testing.assert_allclose(q_moved, q + 2.0, atol=1e-5)
+    a_only = {**params, "q": {**params["q"], "bias": params["q"]["bias"].at[0].add(1.0)}}
+    q_a, _ = _apply(cfg, {"params": a_only}, obs, reset, state)
+    np.testing.assert_allclose(q_a - q, jnp.full_like(q, -1.0 / cfg.num_actions).at[..., 0].add(1.0), atol=1e-5)
+    assert "value" not in init_params(small(variant), jax.random.key(0), (32, 32, 1))["params"]
+
+
 @pytest.mark.parametrize("k,s,size", [(3, 2, 16), (3, 1, 9), (1, 1, 6), (5, 2, 7)])
 def test_im2col_equals_lax_conv(k, s, size):
     kx, kk, kg = jax.random.split(jax.random.key(0), 3)

@@ -1,0 +1,115 @@
+"""The Q-network's configuration: one frozen, validated dataclass (the network itself: :mod:`ramavt_jax.network`,
+which re-exports these names)."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax.numpy as jnp
+import numpy as np
+
+from ramavt_jax.layers import conv_out_size
+
+VARIANTS = ("ramavt", "drlavt", "origin", "se", "mha")
+NORMS = ("batch", "layer", "none")
+CONV_IMPLS = ("im2col", "lax")
+DTYPES = {"float32": jnp.float32, "bfloat16": jnp.bfloat16}
+
+
+@dataclasses.dataclass(frozen=True)
+class NetworkConfig:
+    """Q-network hyper-parameters (docs/design.md lists where they depart from the original). Validated on
+    construction."""
+
+    variant: str = "ramavt"
+    num_actions: int = 11
+    channels: tuple = (32, 64, 128, 128)
+    kernels: tuple = (3, 3, 3, 1)
+    strides: tuple = (2, 2, 1, 1)
+    pools: tuple = (True, True, True, True)  # 2x2 max-pool in block i
+    pool_first: bool = True  # conv -> pool -> SE -> norm -> ReLU (fast); False: *orig* conv -> SE -> norm -> pool -> ReLU
+    norm: str = "layer"
+    se_reduction: int = 8
+    attention_heads: int = 8
+    dense: int = 512
+    lstm: int = 512
+    lstm_layers: int = 2
+    head: int = 256
+    drlavt_dense: tuple = (1024, 512)
+    frame_stack: int = 4  # drlavt only
+    conv_impl: str = "im2col"
+    dtype: str = "float32"
+    # Absolute depth and image position made visible to the encoder (see Encoder): without these, a bias-free conv
+    # followed by a per-frame LayerNorm is exactly invariant to a global scaling of the depth image.
+    coord_channels: bool = False  # append a hit mask and the pixel coordinates in [-1, 1] to the input channels
+    pooled_skip: bool = False  # append the spatial mean of block 1's activations, taken BEFORE its norm, to the output
+    prev_action: bool = False  # R2D2's LSTM input: the previous action (one-hot; a 'none' entry at episode starts)
+    dueling: bool = False  # Q = V + A - mean(A) (dueling head, Wang et al. 2016; see network.q_outputs)
+
+    def __post_init__(self):
+        def fail(msg):
+            raise ValueError(f"NetworkConfig: {msg}")
+
+        if self.variant not in VARIANTS:
+            fail(f"variant={self.variant!r} is not one of {VARIANTS}")
+        if self.norm not in NORMS:
+            fail(f"norm={self.norm!r} is not one of {NORMS}")
+        if self.conv_impl not in CONV_IMPLS:
+            fail(f"conv_impl={self.conv_impl!r} is not one of {CONV_IMPLS}")
+        if self.dtype not in DTYPES:
+            fail(f"dtype={self.dtype!r} is not one of {tuple(DTYPES)}")
+        for name in ("channels", "kernels", "strides", "pools", "drlavt_dense"):
+            if not isinstance(getattr(self, name), (tuple, list)):
+                fail(f"{name} must be a tuple, got {getattr(self, name)!r}")
+            object.__setattr__(self, name, tuple(getattr(self, name)))  # lists -> tuples (hashable, jit-static)
+        n = len(self.channels)
+        if n == 0:
+            fail("channels must name at least one conv block")
+        if not (len(self.kernels) == len(self.strides) == len(self.pools) == n):
+            fail(
+                f"channels, kernels, strides and pools must have the same length (one entry per conv block), "
+                f"got {len(self.channels)}, {len(self.kernels)}, {len(self.strides)}, {len(self.pools)}"
+            )
+        for name in ("channels", "kernels", "strides", "drlavt_dense"):
+            vals = getattr(self, name)
+            if not all(isinstance(v, (int, np.integer)) and not isinstance(v, bool) and v >= 1 for v in vals):
+                fail(f"{name} must be positive integers, got {vals!r}")
+        if not all(k % 2 == 1 for k in self.kernels):
+            fail(f"kernels must be odd (padding k//2 keeps the grid centred), got {self.kernels!r}")
+        for name in ("num_actions", "se_reduction", "attention_heads", "dense", "lstm", "lstm_layers", "head",
+                     "frame_stack"):
+            v = getattr(self, name)
+            if not isinstance(v, (int, np.integer)) or isinstance(v, bool) or v < 1:
+                fail(f"{name} must be a positive integer, got {v!r}")
+        if self.prev_action and not self.recurrent:
+            fail("prev_action needs a recurrent variant (the previous action is an LSTM input), not 'drlavt'")
+        if self.use_mha and self.channels[-1] % self.attention_heads != 0:
+            fail(
+                f"attention_heads={self.attention_heads} must divide the last block's channels "
+                f"({self.channels[-1]}) for variant {self.variant!r}"
+            )
+
+    # Derived switches (not fields: nothing is written back into the config).
+    @property
+    def use_se(self) -> bool:
+        return self.variant in ("ramavt", "se")
+
+    @property
+    def use_mha(self) -> bool:
+        return self.variant in ("ramavt", "mha")
+
+    @property
+    def recurrent(self) -> bool:
+        return self.variant != "drlavt"
+
+    @property
+    def jnp_dtype(self):
+        return DTYPES[self.dtype]
+
+    def feature_map_shape(self, height: int, width: int) -> tuple[int, int, int]:
+        """Spatial size and channels of the backbone's output for an input of height x width."""
+        for k, s, p in zip(self.kernels, self.strides, self.pools):
+            height, width = conv_out_size(height, k, s), conv_out_size(width, k, s)
+            if p:
+                height, width = -(-height // 2), -(-width // 2)
+        return height, width, self.channels[-1]
