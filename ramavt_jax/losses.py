@@ -116,6 +116,9 @@ class TDConfig:
       rescale_eps: the eps of h.
       huber_delta: ``None`` for the squared loss ``0.5 td^2`` ("MSE"); otherwise the Huber loss with this delta
         (``0.5 td^2`` for ``|td| <= delta``, ``delta (|td| - delta / 2)`` beyond), so both agree for small errors.
+      advantage_alpha: advantage learning (Bellemare et al. 2016, "Increasing the action gap"): the target of a
+        taken action is lowered by ``alpha * (max_a q_target(s, a) - q_target(s, a_taken))``, which widens the gaps
+        between the best action's value and the others' (0 = plain Q-learning targets).
     """
 
     gamma: float = struct.field(pytree_node=False, default=0.99)
@@ -124,6 +127,7 @@ class TDConfig:
     value_rescale: bool = struct.field(pytree_node=False, default=False)
     rescale_eps: float = struct.field(pytree_node=False, default=1e-3)
     huber_delta: float | None = struct.field(pytree_node=False, default=None)
+    advantage_alpha: float = struct.field(pytree_node=False, default=0.0)
 
     def __post_init__(self):
         if not 0.0 <= self.gamma <= 1.0:
@@ -132,6 +136,8 @@ class TDConfig:
             raise ValueError(f"TDConfig.n_step must be an integer >= 1, got {self.n_step}")
         if self.huber_delta is not None and not self.huber_delta > 0:
             raise ValueError(f"TDConfig.huber_delta must be None (squared loss) or > 0, got {self.huber_delta}")
+        if not 0.0 <= self.advantage_alpha < 1.0:
+            raise ValueError(f"TDConfig.advantage_alpha must be in [0, 1), got {self.advantage_alpha}")
         if not self.rescale_eps > 0:
             raise ValueError(f"TDConfig.rescale_eps must be > 0, got {self.rescale_eps}")
 
@@ -184,7 +190,7 @@ def sequence_td_loss(
       q_online: ``[B, T+1, A]`` online-network Q-values for observations 0..T of each window.  Gradients flow
         through ``q_online[:, t, actions[:, t]]`` only (the action selection at t+1 is not differentiated).
       q_target: ``[B, T+1, A]`` target-network Q-values for the same observations (gradient stopped).
-        ``q_target[:, 0]`` is not used.
+        ``q_target[:, 0]`` is used by advantage learning only.
       actions: ``[B, T]`` action of transition t (obs t -> obs t+1).
       rewards: ``[B, T]`` reward of transition t.
       terminated: ``[B, T]`` obs t+1 is terminal: no bootstrap.
@@ -215,6 +221,10 @@ def sequence_td_loss(
     target = jax.vmap(_sequence_targets, in_axes=(0, 0, 0, 0, 0, None))(
         q_online_t, q_target_t, rewards, terminated, truncated, cfg
     )
+    if cfg.advantage_alpha:
+        q_target_tm1 = q_target[:, :-1]
+        gap = q_target_tm1.max(-1) - jnp.take_along_axis(q_target_tm1, actions[..., None].astype(jnp.int32), -1)[..., 0]
+        target = target - cfg.advantage_alpha * gap
     target = jax.lax.stop_gradient(target)
 
     td_error = target - q_taken

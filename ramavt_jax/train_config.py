@@ -69,6 +69,7 @@ class LearnerConfig:
     double_q: bool = True  # double-Q targets: the online net picks the action, the target net values it
     value_rescale: bool = False  # R2D2's invertible value rescaling of the targets
     huber_delta: float | None = None  # None = mean squared TD error (the original loss), else the Huber threshold
+    advantage_alpha: float = 0.0  # advantage learning: widen the action gaps (losses.TDConfig); 0 = off
     reward_scale: float = 0.1  # rewards are multiplied by this in the TD targets
     target_update: str = "polyak"  # 'polyak' | 'period'
     polyak_tau: float = 0.01  # target net moves this fraction towards the online net per step ('polyak')
@@ -95,6 +96,8 @@ class LearnerConfig:
             raise fail(f"lr_final must be None (constant lr) or in [0, lr={self.lr}], got {self.lr_final}")
         if not self.max_grad_norm >= 0:
             raise fail(f"max_grad_norm must be >= 0 (0 = no clipping), got {self.max_grad_norm}")
+        if not 0.0 <= self.advantage_alpha < 1.0:
+            raise fail(f"advantage_alpha must be in [0, 1) (0 = plain Q-learning targets), got {self.advantage_alpha}")
         if not self.reward_scale > 0:
             raise fail(f"reward_scale must be > 0, got {self.reward_scale}")
         if self.huber_delta is not None and not self.huber_delta > 0:
@@ -112,7 +115,8 @@ class LearnerConfig:
     def td(self) -> TDConfig:
         """The loss's view of these settings (losses.TDConfig)."""
         return TDConfig(gamma=self.gamma, n_step=self.n_step, double_q=self.double_q,
-                        value_rescale=self.value_rescale, huber_delta=self.huber_delta)
+                        value_rescale=self.value_rescale, huber_delta=self.huber_delta,
+                        advantage_alpha=self.advantage_alpha)
 
 
 @dataclasses.dataclass(frozen=True)

@@ -76,6 +76,8 @@ ARMS["prev-dw1"] = lambda c: ARMS["prev"](c).override(env_params=(("dist_weight"
 ARMS["prev-lrdecay"] = lambda c: ARMS["prev"](c).override(lr_final=c.learner.lr / 10)
 # A dueling head (Q = V + mean-centred advantages): the actions' Q differ by a few cm of distance keeping.
 ARMS["prev-duel"] = lambda c: _net(ARMS["prev"](c), dueling=True)
+# Advantage learning (alpha 0.9, the published value): targets of worse actions lowered, widening the same gaps.
+ARMS["prev-al"] = lambda c: ARMS["prev"](c).override(advantage_alpha=0.9)
 
 
 def arm_config(name: str, preset: str = "quick", **overrides):

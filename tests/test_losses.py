@@ -49,6 +49,21 @@ def test_double_q(jit):
     np.testing.assert_allclose(loss, 2.3125, rtol=1e-6)
 
 
+@pytest.mark.parametrize("jit", [False, True])
+def test_advantage_learning_lowers_the_targets_of_worse_actions(jit):
+    # plain-max targets [3.5, 2.5] (test_one_step_mse_plain_max); gaps at the taken actions, from the target net:
+    # obs0 takes a=0: max Q_tg(obs0) - Q_tg(obs0)[0] = 0 - 0 = 0; obs1 takes a=1: 5 - 5 = 0 -> unchanged; with the
+    # other actions taken ([1, 0]): gaps [0 - 0 = 0, 5 - 1 = 4] -> [3.5, 2.5 - 0.5 * 4 = 0.5] (the plain targets do
+    # not depend on the taken actions: [3.5, 2.5] either way)
+    cfg = TDConfig(gamma=0.5, n_step=1, double_q=False, advantage_alpha=0.5)
+    _, aux = _loss(jit, Q_ONLINE, Q_TARGET, ACTIONS, REWARDS, FALSE2, FALSE2, ONES2, cfg)
+    np.testing.assert_allclose(aux["target"], [[3.5, 2.5]])
+    _, aux = _loss(jit, Q_ONLINE, Q_TARGET, 1 - ACTIONS, REWARDS, FALSE2, FALSE2, ONES2, cfg)
+    np.testing.assert_allclose(aux["target"], [[3.5, 0.5]])
+    with pytest.raises(ValueError, match="advantage_alpha"):
+        TDConfig(advantage_alpha=1.0)
+
+
 def test_huber():
     # double-Q case: td = [0.5, -3], delta 1: [0.5*0.25, 1*(3 - 0.5)] = [0.125, 2.5] -> mean 1.3125
     cfg = TDConfig(gamma=0.5, double_q=True, huber_delta=1.0)

@@ -62,6 +62,7 @@ def test_presets():
         (dict(gamma=-0.1), "gamma"),
         (dict(lr=0.0), "lr and adam_eps must be > 0"),
         (dict(lr_final=1.0), r"lr_final must be None \(constant lr\) or in \[0, lr="),
+        (dict(advantage_alpha=1.0), r"advantage_alpha must be in \[0, 1\)"),
         (dict(n_step=9), "n_step=9 must be <= replay.train_len"),
         (dict(replay_ratio=0.3), "whole number"),
         (dict(target_update="soft"), "target_update"),
