@@ -74,6 +74,8 @@ ARMS["prev-se"] = lambda c: _net(ARMS["prev"](c), variant="se")
 # and a learning rate decaying (cosine) to a tenth over the run.
 ARMS["prev-dw1"] = lambda c: ARMS["prev"](c).override(env_params=(("dist_weight", 1.0),))
 ARMS["prev-lrdecay"] = lambda c: ARMS["prev"](c).override(lr_final=c.learner.lr / 10)
+# The opposite lever (prev-lrdecay lost AER): twice the learning rate throughout.
+ARMS["prev-lr2"] = lambda c: ARMS["prev"](c).override(lr=2 * c.learner.lr)
 # A dueling head (Q = V + mean-centred advantages): the actions' Q differ by a few cm of distance keeping.
 ARMS["prev-duel"] = lambda c: _net(ARMS["prev"](c), dueling=True)
 # Advantage learning (alpha 0.9, the published value): targets of worse actions lowered, widening the same gaps.
