@@ -213,6 +213,8 @@ class QNetwork(nn.Module):
                 taken = actions is not None and actions.shape[1] == t  # the last step's action is known
                 prev_action = actions[:, -1:].T.astype(jnp.int32) if taken else state.prev_action
             y, (h, c) = LSTMStack(cfg.lstm, cfg.lstm_layers, dtype=dtype, name="lstm")(x, reset, (state.h, state.c))
+            if cfg.aux_outputs:  # [B, T, aux_outputs], read by auxiliary losses only
+                self.sow("intermediates", "aux", nn.Dense(cfg.aux_outputs, dtype=dtype, name="aux_head")(y))
             y = nn.relu(nn.Dense(cfg.head, dtype=dtype, kernel_init=he_init, name="head")(y))
             new_state, q = RecurrentState(h=h, c=c, frames=frames, prev_action=prev_action), q_outputs(cfg, y)
         else:

@@ -44,6 +44,9 @@ class NetworkConfig:
     coord_channels: bool = False  # append a hit mask and the pixel coordinates in [-1, 1] to the input channels
     pooled_skip: bool = False  # append the spatial mean of block 1's activations, taken BEFORE its norm, to the output
     prev_action: bool = False  # R2D2's LSTM input: the previous action (one-hot; a 'none' entry at episode starts)
+    # A linear head of this many outputs on the LSTM output, sown as intermediates 'aux' (apply with
+    # mutable=["intermediates"]): the trainer fits it to the true tracking error (LearnerConfig.aux_weight). 0 = none.
+    aux_outputs: int = 0
     dueling: bool = False  # Q = V + A - mean(A) (dueling head, Wang et al. 2016; see network.q_outputs)
 
     def __post_init__(self):
@@ -81,6 +84,10 @@ class NetworkConfig:
             v = getattr(self, name)
             if not isinstance(v, (int, np.integer)) or isinstance(v, bool) or v < 1:
                 fail(f"{name} must be a positive integer, got {v!r}")
+        if not isinstance(self.aux_outputs, (int, np.integer)) or self.aux_outputs < 0:
+            fail(f"aux_outputs must be an integer >= 0, got {self.aux_outputs!r}")
+        if self.aux_outputs and not self.recurrent:
+            fail("aux_outputs needs a recurrent variant (the head reads the LSTM output), not 'drlavt'")
         if self.prev_action and not self.recurrent:
             fail("prev_action needs a recurrent variant (the previous action is an LSTM input), not 'drlavt'")
         if self.use_mha and self.channels[-1] % self.attention_heads != 0:

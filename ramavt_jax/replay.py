@@ -164,6 +164,8 @@ class Transition:
       is_first: ``[]`` bool, obs t is an episode's first observation (carry reset; transition t-1 masked).
       recurrent_state: the actor's state *before* consuming obs t, any pytree with leaves ``[layers, units]``; the
         trainer stores the network's own ``RecurrentState`` (LSTM ``h``, ``c``; no frame history).
+      privileged: ``[K]`` float32 simulator state at obs t for auxiliary training losses only (the trainer's true
+        tracking error); ``None`` = not stored.
     """
 
     obs: jax.Array
@@ -173,6 +175,7 @@ class Transition:
     truncated: jax.Array
     is_first: jax.Array
     recurrent_state: Any
+    privileged: jax.Array | None = None
 
 
 def quantise_obs(obs: jax.Array, dtype: str) -> jax.Array:
@@ -224,6 +227,7 @@ class SequenceBatch:
       truncated: ``[B, L-1]`` bool, the time limit ended the episode at obs t+1.
       loss_mask: ``[B, L-1]`` bool, transition t trains (see :func:`loss_mask`).
       start_state: the stored recurrent state before obs 0, in the network's layout: leaves ``[layers, B, units]``.
+      privileged: ``[B, L, K]`` the stored privileged state per obs (None when not stored).
       burn_in: static number of leading steps that only warm up the carry (``loss_mask`` is False there).
     """
 
@@ -235,6 +239,7 @@ class SequenceBatch:
     truncated: jax.Array
     loss_mask: jax.Array
     start_state: Any
+    privileged: jax.Array | None = None
     burn_in: int = struct.field(pytree_node=False, default=0)
 
 
@@ -267,7 +272,7 @@ def sequence_batch(window: Transition, burn_in: int) -> SequenceBatch:
         obs=window.obs, reset=window.is_first.astype(bool), action=transition(window.action),
         reward=transition(window.reward), terminated=transition(window.terminated),
         truncated=transition(window.truncated), loss_mask=loss_mask(window.is_first, burn_in), start_state=start,
-        burn_in=burn_in)
+        privileged=window.privileged, burn_in=burn_in)
 
 
 def _storage_example(example: Transition, config: ReplayConfig) -> Transition:
@@ -281,6 +286,7 @@ def _storage_example(example: Transition, config: ReplayConfig) -> Transition:
         truncated=jnp.zeros((), bool),
         is_first=jnp.zeros((), bool),
         recurrent_state=jax.tree.map(lambda x: jnp.zeros(x.shape, state_dtype), example.recurrent_state),
+        privileged=None if example.privileged is None else jnp.zeros(example.privileged.shape, jnp.float32),
     )
 
 
@@ -382,15 +388,10 @@ def memory_bytes(config: ReplayConfig, num_envs: int, obs_shape: tuple[int, ...]
         state = [jnp.zeros(tuple(s), jnp.float32) for s in state_shape]
     else:
         state = jax.tree.map(lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype), state_shape)
-    example = Transition(
-        obs=jax.ShapeDtypeStruct(tuple(obs_shape), jnp.float32),
-        action=jnp.zeros((), jnp.int32),
-        reward=jnp.zeros((), jnp.float32),
-        terminated=jnp.zeros((), bool),
-        truncated=jnp.zeros((), bool),
-        is_first=jnp.zeros((), bool),
-        recurrent_state=state,
-    )
+    scalar = lambda dtype: jnp.zeros((), dtype)  # noqa: E731
+    example = Transition(obs=jax.ShapeDtypeStruct(tuple(obs_shape), jnp.float32), action=scalar(jnp.int32),
+                         reward=scalar(jnp.float32), terminated=scalar(bool), truncated=scalar(bool),
+                         is_first=scalar(bool), recurrent_state=state)
     replay = make_replay(config, num_envs, example)
     abstract = jax.eval_shape(replay.init)
     return int(sum(math.prod(x.shape) * np.dtype(x.dtype).itemsize for x in jax.tree.leaves(abstract)))

@@ -116,13 +116,15 @@ class PreparedBatch:
 
     obs: ``[B, T+1, H, W, C]`` (augmented) observations after burn-in; reset: ``[B, T+1]`` bool; state: the online
     net's ``RecurrentState`` after burn-in (h, c ``[layers, B, units]``); td: the :class:`TDBatch` of the ``T``
-    trained transitions (``q_target [B, T+1, A]``, the rest ``[B, T]``).
+    trained transitions (``q_target [B, T+1, A]``, the rest ``[B, T]``); privileged: ``[B, T+1, 3]`` the true
+    tracking error per obs (None without the auxiliary loss).
     """
 
     obs: jax.Array
     reset: jax.Array
     state: RecurrentState
     td: TDBatch
+    privileged: jax.Array | None = None
 
 
 @struct.dataclass
@@ -174,7 +176,8 @@ class Trainer:
         return replay_lib.Transition(
             obs=jnp.zeros(self.obs_shape), action=jnp.zeros((), jnp.int32), reward=jnp.zeros(()),
             terminated=jnp.zeros((), bool), truncated=jnp.zeros((), bool), is_first=jnp.zeros((), bool),
-            recurrent_state=unbatch_state(s).replace(frames=None))
+            recurrent_state=unbatch_state(s).replace(frames=None),
+            privileged=jnp.zeros((3,)) if self.config.learner.aux_weight else None)
 
     def _per_device(self, batched_fn):
         """Run a function of per-env arrays ([N, ...] in and out) on each device's own envs (``jax.shard_map``).
@@ -243,13 +246,20 @@ class Trainer:
         # the replay keeps the LSTM part of the state; 'drlavt' rebuilds its frame history during burn-in
         transition = replay_lib.Transition(
             obs=actor.obs, action=action, reward=reward, terminated=terminated, truncated=truncated,
-            is_first=actor.is_first, recurrent_state=actor.net_state.replace(frames=None))
+            is_first=actor.is_first, recurrent_state=actor.net_state.replace(frames=None),
+            privileged=jax.vmap(self._tracking_error)(actor.env_state) if self.config.learner.aux_weight else None)
         new_actor = ActorState(env_state=env_state, obs=obs, is_first=info["is_first"],
                                net_state=record_action(net_state, action))
         done = terminated | truncated
         stats = EpisodeStats(episodes=done.sum(), length_sum=jnp.where(done, info["episode_length"], 0).sum(),
                              return_sum=jnp.where(done, info["episode_return"], 0.0).sum())
         return new_actor, transition, stats
+
+    def _tracking_error(self, env_state) -> jax.Array:
+        """[3] where the target centre is minus where it should be (camera frame), in stand-off distances: the
+        auxiliary loss's label for the obs this (unbatched) env state rendered."""
+        p = self.env_params
+        return (env_lib.relative_position(env_state) / env_state.scale - p.desired_pos) / p.desired_pos[2]
 
     def rollout(self, params, actor: ActorState, env_steps: jax.Array, key: jax.Array):
         """``rollout_steps`` acting steps. Returns (actor, chunk [N, T, ...] in replay layout, summed stats, eps)."""
@@ -287,13 +297,19 @@ class Trainer:
         td = TDBatch(q_target=sg(q_target[:, burn:]), action=batch.action[:, burn:],
                      reward=sg(batch.reward[:, burn:] * c.learner.reward_scale), terminated=terminated,
                      truncated=truncated, mask=batch.loss_mask[:, burn:])
-        return PreparedBatch(obs=obs[:, burn:], reset=batch.reset[:, burn:], state=sg(state), td=td)
+        privileged = None if batch.privileged is None else batch.privileged[:, burn:]
+        return PreparedBatch(obs=obs[:, burn:], reset=batch.reset[:, burn:], state=sg(state), td=td,
+                             privileged=privileged)
 
     def trained_loss(self, params, prepared: PreparedBatch):
         """TD loss over the trained part of the window (gradient w.r.t. params only). Returns (loss, aux)."""
-        q_online, _ = self.q_values(params, prepared.obs, prepared.reset, prepared.state, prepared.td.action)
+        (q_online, _), sown = self.net.apply({"params": params}, prepared.obs, prepared.reset, prepared.state,
+                                             actions=prepared.td.action, mutable=["intermediates"])
         loss, aux = td_loss(q_online, prepared.td, self.td)
         mask = prepared.td.mask.astype(jnp.float32)
+        if self.config.learner.aux_weight:  # the aux head's squared error at the trained obs (LearnerConfig)
+            miss = jnp.square(sown["intermediates"]["aux"][0][:, :-1] - prepared.privileged[:, :-1]).sum(-1)
+            loss = loss + self.config.learner.aux_weight * (miss * mask).sum() / jnp.maximum(mask.sum(), 1.0)
         aux = dict(aux, q_mean=(aux["q_taken"] * mask).sum() / jnp.maximum(mask.sum(), 1.0))
         return loss, aux
 

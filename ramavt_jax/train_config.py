@@ -59,9 +59,7 @@ class LearnerConfig:
     learning_starts: int = 20_000  # env steps (all envs) before the first update
     replay_ratio: float = 1.0  # trained frames (batch_size * train_len) per env frame
     lr: float = 5e-4  # Adam learning rate
-    # None = a constant lr; else cosine decay from lr to lr_final over the run's gradient steps (the late, small
-    # steps refine the distance keeping that the reward's distance term scores)
-    lr_final: float | None = None
+    lr_final: float | None = None  # None = a constant lr; else cosine decay to lr_final over the gradient steps
     adam_eps: float = 1e-4  # Adam epsilon
     max_grad_norm: float = 10.0  # 0 = no clipping
     gamma: float = 0.97  # discount
@@ -70,15 +68,16 @@ class LearnerConfig:
     value_rescale: bool = False  # R2D2's invertible value rescaling of the targets
     huber_delta: float | None = None  # None = mean squared TD error (the original loss), else the Huber threshold
     advantage_alpha: float = 0.0  # advantage learning: widen the action gaps (losses.TDConfig); 0 = off
+    # Auxiliary loss weight (0 = off): the aux head (NetworkConfig.aux_outputs = 3) predicts the true tracking error
+    # (camera frame, in stand-off distances) at each trained obs: simulator state, stored in the replay, never acted on.
+    aux_weight: float = 0.0
     reward_scale: float = 0.1  # rewards are multiplied by this in the TD targets
     target_update: str = "polyak"  # 'polyak' | 'period'
     polyak_tau: float = 0.01  # target net moves this fraction towards the online net per step ('polyak')
     target_period: int = 500  # gradient steps between hard target syncs ('period')
-    # Bootstrap through 'target lost' terminations as through time limits. The env ends an episode once the target
-    # has been lost for lost_patience steps; with a terminal value of 0 a tracker whose per-step reward is negative
-    # (in view but a few metres off: 1 - w * distance < 0) gains by losing the target on purpose. Bootstrapping from
-    # the lost final observation values it as if the episode went on, which removes that incentive. The env's
-    # reward and episode rules (and therefore evaluation) are unchanged.
+    # Bootstrap through 'target lost' terminations as through time limits: with a terminal value of 0, a tracker
+    # whose per-step reward is negative (1 - w * distance < 0) gains by losing the target on purpose; bootstrapping
+    # removes that incentive. The env's reward and episode rules (and so evaluation) are unchanged.
     bootstrap_lost: bool = False
     augment: bool = False  # augment the sampled windows' images with augment_config
     # Cutout only by default: crops, flips and rotations move the target in the image, and the target's image
@@ -94,20 +93,20 @@ class LearnerConfig:
             raise fail(f"lr and adam_eps must be > 0, got lr={self.lr}, adam_eps={self.adam_eps}")
         if self.lr_final is not None and not 0 <= self.lr_final <= self.lr:
             raise fail(f"lr_final must be None (constant lr) or in [0, lr={self.lr}], got {self.lr_final}")
-        if not self.max_grad_norm >= 0:
-            raise fail(f"max_grad_norm must be >= 0 (0 = no clipping), got {self.max_grad_norm}")
         if not 0.0 <= self.advantage_alpha < 1.0:
             raise fail(f"advantage_alpha must be in [0, 1) (0 = plain Q-learning targets), got {self.advantage_alpha}")
-        if not self.reward_scale > 0:
-            raise fail(f"reward_scale must be > 0, got {self.reward_scale}")
+        for name, ok, rule in (("max_grad_norm", self.max_grad_norm >= 0, ">= 0 (0 = no clipping)"),
+                               ("aux_weight", self.aux_weight >= 0, ">= 0 (0 = no auxiliary loss)"),
+                               ("reward_scale", self.reward_scale > 0, "> 0"),
+                               ("replay_ratio", self.replay_ratio > 0, "> 0")):
+            if not ok:
+                raise fail(f"{name} must be {rule}, got {getattr(self, name)}")
         if self.huber_delta is not None and not self.huber_delta > 0:
             raise fail(f"huber_delta must be None (MSE) or > 0, got {self.huber_delta}")
         if self.target_update not in ("polyak", "period"):
             raise fail(f"target_update must be 'polyak' or 'period', got {self.target_update!r}")
         if not 0.0 < self.polyak_tau <= 1.0:
             raise fail(f"polyak_tau must be in (0, 1], got {self.polyak_tau}")
-        if not self.replay_ratio > 0:
-            raise fail(f"replay_ratio must be > 0, got {self.replay_ratio}")
         if not isinstance(self.augment_config, AugmentConfig):
             raise fail(f"augment_config must be an augment.AugmentConfig, got {type(self.augment_config).__name__}")
 
@@ -220,6 +219,9 @@ class TrainConfig:
                   f"and truncation bootstraps from it), got {self.env.autoreset!r}")
         if self.network.num_actions != env_lib.NUM_ACTIONS:
             _fail(f"network.num_actions={self.network.num_actions} but the env has {env_lib.NUM_ACTIONS} actions")
+        if (self.learner.aux_weight > 0) != (self.network.aux_outputs == 3):  # the tracking error's x, y, z
+            _fail(f"learner.aux_weight > 0 and network.aux_outputs = 3 go together (the head and its loss), got "
+                  f"{self.learner.aux_weight} and {self.network.aux_outputs}")
         if self.network.norm == "batch":
             _fail("network.norm='batch' is not supported by the trainer (acting and learning must see the same "
                   "network); use 'layer' or 'none'")

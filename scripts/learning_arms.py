@@ -80,6 +80,10 @@ ARMS["prev-lr2"] = lambda c: ARMS["prev"](c).override(lr=2 * c.learner.lr)
 ARMS["prev-duel"] = lambda c: _net(ARMS["prev"](c), dueling=True)
 # Advantage learning (alpha 0.9, the published value): targets of worse actions lowered, widening the same gaps.
 ARMS["prev-al"] = lambda c: ARMS["prev"](c).override(advantage_alpha=0.9)
+# An auxiliary loss: the LSTM output predicts the true tracking error (simulator state, training only), so the
+# encoder and memory are taught where the target is, boresight distance above all, from the first update on.
+ARMS["prev-aux"] = lambda c: ARMS["prev"](c).override(
+    network=dataclasses.replace(c.network, aux_outputs=3), aux_weight=1.0)
 
 
 def arm_config(name: str, preset: str = "quick", **overrides):

@@ -63,6 +63,8 @@ def test_presets():
         (dict(lr=0.0), "lr and adam_eps must be > 0"),
         (dict(lr_final=1.0), r"lr_final must be None \(constant lr\) or in \[0, lr="),
         (dict(advantage_alpha=1.0), r"advantage_alpha must be in \[0, 1\)"),
+        (dict(aux_weight=1.0), "aux_weight > 0 and network.aux_outputs = 3 go together"),
+        (dict(network=dataclasses.replace(SMOKE.network, aux_outputs=3)), "go together"),
         (dict(n_step=9), "n_step=9 must be <= replay.train_len"),
         (dict(replay_ratio=0.3), "whole number"),
         (dict(target_update="soft"), "target_update"),
@@ -122,17 +124,17 @@ def test_drlavt_with_enough_burn_in_is_accepted():
 
 
 @pytest.mark.parametrize(
-    "variant, obs_mode, augment, prev_action",
-    [("ramavt", "depth", False, False), ("drlavt", "depth", False, False), ("se", "rgbd", False, False),
-     ("mha", "color", True, False), ("origin", "depth", True, False), ("ramavt", "depth", False, True)],
+    "variant, obs_mode, augment, prev_action, aux",
+    [("ramavt", "depth", False, False, 0), ("drlavt", "depth", False, False, 0), ("se", "rgbd", False, False, 0),
+     ("mha", "color", True, False, 0), ("origin", "depth", True, False, 0), ("ramavt", "depth", False, True, 3)],
 )
-def test_every_variant_observation_and_augmentation_traces(variant, obs_mode, augment, prev_action):
+def test_every_variant_observation_and_augmentation_traces(variant, obs_mode, augment, prev_action, aux):
     """The whole chunk (acting, replay, burn-in learner) traces for each option (abstractly: nothing compiles)."""
     net = NetworkConfig(variant=variant, channels=(8, 8), kernels=(3, 3), strides=(1, 1), pools=(True, True),
                         dense=16, lstm=16, lstm_layers=2, head=16, attention_heads=2, drlavt_dense=(16,),
-                        prev_action=prev_action)
+                        prev_action=prev_action, aux_outputs=aux)
     env_cfg = env_lib.EnvConfig(camera=CameraConfig(resolution=16), obs_mode=obs_mode, autoreset="next_step")
-    cfg = SMOKE.override(network=net, env=env_cfg, augment=augment)
+    cfg = SMOKE.override(network=net, env=env_cfg, augment=augment, aux_weight=float(aux > 0))
     tr = T.Trainer(cfg)
     state = jax.eval_shape(tr.init, jax.ShapeDtypeStruct((2,), jnp.uint32))
     out, metrics = jax.eval_shape(tr.chunk, state)
@@ -276,6 +278,27 @@ def test_stored_recurrent_state_is_the_actors_state():
         assert float(chunk2.reward[n, t + 1]) == 0.0 and not done[n, t + 1]
     # the stored obs is quantised only when it enters the buffer, not here
     assert chunk2.obs.dtype == jnp.float32
+
+
+def test_auxiliary_loss_labels_are_the_true_tracking_error_and_train_the_aux_head():
+    """The stored label of obs t+1 (the tracking error in stand-off distances) reproduces the env's reward for the
+    transition into it (1 - w * 5 m * |label| while in view), and the aux loss reaches the aux head."""
+    cfg = SMOKE.override(network=dataclasses.replace(SMOKE.network, aux_outputs=3), aux_weight=1.0)
+    tr = T.Trainer(cfg)
+    state = jax.jit(tr.init)(jax.random.PRNGKey(4))
+    params = state.learner.params
+    _, chunk, _, _ = jax.jit(tr.rollout)(params, state.actor, jnp.int32(0), jax.random.PRNGKey(5))
+    label, reward = np.asarray(chunk.privileged), np.asarray(chunk.reward)  # [N, T, 3], [N, T]
+    real = ~np.asarray(chunk.is_first)[:, 1:] & (reward[:, :-1] > -4.0)  # in view, not across an episode end
+    assert real.sum() > 10
+    expected = 1.0 - float(tr.env_params.dist_weight) * 5.0 * np.linalg.norm(label[:, 1:], axis=-1)
+    np.testing.assert_allclose(reward[:, :-1][real], expected[real], atol=1e-4)
+    window = _window(jax.random.PRNGKey(1), cfg).replace(
+        privileged=jax.random.normal(jax.random.PRNGKey(2), (cfg.replay.batch_size, cfg.sequence_length, 3)))
+    prepared = tr.prepare(params, params, _as_batch(window, cfg), jax.random.PRNGKey(0))
+    grads = jax.grad(lambda p: tr.trained_loss(p, prepared)[0])(params)
+    assert float(jnp.abs(grads["aux_head"]["kernel"]).sum()) > 0
+    assert "aux_head" not in jax.eval_shape(T.Trainer(SMOKE).init, jax.ShapeDtypeStruct((2,), jnp.uint32)).learner.params
 
 
 def test_prev_action_is_stored_with_the_state_and_fed_back_by_the_greedy_policy():
