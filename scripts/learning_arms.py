@@ -84,6 +84,9 @@ ARMS["prev-al"] = lambda c: ARMS["prev"](c).override(advantage_alpha=0.9)
 # encoder and memory are taught where the target is, boresight distance above all, from the first update on.
 ARMS["prev-aux"] = lambda c: ARMS["prev"](c).override(
     network=dataclasses.replace(c.network, aux_outputs=3), aux_weight=1.0)
+# The same auxiliary loss on the long budget (one change to `long`).
+ARMS["long-aux"] = lambda c: ARMS["long"](c).override(
+    network=dataclasses.replace(ARMS["long"](c).network, aux_outputs=3), aux_weight=1.0)
 
 
 def arm_config(name: str, preset: str = "quick", **overrides):
