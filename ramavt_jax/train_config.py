@@ -329,20 +329,23 @@ _TOP_FIELDS = {f.name for f in dataclasses.fields(TrainConfig)}
 
 
 def _quick() -> TrainConfig:
-    """The README main job (5 min 15 s on an idle 2-core CPU, compile and evaluation included): the task at 32x32
-    depth with a small RAMAVT (stride-2 first conv, 16-32-32 channels, a 4x4 final map = 16 attention tokens, dense/LSTM 128) whose encoder
-    sees absolute depth and image position (hit-mask and coordinate channels, pre-norm pooled skip) and whose LSTM
-    gets the previous action, trained with 'target lost' bootstrapped (no incentive to lose the target), replay
-    ratio 2. RESULTS.md has the measurements."""
+    """The README main job (about 5 min on an idle 2-core CPU, compile and evaluation included): the task at 32x32
+    depth with a small RAMAVT (stride-2 first conv, 16-32-32 channels, a 4x4 final map = 16 attention tokens,
+    dense/LSTM 128) whose encoder sees absolute depth and image position (hit-mask and coordinate channels, pre-norm
+    pooled skip) and whose LSTM gets the previous action, trained with 'target lost' bootstrapped (no incentive to
+    lose the target), an auxiliary loss (the LSTM output predicts the true tracking error), replay ratio 2.
+    RESULTS.md has the measurements."""
     return TrainConfig(
         env=env_lib.EnvConfig(camera=CameraConfig(resolution=32), autoreset="next_step"),
         network=NetworkConfig(variant="ramavt", channels=(16, 32, 32), kernels=(3, 3, 3), strides=(2, 1, 1),
                               pools=(True, True, False), se_reduction=4, attention_heads=4, dense=128, lstm=128,
-                              lstm_layers=1, head=128, coord_channels=True, pooled_skip=True, prev_action=True),
+                              lstm_layers=1, head=128, coord_channels=True, pooled_skip=True, prev_action=True,
+                              aux_outputs=3),
         acting=ActingConfig(num_envs=64, rollout_steps=20, eps_start=1.0, eps_end=0.05, eps_decay_steps=200_000),
         replay=ReplayConfig(capacity_steps=64_000, burn_in=10, train_len=20, batch_size=32),
         learner=LearnerConfig(learning_starts=10_240, replay_ratio=2.0, lr=5e-4, gamma=0.97, n_step=5,
-                              reward_scale=0.1, target_update="polyak", polyak_tau=0.01, bootstrap_lost=True),
+                              reward_scale=0.1, target_update="polyak", polyak_tau=0.01, bootstrap_lost=True,
+                              aux_weight=1.0),
         run=RunConfig(total_env_steps=384_000, iterations_per_chunk=25, eval_episodes=32, checkpoint_every_chunks=5),
     )
 
@@ -350,11 +353,12 @@ def _quick() -> TrainConfig:
 def _long() -> TrainConfig:
     """The quick preset with 3x the env steps (1.15M), exploration decaying over 400k steps and a 128k-step replay:
     3x the quick preset's compute. The shipped pretrained agent was trained with it. Without the previous-action
-    input: it helped at the quick budget (3 seeds), but the one long seed trained with it did worse on the held-out
-    targets than this config's seed 0 (RESULTS.md); until more seeds decide, `long` stays the shipped agent's
-    config."""
+    input (it helped at the quick budget, but the one long seed trained with it did worse on the held-out targets
+    than this config's seed 0; RESULTS.md) and without the auxiliary loss (added to `quick` later): the shipped
+    agent's config."""
     quick = _quick()
-    return quick.override(network=dataclasses.replace(quick.network, prev_action=False), total_env_steps=1_152_000,
+    return quick.override(network=dataclasses.replace(quick.network, prev_action=False, aux_outputs=0),
+                          aux_weight=0.0, total_env_steps=1_152_000,
                           eps_decay_steps=400_000, capacity_steps=128_000, checkpoint_every_chunks=6)
 
 

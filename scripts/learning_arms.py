@@ -34,11 +34,12 @@ def _net(cfg, **kw):
 
 # One change per arm against 'base', the quick preset as it was before the learning fixes (a 2x2 final map, an
 # encoder blind to depth scale and position, 'target lost' as a terminal state, no previous action); 'all' combines
-# the first three changes, and 'prev' ('all' + the previous action into the LSTM) is the quick preset of today
-# (arm_config checks that).
+# the first three changes, 'prev' is 'all' + the previous action into the LSTM, and 'prev-aux' ('prev' + the
+# auxiliary tracking-error loss) is the quick preset of today (arm_config checks that).
 def _base(c):
-    return _net(c, coord_channels=False, pooled_skip=False, pools=(True, True, True), prev_action=False).override(
-        bootstrap_lost=False)
+    net = dataclasses.replace(c.network, coord_channels=False, pooled_skip=False, pools=(True, True, True),
+                              prev_action=False, aux_outputs=0)
+    return c.override(network=net, bootstrap_lost=False, aux_weight=0.0)
 
 
 ARMS = {
@@ -83,7 +84,7 @@ ARMS["prev-al"] = lambda c: ARMS["prev"](c).override(advantage_alpha=0.9)
 # An auxiliary loss: the LSTM output predicts the true tracking error (simulator state, training only), so the
 # encoder and memory are taught where the target is, boresight distance above all, from the first update on.
 ARMS["prev-aux"] = lambda c: ARMS["prev"](c).override(
-    network=dataclasses.replace(c.network, aux_outputs=3), aux_weight=1.0)
+    network=dataclasses.replace(ARMS["prev"](c).network, aux_outputs=3), aux_weight=1.0)
 # The same auxiliary loss on the long budget (one change to `long`).
 ARMS["long-aux"] = lambda c: ARMS["long"](c).override(
     network=dataclasses.replace(ARMS["long"](c).network, aux_outputs=3), aux_weight=1.0)
@@ -91,8 +92,8 @@ ARMS["long-aux"] = lambda c: ARMS["long"](c).override(
 
 def arm_config(name: str, preset: str = "quick", **overrides):
     base = train.preset(preset, eval_episodes=0, **overrides)
-    if preset == "quick" and ARMS["prev"](base) != base:
-        raise SystemExit("the quick preset is no longer 'prev' of these arms: update ARMS")
+    if preset == "quick" and ARMS["prev-aux"](base) != base:
+        raise SystemExit("the quick preset is no longer 'prev-aux' of these arms: update ARMS")
     if preset == "quick" and not overrides and ARMS["long"](base) != train.preset("long", eval_episodes=0):
         raise SystemExit("the long preset is no longer 'long' of these arms: update ARMS")
     return ARMS[name](base)
