@@ -329,12 +329,9 @@ _TOP_FIELDS = {f.name for f in dataclasses.fields(TrainConfig)}
 
 
 def _quick() -> TrainConfig:
-    """The README main job (about 5 min on an idle 2-core CPU, compile and evaluation included): the task at 32x32
-    depth with a small RAMAVT (stride-2 first conv, 16-32-32 channels, a 4x4 final map = 16 attention tokens,
-    dense/LSTM 128) whose encoder sees absolute depth and image position (hit-mask and coordinate channels, pre-norm
-    pooled skip) and whose LSTM gets the previous action, trained with 'target lost' bootstrapped (no incentive to
-    lose the target), an auxiliary loss (the LSTM output predicts the true tracking error), replay ratio 2.
-    RESULTS.md has the measurements."""
+    """The README main job (about 5 min on an idle 2-core CPU): 32x32 depth, a small RAMAVT (4x4 final map = 16
+    attention tokens) that sees absolute depth and image position and feeds the previous action to its LSTM;
+    'target lost' bootstrapped, an auxiliary tracking-error loss, replay ratio 2. Measurements: RESULTS.md."""
     return TrainConfig(
         env=env_lib.EnvConfig(camera=CameraConfig(resolution=32), autoreset="next_step"),
         network=NetworkConfig(variant="ramavt", channels=(16, 32, 32), kernels=(3, 3, 3), strides=(2, 1, 1),
@@ -351,11 +348,9 @@ def _quick() -> TrainConfig:
 
 
 def _long() -> TrainConfig:
-    """The quick preset with 3x the env steps (1.15M), exploration decaying over 400k steps and a 128k-step replay:
-    3x the quick preset's compute. The shipped pretrained agent was trained with it. Without the previous-action
-    input (it helped at the quick budget, but the one long seed trained with it did worse on the held-out targets
-    than this config's seed 0; RESULTS.md) and without the auxiliary loss (added to `quick` later): the shipped
-    agent's config."""
+    """The quick preset with 3x the env steps (1.15M), exploration decaying over 400k steps and a 128k-step replay,
+    without the previous-action input (one long seed with it did worse; RESULTS.md) and without the auxiliary loss
+    (added to `quick` later): the shipped pretrained agent's config."""
     quick = _quick()
     return quick.override(network=dataclasses.replace(quick.network, prev_action=False, aux_outputs=0),
                           aux_weight=0.0, total_env_steps=1_152_000,
