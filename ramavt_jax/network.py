@@ -216,7 +216,8 @@ class QNetwork(nn.Module):
             if cfg.aux_outputs:  # [B, T, aux_outputs], read by auxiliary losses only
                 self.sow("intermediates", "aux", nn.Dense(cfg.aux_outputs, dtype=dtype, name="aux_head")(y))
             y = nn.relu(nn.Dense(cfg.head, dtype=dtype, kernel_init=he_init, name="head")(y))
-            new_state, q = RecurrentState(h=h, c=c, frames=frames, prev_action=prev_action), q_outputs(cfg, y)
+            q = q_outputs(cfg, y)
+            new_state = RecurrentState(h=h, c=c, frames=frames, prev_action=prev_action)
         else:
             for j, width in enumerate(cfg.drlavt_dense):
                 x = nn.relu(nn.Dense(width, dtype=dtype, kernel_init=he_init, name=f"dense{j}")(x))

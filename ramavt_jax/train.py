@@ -307,10 +307,11 @@ class Trainer:
                                              actions=prepared.td.action, mutable=["intermediates"])
         loss, aux = td_loss(q_online, prepared.td, self.td)
         mask = prepared.td.mask.astype(jnp.float32)
+        masked_mean = lambda x: (x * mask).sum() / jnp.maximum(mask.sum(), 1.0)  # noqa: E731 (over [B, T])
         if self.config.learner.aux_weight:  # the aux head's squared error at the trained obs (LearnerConfig)
             miss = jnp.square(sown["intermediates"]["aux"][0][:, :-1] - prepared.privileged[:, :-1]).sum(-1)
-            loss = loss + self.config.learner.aux_weight * (miss * mask).sum() / jnp.maximum(mask.sum(), 1.0)
-        aux = dict(aux, q_mean=(aux["q_taken"] * mask).sum() / jnp.maximum(mask.sum(), 1.0))
+            loss = loss + self.config.learner.aux_weight * masked_mean(miss)
+        aux = dict(aux, q_mean=masked_mean(aux["q_taken"]))
         return loss, aux
 
     def loss(self, params, target_params, batch: replay_lib.SequenceBatch, key: jax.Array):

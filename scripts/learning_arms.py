@@ -69,10 +69,11 @@ _LONGER = dict(total_env_steps=1_152_000, eps_decay_steps=400_000, replay_capaci
 ARMS["long"] = lambda c: ARMS["all"](c).override(**_LONGER)
 # The same budget with the previous-action input ('prev', the quick preset's network).
 ARMS["long-prev"] = lambda c: ARMS["prev"](c).override(**_LONGER)
-# SE without the attention (the best AER of Table III's single modules) on today's quick preset.
+# Fourth session, each one change to 'prev' (the quick preset when they ran). SE without the attention (the best
+# AER of Table III's single modules):
 ARMS["prev-se"] = lambda c: _net(ARMS["prev"](c), variant="se")
-# Two levers on distance keeping, each alone on today's quick preset: the evaluation's distance weight in training,
-# and a learning rate decaying (cosine) to a tenth over the run.
+# Two levers on distance keeping: the evaluation's distance weight in training, and a learning rate decaying
+# (cosine) to a tenth over the run.
 ARMS["prev-dw1"] = lambda c: ARMS["prev"](c).override(env_params=(("dist_weight", 1.0),))
 ARMS["prev-lrdecay"] = lambda c: ARMS["prev"](c).override(lr_final=c.learner.lr / 10)
 # The opposite lever (prev-lrdecay lost AER): twice the learning rate throughout.
@@ -81,13 +82,17 @@ ARMS["prev-lr2"] = lambda c: ARMS["prev"](c).override(lr=2 * c.learner.lr)
 ARMS["prev-duel"] = lambda c: _net(ARMS["prev"](c), dueling=True)
 # Advantage learning (alpha 0.9, the published value): targets of worse actions lowered, widening the same gaps.
 ARMS["prev-al"] = lambda c: ARMS["prev"](c).override(advantage_alpha=0.9)
+
+
+def _with_aux(cfg):
+    return cfg.override(network=dataclasses.replace(cfg.network, aux_outputs=3), aux_weight=1.0)
+
+
 # An auxiliary loss: the LSTM output predicts the true tracking error (simulator state, training only), so the
 # encoder and memory are taught where the target is, boresight distance above all, from the first update on.
-ARMS["prev-aux"] = lambda c: ARMS["prev"](c).override(
-    network=dataclasses.replace(ARMS["prev"](c).network, aux_outputs=3), aux_weight=1.0)
+ARMS["prev-aux"] = lambda c: _with_aux(ARMS["prev"](c))
 # The same auxiliary loss on the long budget (one change to `long`).
-ARMS["long-aux"] = lambda c: ARMS["long"](c).override(
-    network=dataclasses.replace(ARMS["long"](c).network, aux_outputs=3), aux_weight=1.0)
+ARMS["long-aux"] = lambda c: _with_aux(ARMS["long"](c))
 
 
 def arm_config(name: str, preset: str = "quick", **overrides):

@@ -168,6 +168,22 @@ def test_sample_is_a_typed_sequence_batch():
     np.testing.assert_array_equal(batch.loss_mask, loss_mask(batch.reset, burn_in))
 
 
+def test_privileged_state_travels_with_its_observation():
+    """Transition.privileged (per-step simulator state for auxiliary losses) comes back beside its own obs."""
+    cfg = ReplayConfig(capacity_steps=N_ENVS * 40, burn_in=0, train_len=5, batch_size=8)
+    replay = make_replay(cfg, N_ENVS, EXAMPLE.replace(privileged=jnp.zeros((3,))))
+    state = replay.init()
+    for i in range(2):
+        chunk = make_chunk(i * 15, 15)
+        env, g = np.broadcast_arrays(np.arange(N_ENVS)[None, :], np.arange(i * 15, i * 15 + 15)[:, None])
+        label = jnp.asarray(np.stack([env, g, 0.5 + 0 * g], -1), jnp.float32)  # [T, N, 3]
+        state = replay.add(state, chunk_to_storage(chunk.replace(privileged=label)))
+    batch = replay.sample(state, jax.random.key(3))
+    env, g = decode(batch)
+    assert batch.privileged.shape == (8, cfg.sequence_length, 3)
+    np.testing.assert_array_equal(batch.privileged, np.stack([env, g, 0.5 + 0 * g], -1))
+
+
 def test_uint8_round_trip(filled):
     _, _, batch = filled
     env, g = decode(batch)
