@@ -93,6 +93,12 @@ def _with_aux(cfg):
 ARMS["prev-aux"] = lambda c: _with_aux(ARMS["prev"](c))
 # The same auxiliary loss on the long budget (one change to `long`).
 ARMS["long-aux"] = lambda c: _with_aux(ARMS["long"](c))
+# Fifth session, each one change to 'prev-aux' (the quick preset): the auxiliary loss weighted 3x, twice the
+# learning rate (a decaying one cost AER: the agent is still learning at the end), a dueling head, advantage learning.
+ARMS["aux-w3"] = lambda c: ARMS["prev-aux"](c).override(aux_weight=3.0)
+ARMS["aux-lr2"] = lambda c: ARMS["prev-aux"](c).override(lr=2 * c.learner.lr)
+ARMS["aux-duel"] = lambda c: _net(ARMS["prev-aux"](c), dueling=True)
+ARMS["aux-al"] = lambda c: ARMS["prev-aux"](c).override(advantage_alpha=0.9)
 
 
 def arm_config(name: str, preset: str = "quick", **overrides):
