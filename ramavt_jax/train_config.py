@@ -349,12 +349,11 @@ def _quick() -> TrainConfig:
 
 def _long() -> TrainConfig:
     """The quick preset with 3x the env steps (1.15M), exploration decaying over 400k steps and a 128k-step replay,
-    without the previous-action input (one long seed with it did worse; RESULTS.md) and without the auxiliary loss
-    (added to `quick` later): the shipped pretrained agent's config."""
+    without the previous-action input (one long seed with it did worse; RESULTS.md): the shipped agent's config."""
     quick = _quick()
-    return quick.override(network=dataclasses.replace(quick.network, prev_action=False, aux_outputs=0),
-                          aux_weight=0.0, total_env_steps=1_152_000,
-                          eps_decay_steps=400_000, capacity_steps=128_000, checkpoint_every_chunks=6)
+    return quick.override(network=dataclasses.replace(quick.network, prev_action=False),
+                          total_env_steps=1_152_000, eps_decay_steps=400_000, capacity_steps=128_000,
+                          checkpoint_every_chunks=6)
 
 
 def _paper() -> TrainConfig:
