@@ -87,15 +87,15 @@ class LearnerConfig:
     def __post_init__(self):
         _check_ints("LearnerConfig", self, dict(learning_starts=0, n_step=1, target_period=1))
         fail = lambda msg: ValueError(f"LearnerConfig: {msg}")  # noqa: E731
-        if not 0.0 <= self.gamma <= 1.0:
-            raise fail(f"gamma must be in [0, 1], got {self.gamma}")
         if not self.lr > 0 or not self.adam_eps > 0:
             raise fail(f"lr and adam_eps must be > 0, got lr={self.lr}, adam_eps={self.adam_eps}")
         if self.lr_final is not None and not 0 <= self.lr_final <= self.lr:
             raise fail(f"lr_final must be None (constant lr) or in [0, lr={self.lr}], got {self.lr_final}")
         if not 0.0 <= self.advantage_alpha < 1.0:
             raise fail(f"advantage_alpha must be in [0, 1) (0 = plain Q-learning targets), got {self.advantage_alpha}")
-        for name, ok, rule in (("max_grad_norm", self.max_grad_norm >= 0, ">= 0 (0 = no clipping)"),
+        for name, ok, rule in (("gamma", 0.0 <= self.gamma <= 1.0, "in [0, 1]"),
+                               ("polyak_tau", 0.0 < self.polyak_tau <= 1.0, "in (0, 1]"),
+                               ("max_grad_norm", self.max_grad_norm >= 0, ">= 0 (0 = no clipping)"),
                                ("aux_weight", self.aux_weight >= 0, ">= 0 (0 = no auxiliary loss)"),
                                ("reward_scale", self.reward_scale > 0, "> 0"),
                                ("replay_ratio", self.replay_ratio > 0, "> 0")):
@@ -105,8 +105,6 @@ class LearnerConfig:
             raise fail(f"huber_delta must be None (MSE) or > 0, got {self.huber_delta}")
         if self.target_update not in ("polyak", "period"):
             raise fail(f"target_update must be 'polyak' or 'period', got {self.target_update!r}")
-        if not 0.0 < self.polyak_tau <= 1.0:
-            raise fail(f"polyak_tau must be in (0, 1], got {self.polyak_tau}")
         if not isinstance(self.augment_config, AugmentConfig):
             raise fail(f"augment_config must be an augment.AugmentConfig, got {type(self.augment_config).__name__}")
 
@@ -130,10 +128,15 @@ class RunConfig:
     checkpoint_replay: bool = True  # store the replay buffer too: resume is bit-exact
     keep_checkpoints: int = 2  # the newest checkpoints kept (older ones are deleted)
     tensorboard: bool = False  # also log to out/tb (needs tensorboardX)
+    # The parameters the trained greedy policy acts with (final evaluation, `--policy checkpoint`, export): 'online'
+    # (the last gradient step's) or 'target' (the target net's; with Polyak updates an average over ~1/tau updates)
+    policy_params: str = "online"
 
     def __post_init__(self):
         _check_ints("RunConfig", self, dict(total_env_steps=1, iterations_per_chunk=1, eval_episodes=0,
                                             eval_max_steps=1, checkpoint_every_chunks=0, keep_checkpoints=1))
+        if self.policy_params not in ("online", "target"):
+            raise ValueError(f"RunConfig: policy_params must be 'online' or 'target', got {self.policy_params!r}")
 
 
 _GROUPS = {"acting": ActingConfig, "replay": ReplayConfig, "learner": LearnerConfig, "run": RunConfig}
@@ -253,13 +256,11 @@ class TrainConfig:
                   f"nothing would be learned")
         exact = lr.replay_ratio * self.env_steps_per_iteration / (r.batch_size * r.train_len)
         if exact < 1 - 1e-9 or abs(exact - round(exact)) > 1e-6:
-            _fail(f"learner.replay_ratio={lr.replay_ratio} gives {exact:.4g} gradient steps per iteration "
-                  f"(replay_ratio * num_envs * rollout_steps / (batch_size * train_len)); it must be a whole number "
-                  f">= 1")
+            _fail(f"learner.replay_ratio={lr.replay_ratio} gives {exact:.4g} gradient steps per iteration (replay_ratio "
+                  f"* num_envs * rollout_steps / (batch_size * train_len)); it must be a whole number >= 1")
         if not self.network.recurrent and r.burn_in < self.network.frame_stack - 1:
-            _fail(f"variant 'drlavt' rebuilds its {self.network.frame_stack}-frame stack from the window's own "
-                  f"observations during burn-in: replay.burn_in must be >= frame_stack - 1 = "
-                  f"{self.network.frame_stack - 1}, got {r.burn_in}")
+            _fail(f"variant 'drlavt' rebuilds its {self.network.frame_stack}-frame stack from the window's own obs "
+                  f"during burn-in: replay.burn_in must be >= frame_stack - 1 = {self.network.frame_stack - 1}")
 
     # ---- derived (read-only)
     @property
@@ -331,7 +332,8 @@ _TOP_FIELDS = {f.name for f in dataclasses.fields(TrainConfig)}
 def _quick() -> TrainConfig:
     """The README main job (about 5 min on an idle 2-core CPU): 32x32 depth, a small RAMAVT (4x4 final map = 16
     attention tokens) that sees absolute depth and image position and feeds the previous action to its LSTM;
-    'target lost' bootstrapped, an auxiliary tracking-error loss, replay ratio 2. Measurements: RESULTS.md."""
+    'target lost' bootstrapped, an auxiliary tracking-error loss, replay ratio 2; the trained policy acts with the
+    Polyak-averaged target params. Measurements: RESULTS.md."""
     return TrainConfig(
         env=env_lib.EnvConfig(camera=CameraConfig(resolution=32), autoreset="next_step"),
         network=NetworkConfig(variant="ramavt", channels=(16, 32, 32), kernels=(3, 3, 3), strides=(2, 1, 1),
@@ -343,7 +345,8 @@ def _quick() -> TrainConfig:
         learner=LearnerConfig(learning_starts=10_240, replay_ratio=2.0, lr=5e-4, gamma=0.97, n_step=5,
                               reward_scale=0.1, target_update="polyak", polyak_tau=0.01, bootstrap_lost=True,
                               aux_weight=1.0),
-        run=RunConfig(total_env_steps=384_000, iterations_per_chunk=25, eval_episodes=32, checkpoint_every_chunks=5),
+        run=RunConfig(total_env_steps=384_000, iterations_per_chunk=25, eval_episodes=32, checkpoint_every_chunks=5,
+                      policy_params="target"),
     )
 
 

@@ -161,9 +161,12 @@ def _summary(length, ret, lost, ids, names):
     return {"AEL": float(length.mean()), "AER": float(ret.mean()), "lost": float(lost.mean()), "per_target": per}
 
 
-def evaluate_arm(out: Path, arm: str, episodes: int, key: jax.Array, max_steps: int = 1000) -> dict:
+def evaluate_arm(out: Path, arm: str, episodes: int, key: jax.Array, max_steps: int = 1000,
+                 policy_params: str | None = None) -> dict:
+    """Every seed of the arm on the held-out episodes, acting with ``policy_params`` ('online' | 'target'; None =
+    the runs' own RunConfig.policy_params)."""
     seed_dirs = sorted((out / arm).glob("seed_*")) or [out / arm]
-    loaded = [runs.load_policy(d) for d in seed_dirs]
+    loaded = [runs.load_policy(d, policy_params=policy_params) for d in seed_dirs]
     config = loaded[0].config
     tracking_env, params_b, ids = heldout_setup(config.env.camera.resolution, episodes,
                                                 obs_mode=config.env.obs_mode)
@@ -181,7 +184,8 @@ def evaluate_arm(out: Path, arm: str, episodes: int, key: jax.Array, max_steps: 
     seeds = [dict(_summary(length[k], ret[k], lost[k], ids, tracking_env.config.targets), run=str(d))
              for k, d in enumerate(seed_dirs)]
     ael, aer = np.array([s["AEL"] for s in seeds]), np.array([s["AER"] for s in seeds])
-    return {"arm": arm, "episodes_per_target": episodes, "eval_wall_s": time.time() - t, "seeds": seeds,
+    return {"arm": arm, "policy_params": config.run.policy_params, "episodes_per_target": episodes,
+            "eval_wall_s": time.time() - t, "seeds": seeds,
             "AEL_mean": float(ael.mean()), "AEL_std": float(ael.std()), "AER_mean": float(aer.mean()),
             "AER_std": float(aer.std())}
 
@@ -207,6 +211,8 @@ def main() -> None:
     ap.add_argument("--preset", default="quick")
     ap.add_argument("--episodes", type=int, default=10, help="held-out episodes per target")
     ap.add_argument("--eval-seed", type=int, default=0)
+    ap.add_argument("--policy-params", choices=("online", "target"), default=None,
+                    help="evaluate these params (default: each run's own); writes heldout_<choice>.json")
     args = ap.parse_args()
     key = jax.random.PRNGKey(args.eval_seed)
     for arm in args.arms:
@@ -220,16 +226,17 @@ def main() -> None:
             (args.out / "baselines.json").write_text(json.dumps(res, indent=1))
             print(json.dumps({k: (v["AEL"], v["AER"]) for k, v in res.items()}), flush=True)
         elif args.command == "eval":
-            res = evaluate_arm(args.out, arm, args.episodes, key)
-            (args.out / arm / "heldout.json").write_text(json.dumps(res, indent=1))
-            print(f"[{arm}] AEL {res['AEL_mean']:.1f} ± {res['AEL_std']:.1f}  AER {res['AER_mean']:.1f} ± "
+            res = evaluate_arm(args.out, arm, args.episodes, key, policy_params=args.policy_params)
+            name = "heldout.json" if args.policy_params is None else f"heldout_{args.policy_params}.json"
+            (args.out / arm / name).write_text(json.dumps(res, indent=1))
+            print(f"[{arm} {res['policy_params']}] AEL {res['AEL_mean']:.1f} ± {res['AEL_std']:.1f}  AER {res['AER_mean']:.1f} ± "
                   f"{res['AER_std']:.1f}  ({res['eval_wall_s']:.0f} s)", flush=True)
     if args.command == "report":
         report(args.out)
 
 
 def report(out: Path) -> None:
-    rows = [json.loads(p.read_text()) for p in sorted(out.glob("*/heldout.json"))]
+    rows = [json.loads(p.read_text()) for p in sorted(out.glob("*/heldout*.json"))]
     names = list(targets_lib.TEST_TARGETS)
     print("| arm | AEL | AER | lost % | " + " | ".join(names) + " |")
     print("|---|---|---|---|" + "---|" * len(names))
@@ -238,7 +245,8 @@ def report(out: Path) -> None:
         per = [np.mean([s["per_target"][n]["AEL"] for s in r["seeds"]]) for n in names]
         per_r = [np.mean([s["per_target"][n]["AER"] for s in r["seeds"]]) for n in names]
         cells = " | ".join(f"{a:.0f} / {b:.0f}" for a, b in zip(per, per_r))
-        print(f"| {r['arm']} | {r['AEL_mean']:.1f} ± {r['AEL_std']:.1f} | {r['AER_mean']:.1f} ± {r['AER_std']:.1f} "
+        tag = " [target params]" if r.get("policy_params") == "target" else ""
+        print(f"| {r['arm']}{tag} | {r['AEL_mean']:.1f} ± {r['AEL_std']:.1f} | {r['AER_mean']:.1f} ± {r['AER_std']:.1f} "
               f"| {lost:.0f} | {cells} |")
     base = out / "baselines.json"
     if base.exists():

@@ -152,7 +152,9 @@ def _fake_run(run_dir, seed=0):
     abstract = jax.eval_shape(train.Trainer(cfg).init, jax.ShapeDtypeStruct((2,), jnp.uint32))
     state = jax.tree.map(lambda x: np.zeros(x.shape, x.dtype), abstract)
     params = init_params(cfg.network, jax.random.PRNGKey(seed), cfg.env.obs_shape)["params"]
-    state = state.replace(learner=state.learner.replace(params=params), chunk=np.int32(3))
+    # the target net's params differ from the online ones, so a test sees which set was read
+    target = init_params(cfg.network, jax.random.PRNGKey(seed + 100), cfg.env.obs_shape)["params"]
+    state = state.replace(learner=state.learner.replace(params=params, target_params=target), chunk=np.int32(3))
     run_dir.mkdir(parents=True)
     (run_dir / "config.json").write_text(json.dumps({"seed": seed, "config": cfg.to_dict()}, default=str))
     meta = {"config": cfg.to_dict(), "seed": seed, "chunk": 3, "env_steps": 960, "updates": 5}
@@ -178,7 +180,23 @@ def test_eval_checkpoint_run(tmp_path):
     assert js["rows"][0]["info"]["variant"] == "origin" and js["rows"][0]["speed_hz"] is None
     md = (out / "tables.md").read_text()
     assert "## Table III" in md and "| smoke_s0 | origin |" in md
-    assert "run `" in md and "checkpoint step 3" in md
+    assert "run `" in md and "checkpoint step 3" in md and "online params" in md
+
+
+def test_load_policy_reads_the_parameter_set_the_config_or_the_caller_names(tmp_path):
+    run_dir, online = _fake_run(tmp_path / "run")
+    target = runs.load_policy(run_dir, policy_params="target")
+    assert target.config.run.policy_params == "target"  # the returned config records the set that was read
+    assert any(not np.array_equal(np.asarray(a), np.asarray(b))
+               for a, b in zip(jax.tree.leaves(target.params), jax.tree.leaves(online)))
+    # a run whose config says 'target' gets the same set by default
+    saved = json.loads((run_dir / "config.json").read_text())
+    saved["config"]["run"]["policy_params"] = "target"
+    (run_dir / "config.json").write_text(json.dumps(saved))
+    default = runs.load_policy(run_dir)
+    for a, b in zip(jax.tree.leaves(default.params), jax.tree.leaves(target.params)):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    assert runs.load_policy(run_dir, policy_params="online").config.run.policy_params == "online"
 
 
 @pytest.mark.slow
@@ -248,3 +266,14 @@ def test_a_flat_config_json_of_earlier_versions_loads_into_the_groups():
     assert cfg.learner.augment_config == AugmentConfig(crop=False, flip=False, rot90=False)  # None meant cutout only
     shipped = json.loads((Path(pretrained.AGENTS_DIR) / pretrained.DEFAULT_AGENT / "config.json").read_text())
     assert TrainConfig.from_dict(shipped["config"]) == preset("long", eval_episodes=0)
+
+
+def test_seed_params_picks_one_seed_of_the_named_set():
+    from types import SimpleNamespace
+
+    from ramavt_jax.training import driver
+
+    w = np.arange(6.0).reshape(2, 3)  # [seeds, ...]
+    state = SimpleNamespace(learner=SimpleNamespace(params={"w": w}, target_params={"w": -w}))
+    np.testing.assert_array_equal(driver.seed_params(state, 1, 2, "target")["w"], -w[1])
+    np.testing.assert_array_equal(driver.seed_params(state, 1, 2)["w"], w[1])

@@ -89,6 +89,7 @@ def test_invalid_configs_raise_clear_errors(overrides, message):
     (lambda: ActingConfig(eps_end=2.0), r"^ActingConfig: eps_end must be in \[0, 1\], got 2.0$"),
     (lambda: LearnerConfig(target_update="soft"), r"^LearnerConfig: target_update must be 'polyak' or 'period'"),
     (lambda: RunConfig(keep_checkpoints=0), r"^RunConfig: keep_checkpoints must be >= 1, got 0$"),
+    (lambda: RunConfig(policy_params="ema"), r"^RunConfig: policy_params must be 'online' or 'target', got 'ema'$"),
     (lambda: replay_lib.ReplayConfig(train_len=0), r"^ReplayConfig.train_len must be >= 1, got 0$"),
     (lambda: T.TrainConfig(replay=replay_lib.ReplayConfig(capacity_steps=64_010)),
      r"^TrainConfig: replay.capacity_steps=64010 must be divisible by acting.num_envs=64$"),

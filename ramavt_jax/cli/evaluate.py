@@ -24,14 +24,16 @@ from ramavt_jax.training import run_folder
 LABELS = {"oracle": "oracle (true state)", "depth": "depth tracker", "random": "random"}
 
 
-def _run_entries(runs: tuple[Path, ...]) -> tuple[list[tables_lib.Entry], list[LoadedRun]]:
+def _run_entries(runs: tuple[Path, ...], policy_params: str | None = None
+                 ) -> tuple[list[tables_lib.Entry], list[LoadedRun]]:
     entries, loaded = [], []
     for run_dir in runs:
-        lr = load_policy(run_dir)
+        lr = load_policy(run_dir, policy_params=policy_params)
         loaded.append(lr)
         cfg = lr.config
         info = {"run_dir": str(run_dir), "variant": cfg.network.variant, "augment": bool(cfg.learner.augment),
-                "seed": lr.seed, "step": lr.step, "env_steps": lr.meta.get("env_steps")}
+                "seed": lr.seed, "step": lr.step, "env_steps": lr.meta.get("env_steps"),
+                "policy_params": cfg.run.policy_params}
         entries.append(tables_lib.Entry(row_name(run_dir), "checkpoint", lr.policy, cfg.env,
                                     rollouts.run_env_overrides(cfg.env_params), cfg.env.obs_mode, info))
     return entries, loaded
@@ -82,6 +84,7 @@ def _check_eval_args(policy, agent, run, targets, episodes, max_steps, tables, b
 def eval_cmd(
     policy: Literal["checkpoint", "pretrained", "oracle", "depth", "random"] = "checkpoint",
     run: tuple[Path, ...] = (),
+    policy_params: Literal["online", "target"] | None = None,
     agent: str = pretrained.DEFAULT_AGENT,
     baselines: bool = True,
     targets: str = "test",
@@ -106,6 +109,8 @@ def eval_cmd(
             --agent; --run folders may be added) or a baseline: 'oracle' (true state, an upper bound),
             'depth' (classical depth-image tracker) or 'random'.
         run: training run folders (written by `ramavt train`); each is one row of Tables I-III.
+        policy_params: the runs' parameter set: 'online' or 'target' (the Polyak-averaged target net's); default:
+            each run's own `run.policy_params`.
         agent: the shipped agent evaluated by --policy pretrained.
         baselines: with --policy checkpoint, also evaluate oracle, depth tracker and random in every table (a
             baseline given as --policy is evaluated alone).
@@ -127,7 +132,7 @@ def eval_cmd(
     """
     t0 = time.time()
     names = _check_eval_args(policy, agent, run, targets, episodes, max_steps, tables, blur_frames, out)
-    entries, loaded = _run_entries(run)
+    entries, loaded = _run_entries(run, policy_params)
     if policy == "pretrained":
         entries.insert(0, _pretrained_entry(agent))
     trained = policy in ("checkpoint", "pretrained")

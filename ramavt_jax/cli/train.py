@@ -103,7 +103,7 @@ def train_and_evaluate(config: TrainConfig, out: Path, seed: int = 0, seeds: int
         if one["last"] is not None:
             plot_run(one["out_dir"], title=f"{config.network.variant} seed {one['seed']}")
         if summary["finished"] and config.run.eval_episodes > 0:
-            params = driver.seed_params(summary.state, k, len(per_seed))
+            params = driver.seed_params(summary.state, k, len(per_seed), config.run.policy_params)
             one["eval"] = evaluate_run(config, one["out_dir"], one["seed"], params,
                                        log if progress else (lambda msg: None))
     return summary

@@ -75,9 +75,11 @@ def load(name: str = DEFAULT_AGENT, agents_dir: Path = AGENTS_DIR) -> Pretrained
     return PretrainedAgent(name=name, policy=policy, config=config, params=params, info=saved.get("info", {}))
 
 
-def export(run_dir, name: str, command: str, info: dict | None = None, out_dir: Path = AGENTS_DIR) -> Path:
-    """Copy a run folder's latest network parameters and config into an agent folder ``out_dir/name``."""
-    run = load_policy(run_dir)
+def export(run_dir, name: str, command: str, info: dict | None = None, out_dir: Path = AGENTS_DIR,
+           policy_params: str | None = None) -> Path:
+    """Copy a run folder's latest network parameters (the set its config's RunConfig.policy_params names, unless
+    ``policy_params`` says) and config into an agent folder ``out_dir/name``."""
+    run = load_policy(run_dir, policy_params=policy_params)
     folder = Path(out_dir) / name
     folder.mkdir(parents=True, exist_ok=True)
     flat = {_path_key(p): np.asarray(v) for p, v in jax.tree_util.tree_flatten_with_path(run.params)[0]}

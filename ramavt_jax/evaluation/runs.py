@@ -35,10 +35,13 @@ class LoadedRun:
     meta: dict
 
 
-def load_policy(run_dir, step: int | None = None, name: str | None = None) -> LoadedRun:
+def load_policy(run_dir, step: int | None = None, name: str | None = None,
+                policy_params: str | None = None) -> LoadedRun:
     """The greedy policy of a training run folder written by ``ramavt train`` (config.json + checkpoints/).
 
-    Only the online network parameters are read from the checkpoint (not the replay buffer)."""
+    One network parameter set is read from the checkpoint (not the replay buffer): the online or the target net's,
+    as ``policy_params`` says, by default as the run's config (RunConfig.policy_params) says. The returned config
+    records the set that was read."""
     run_dir = Path(run_dir)
     cfg_file = run_dir / folders.CONFIG_FILE
     if not cfg_file.is_file():
@@ -46,12 +49,16 @@ def load_policy(run_dir, step: int | None = None, name: str | None = None) -> Lo
                                 f"(config.json, checkpoints/)")
     saved = json.loads(cfg_file.read_text())
     config = TrainConfig.from_dict(saved["config"])
+    if policy_params is not None:
+        config = config.override(policy_params=policy_params)
     store = CheckpointStore(run_dir / folders.CHECKPOINTS, create=False)
     step = store.latest_step() if step is None else int(step)
     like = jax.eval_shape(Trainer(config).init, jax.ShapeDtypeStruct((2,), jnp.uint32))
     if not config.run.checkpoint_replay:
         like = like.replace(replay=None)
-    params = jax.tree.map(jnp.asarray, store.restore_subtree(like, lambda s: s.learner.params, step))
+    which = config.run.policy_params
+    params = jax.tree.map(jnp.asarray, store.restore_subtree(
+        like, lambda s: s.learner.target_params if which == "target" else s.learner.params, step))
     meta = store.read_meta(step)
     store.close()
     policy = greedy_policy(config.network, params, tuple(config.env.obs_shape), name=name or run_dir.name)

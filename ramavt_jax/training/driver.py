@@ -322,6 +322,8 @@ def _summary(config, f: _Folders, loop: _Loop, state, prog: _Program, mesh, trai
     return summary
 
 
-def seed_params(state, k: int, num_seeds: int):
-    """Host copy of seed ``k``'s online network params from a (possibly [seeds]-stacked) RunnerState."""
-    return distributed.local_copy(_seed_slice(state.learner.params, k, num_seeds))
+def seed_params(state, k: int, num_seeds: int, which: str = "online"):
+    """Host copy of seed ``k``'s network params from a (possibly [seeds]-stacked) RunnerState: the online net's
+    (``which='online'``) or the target net's (``'target'``; see RunConfig.policy_params)."""
+    params = state.learner.target_params if which == "target" else state.learner.params
+    return distributed.local_copy(_seed_slice(params, k, num_seeds))
