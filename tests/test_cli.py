@@ -259,3 +259,27 @@ def test_console_re_executes_with_the_tunable_and_runs_the_cli_when_it_cannot(mo
     monkeypatch.setenv("GLIBC_TUNABLES", launch.TUNABLE)
     launch.console()
     assert calls == [] and ran == [True, True]
+
+
+@pytest.mark.parametrize("which", ["online", "target"])
+def test_final_evaluation_acts_with_the_configured_params(tmp_path, monkeypatch, which):
+    """`ramavt train`'s end-of-run evaluation gets the parameter set run.policy_params names."""
+    from types import SimpleNamespace
+
+    import numpy as np
+
+    from ramavt_jax.cli import train as cli_train
+    from ramavt_jax.train_config import preset
+    from ramavt_jax.training import driver
+
+    def fake_run(config, out, **kwargs):
+        summary = driver.RunSummary(seed=0, out_dir=str(out), last=None, finished=True)
+        summary.state = SimpleNamespace(learner=SimpleNamespace(params={"w": np.ones(2)},
+                                                                target_params={"w": np.full(2, 7.0)}))
+        return summary
+
+    seen = {}
+    monkeypatch.setattr(cli_train.driver, "run", fake_run)
+    monkeypatch.setattr(cli_train, "evaluate_run", lambda config, d, seed, params, log: seen.update(params=params))
+    cli_train.train_and_evaluate(preset("smoke", policy_params=which), tmp_path, seed=0, progress=False)
+    np.testing.assert_array_equal(seen["params"]["w"], np.full(2, 7.0 if which == "target" else 1.0))

@@ -48,11 +48,13 @@ def final_evaluation(config: TrainConfig, params: Any, key: jax.Array, log: Call
 
 def evaluate_run(config: TrainConfig, run_dir: str | Path, seed: int, params: Any,
                  log: Callable[[str], None] = print) -> dict:
-    """Evaluate a finished run's params (key: seed + 10,000) and write ``run_dir/eval.json``; returns the results."""
+    """Evaluate a finished run's params (the set ``config.run.policy_params`` names; key: seed + 10,000) and write
+    ``run_dir/eval.json``; returns the results."""
     t = time.time()
-    log(f"final evaluation of {run_dir}: {config.run.eval_episodes} episodes per split and policy, up to "
-        f"{config.run.eval_max_steps} steps ...")
+    log(f"final evaluation of {run_dir} ({config.run.policy_params} params): {config.run.eval_episodes} episodes per "
+        f"split and policy, up to {config.run.eval_max_steps} steps ...")
     results = final_evaluation(config, params, jax.random.PRNGKey(seed + 10_000), log)
+    results["policy_params"] = config.run.policy_params
     results["eval_wall_s"] = time.time() - t
     (Path(run_dir) / folders.EVAL_FILE).write_text(folders.dumps(results, indent=1))
     return results
