@@ -100,6 +100,9 @@ ARMS["aux-w3"] = lambda c: ARMS["prev-aux"](c).override(aux_weight=3.0)
 ARMS["aux-lr2"] = lambda c: ARMS["prev-aux"](c).override(lr=2 * c.learner.lr)
 ARMS["aux-duel"] = lambda c: _net(ARMS["prev-aux"](c), dueling=True)
 ARMS["aux-al"] = lambda c: ARMS["prev-aux"](c).override(advantage_alpha=0.9)
+# aux-lr2 gained most with the target params: four times the learning rate, and twice it on the long budget.
+ARMS["aux-lr4"] = lambda c: ARMS["prev-aux"](c).override(lr=4 * c.learner.lr)
+ARMS["long-lr2"] = lambda c: ARMS["long-aux"](c).override(lr=2 * c.learner.lr)
 
 
 def arm_config(name: str, preset: str = "quick", **overrides):
