@@ -36,10 +36,13 @@ def _net(cfg, **kw):
 # encoder blind to depth scale and position, 'target lost' as a terminal state, no previous action); 'all' combines
 # the first three changes, 'prev' is 'all' + the previous action into the LSTM, and 'prev-aux' ('prev' + the
 # auxiliary tracking-error loss) is the quick preset of today (arm_config checks that).
+_LR = 5e-4  # the quick preset's learning rate until the fifth session: every arm's, unless it changes it
+
+
 def _base(c):
     net = dataclasses.replace(c.network, coord_channels=False, pooled_skip=False, pools=(True, True, True),
                               prev_action=False, aux_outputs=0)
-    return c.override(network=net, bootstrap_lost=False, aux_weight=0.0)
+    return c.override(network=net, bootstrap_lost=False, aux_weight=0.0, lr=_LR)
 
 
 ARMS = {
@@ -76,9 +79,9 @@ ARMS["prev-se"] = lambda c: _net(ARMS["prev"](c), variant="se")
 # Two levers on distance keeping: the evaluation's distance weight in training, and a learning rate decaying
 # (cosine) to a tenth over the run.
 ARMS["prev-dw1"] = lambda c: ARMS["prev"](c).override(env_params=(("dist_weight", 1.0),))
-ARMS["prev-lrdecay"] = lambda c: ARMS["prev"](c).override(lr_final=c.learner.lr / 10)
+ARMS["prev-lrdecay"] = lambda c: ARMS["prev"](c).override(lr_final=_LR / 10)
 # The opposite lever (prev-lrdecay lost AER): twice the learning rate throughout.
-ARMS["prev-lr2"] = lambda c: ARMS["prev"](c).override(lr=2 * c.learner.lr)
+ARMS["prev-lr2"] = lambda c: ARMS["prev"](c).override(lr=2 * _LR)
 # A dueling head (Q = V + mean-centred advantages): the actions' Q differ by a few cm of distance keeping.
 ARMS["prev-duel"] = lambda c: _net(ARMS["prev"](c), dueling=True)
 # Advantage learning (alpha 0.9, the published value): targets of worse actions lowered, widening the same gaps.
@@ -97,12 +100,12 @@ ARMS["long-aux"] = lambda c: _with_aux(ARMS["long"](c))
 # Fifth session, each one change to 'prev-aux' (the quick preset): the auxiliary loss weighted 3x, twice the
 # learning rate (a decaying one cost AER: the agent is still learning at the end), a dueling head, advantage learning.
 ARMS["aux-w3"] = lambda c: ARMS["prev-aux"](c).override(aux_weight=3.0)
-ARMS["aux-lr2"] = lambda c: ARMS["prev-aux"](c).override(lr=2 * c.learner.lr)
+ARMS["aux-lr2"] = lambda c: ARMS["prev-aux"](c).override(lr=2 * _LR)
 ARMS["aux-duel"] = lambda c: _net(ARMS["prev-aux"](c), dueling=True)
 ARMS["aux-al"] = lambda c: ARMS["prev-aux"](c).override(advantage_alpha=0.9)
 # aux-lr2 gained most with the target params: four times the learning rate, and twice it on the long budget.
-ARMS["aux-lr4"] = lambda c: ARMS["prev-aux"](c).override(lr=4 * c.learner.lr)
-ARMS["long-lr2"] = lambda c: ARMS["long-aux"](c).override(lr=2 * c.learner.lr)
+ARMS["aux-lr4"] = lambda c: ARMS["prev-aux"](c).override(lr=4 * _LR)
+ARMS["long-lr2"] = lambda c: ARMS["long-aux"](c).override(lr=2 * _LR)
 
 
 def arm_config(name: str, preset: str = "quick", **overrides):
