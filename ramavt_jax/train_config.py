@@ -342,7 +342,7 @@ def _quick() -> TrainConfig:
                               aux_outputs=3),
         acting=ActingConfig(num_envs=64, rollout_steps=20, eps_start=1.0, eps_end=0.05, eps_decay_steps=200_000),
         replay=ReplayConfig(capacity_steps=64_000, burn_in=10, train_len=20, batch_size=32),
-        learner=LearnerConfig(learning_starts=10_240, replay_ratio=2.0, lr=5e-4, gamma=0.97, n_step=5,
+        learner=LearnerConfig(learning_starts=10_240, replay_ratio=2.0, lr=1e-3, gamma=0.97, n_step=5,
                               reward_scale=0.1, target_update="polyak", polyak_tau=0.01, bootstrap_lost=True,
                               aux_weight=1.0),
         run=RunConfig(total_env_steps=384_000, iterations_per_chunk=25, eval_episodes=32, checkpoint_every_chunks=5,
@@ -351,10 +351,10 @@ def _quick() -> TrainConfig:
 
 
 def _long() -> TrainConfig:
-    """The quick preset with 3x the env steps (1.15M), exploration decaying over 400k steps and a 128k-step replay,
-    without the previous-action input (one long seed with it did worse; RESULTS.md): the shipped agent's config."""
+    """The quick preset with 3x the env steps (1.15M), exploration decaying over 400k steps, a 128k-step replay and
+    half its learning rate, without the previous-action input (RESULTS.md): the shipped agent's config."""
     quick = _quick()
-    return quick.override(network=dataclasses.replace(quick.network, prev_action=False),
+    return quick.override(network=dataclasses.replace(quick.network, prev_action=False), lr=5e-4,
                           total_env_steps=1_152_000, eps_decay_steps=400_000, capacity_steps=128_000,
                           checkpoint_every_chunks=6)
 

@@ -35,7 +35,8 @@ def _net(cfg, **kw):
 # One change per arm against 'base', the quick preset as it was before the learning fixes (a 2x2 final map, an
 # encoder blind to depth scale and position, 'target lost' as a terminal state, no previous action); 'all' combines
 # the first three changes, 'prev' is 'all' + the previous action into the LSTM, and 'prev-aux' ('prev' + the
-# auxiliary tracking-error loss) is the quick preset of today (arm_config checks that).
+# auxiliary tracking-error loss) with twice the learning rate ('aux-lr2') is the quick preset of today (arm_config
+# checks that).
 _LR = 5e-4  # the quick preset's learning rate until the fifth session: every arm's, unless it changes it
 
 
@@ -97,7 +98,7 @@ def _with_aux(cfg):
 ARMS["prev-aux"] = lambda c: _with_aux(ARMS["prev"](c))
 # The same auxiliary loss on the long budget (one change to `long`): the `long` preset and the shipped agent now.
 ARMS["long-aux"] = lambda c: _with_aux(ARMS["long"](c))
-# Fifth session, each one change to 'prev-aux' (the quick preset): the auxiliary loss weighted 3x, twice the
+# Fifth session, each one change to 'prev-aux' (the quick preset then): the auxiliary loss weighted 3x, twice the
 # learning rate (a decaying one cost AER: the agent is still learning at the end), a dueling head, advantage learning.
 ARMS["aux-w3"] = lambda c: ARMS["prev-aux"](c).override(aux_weight=3.0)
 ARMS["aux-lr2"] = lambda c: ARMS["prev-aux"](c).override(lr=2 * _LR)
@@ -110,8 +111,8 @@ ARMS["long-lr2"] = lambda c: ARMS["long-aux"](c).override(lr=2 * _LR)
 
 def arm_config(name: str, preset: str = "quick", **overrides):
     base = train.preset(preset, eval_episodes=0, **overrides)
-    if preset == "quick" and ARMS["prev-aux"](base) != base:
-        raise SystemExit("the quick preset is no longer 'prev-aux' of these arms: update ARMS")
+    if preset == "quick" and ARMS["aux-lr2"](base) != base:
+        raise SystemExit("the quick preset is no longer 'aux-lr2' of these arms: update ARMS")
     if preset == "quick" and not overrides and ARMS["long-aux"](base) != train.preset("long", eval_episodes=0):
         raise SystemExit("the long preset is no longer 'long-aux' of these arms: update ARMS")
     return ARMS[name](base)
