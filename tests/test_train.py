@@ -47,7 +47,7 @@ def test_presets():
     assert paper.network == NetworkConfig(variant="ramavt")
     for cfg in (quick, paper, SMOKE):
         assert cfg.updates_per_iteration >= 1 and cfg.num_chunks >= 1
-    assert T.preset("quick", lr=1e-3).learner.lr == 1e-3  # a group field by its own name
+    assert T.preset("quick", lr=3e-4).learner.lr == 3e-4  # a group field by its own name (not the preset's value)
     with pytest.raises(ValueError, match="unknown preset"):
         T.preset("huge")
 
