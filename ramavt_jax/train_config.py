@@ -351,10 +351,10 @@ def _quick() -> TrainConfig:
 
 
 def _long() -> TrainConfig:
-    """The quick preset with 3x the env steps (1.15M), exploration decaying over 400k steps, a 128k-step replay and
-    half its learning rate, without the previous-action input (RESULTS.md): the shipped agent's config."""
+    """The quick preset with 3x the env steps (1.15M), exploration decaying over 400k steps and a 128k-step replay,
+    without the previous-action input (RESULTS.md): the shipped agent's config."""
     quick = _quick()
-    return quick.override(network=dataclasses.replace(quick.network, prev_action=False), lr=5e-4,
+    return quick.override(network=dataclasses.replace(quick.network, prev_action=False),
                           total_env_steps=1_152_000, eps_decay_steps=400_000, capacity_steps=128_000,
                           checkpoint_every_chunks=6)
 

@@ -5,7 +5,7 @@ policy). Results go to OUT/<arm>/ (run folders seed_k/) and OUT/<arm>/heldout.js
     python scripts/learning_arms.py train base see grid boot all --seeds 3 --out runs/arms
     python scripts/learning_arms.py train rgbd color --seeds 3 --out runs/arms       # Table I's inputs
     python scripts/learning_arms.py eval base see grid boot all baselines --out runs/arms
-    python scripts/learning_arms.py train long-aux --seeds 3 --out runs/arms  # seed 2 is the shipped agent
+    python scripts/learning_arms.py train long-lr2 --seeds 3 --out runs/arms  # seed 0 is the shipped agent
     python scripts/learning_arms.py report --out runs/arms
 """
 
@@ -96,7 +96,8 @@ def _with_aux(cfg):
 # An auxiliary loss: the LSTM output predicts the true tracking error (simulator state, training only), so the
 # encoder and memory are taught where the target is, boresight distance above all, from the first update on.
 ARMS["prev-aux"] = lambda c: _with_aux(ARMS["prev"](c))
-# The same auxiliary loss on the long budget (one change to `long`): the `long` preset and the shipped agent now.
+# The same auxiliary loss on the long budget (one change to `long`); with twice the learning rate ('long-lr2',
+# below) it is the `long` preset and the shipped agent now.
 ARMS["long-aux"] = lambda c: _with_aux(ARMS["long"](c))
 # Fifth session, each one change to 'prev-aux' (the quick preset then): the auxiliary loss weighted 3x, twice the
 # learning rate (a decaying one cost AER: the agent is still learning at the end), a dueling head, advantage learning.
@@ -113,8 +114,8 @@ def arm_config(name: str, preset: str = "quick", **overrides):
     base = train.preset(preset, eval_episodes=0, **overrides)
     if preset == "quick" and ARMS["aux-lr2"](base) != base:
         raise SystemExit("the quick preset is no longer 'aux-lr2' of these arms: update ARMS")
-    if preset == "quick" and not overrides and ARMS["long-aux"](base) != train.preset("long", eval_episodes=0):
-        raise SystemExit("the long preset is no longer 'long-aux' of these arms: update ARMS")
+    if preset == "quick" and not overrides and ARMS["long-lr2"](base) != train.preset("long", eval_episodes=0):
+        raise SystemExit("the long preset is no longer 'long-lr2' of these arms: update ARMS")
     return ARMS[name](base)
 
 
