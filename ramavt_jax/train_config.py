@@ -256,8 +256,8 @@ class TrainConfig:
                   f"nothing would be learned")
         exact = lr.replay_ratio * self.env_steps_per_iteration / (r.batch_size * r.train_len)
         if exact < 1 - 1e-9 or abs(exact - round(exact)) > 1e-6:
-            _fail(f"learner.replay_ratio={lr.replay_ratio} gives {exact:.4g} gradient steps per iteration (replay_ratio "
-                  f"* num_envs * rollout_steps / (batch_size * train_len)); it must be a whole number >= 1")
+            _fail(f"learner.replay_ratio={lr.replay_ratio} gives {exact:.4g} gradient steps per iteration "
+                  f"(replay_ratio * num_envs * rollout_steps / (batch_size * train_len)); must be a whole number >= 1")
         if not self.network.recurrent and r.burn_in < self.network.frame_stack - 1:
             _fail(f"variant 'drlavt' rebuilds its {self.network.frame_stack}-frame stack from the window's own obs "
                   f"during burn-in: replay.burn_in must be >= frame_stack - 1 = {self.network.frame_stack - 1}")

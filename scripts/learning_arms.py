@@ -237,7 +237,8 @@ def main() -> None:
             res = evaluate_arm(args.out, arm, args.episodes, key, policy_params=args.policy_params)
             name = "heldout.json" if args.policy_params is None else f"heldout_{args.policy_params}.json"
             (args.out / arm / name).write_text(json.dumps(res, indent=1))
-            print(f"[{arm} {res['policy_params']}] AEL {res['AEL_mean']:.1f} ± {res['AEL_std']:.1f}  AER {res['AER_mean']:.1f} ± "
+            print(f"[{arm} {res['policy_params']}] AEL {res['AEL_mean']:.1f} ± {res['AEL_std']:.1f}  "
+                  f"AER {res['AER_mean']:.1f} ± "
                   f"{res['AER_std']:.1f}  ({res['eval_wall_s']:.0f} s)", flush=True)
     if args.command == "report":
         report(args.out)
@@ -254,7 +255,8 @@ def report(out: Path) -> None:
         per_r = [np.mean([s["per_target"][n]["AER"] for s in r["seeds"]]) for n in names]
         cells = " | ".join(f"{a:.0f} / {b:.0f}" for a, b in zip(per, per_r))
         tag = " [target params]" if r.get("policy_params") == "target" else ""
-        print(f"| {r['arm']}{tag} | {r['AEL_mean']:.1f} ± {r['AEL_std']:.1f} | {r['AER_mean']:.1f} ± {r['AER_std']:.1f} "
+        print(f"| {r['arm']}{tag} | {r['AEL_mean']:.1f} ± {r['AEL_std']:.1f} | "
+              f"{r['AER_mean']:.1f} ± {r['AER_std']:.1f} "
               f"| {lost:.0f} | {cells} |")
     base = out / "baselines.json"
     if base.exists():

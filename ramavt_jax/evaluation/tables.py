@@ -220,7 +220,8 @@ def to_markdown(result: dict, command: str = "") -> str:
             i = r["info"]
             head.append(f"- {r['name']}: run `{i.get('run_dir')}`, variant {i.get('variant')}, training seed "
                         f"{i.get('seed')}, checkpoint step {i.get('step')} ({i.get('env_steps')} env steps), "
-                        f"{i.get('policy_params', 'online')} params, {r['resolution']}x{r['resolution']} {r['obs_mode']}")
+                        f"{i.get('policy_params', 'online')} params, "
+                        f"{r['resolution']}x{r['resolution']} {r['obs_mode']}")
     parts = ["\n".join(h for h in head if h)]
     tables = s["tables"]
     if 1 in tables:
