@@ -55,6 +55,10 @@ class LearnerState:
     opt_state: Any
     updates: jax.Array  # [] int32 gradient steps taken
 
+    def policy_params(self, which: str):
+        """The parameter set a trained policy acts with (RunConfig.policy_params): 'online' or 'target'."""
+        return {"online": self.params, "target": self.target_params}[which]
+
 
 @struct.dataclass
 class ActorState:

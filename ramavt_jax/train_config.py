@@ -130,7 +130,7 @@ class RunConfig:
     tensorboard: bool = False  # also log to out/tb (needs tensorboardX)
     # The parameters the trained greedy policy acts with (final evaluation, `--policy checkpoint`, export): 'online'
     # (the last gradient step's) or 'target' (the target net's; with Polyak updates an average over ~1/tau updates)
-    policy_params: str = "online"
+    policy_params: typing.Literal["online", "target"] = "online"
 
     def __post_init__(self):
         _check_ints("RunConfig", self, dict(total_env_steps=1, iterations_per_chunk=1, eval_episodes=0,

@@ -238,8 +238,7 @@ def main() -> None:
             name = "heldout.json" if args.policy_params is None else f"heldout_{args.policy_params}.json"
             (args.out / arm / name).write_text(json.dumps(res, indent=1))
             print(f"[{arm} {res['policy_params']}] AEL {res['AEL_mean']:.1f} ± {res['AEL_std']:.1f}  "
-                  f"AER {res['AER_mean']:.1f} ± "
-                  f"{res['AER_std']:.1f}  ({res['eval_wall_s']:.0f} s)", flush=True)
+                  f"AER {res['AER_mean']:.1f} ± {res['AER_std']:.1f}  ({res['eval_wall_s']:.0f} s)", flush=True)
     if args.command == "report":
         report(args.out)
 
@@ -256,8 +255,7 @@ def report(out: Path) -> None:
         cells = " | ".join(f"{a:.0f} / {b:.0f}" for a, b in zip(per, per_r))
         tag = " [target params]" if r.get("policy_params") == "target" else ""
         print(f"| {r['arm']}{tag} | {r['AEL_mean']:.1f} ± {r['AEL_std']:.1f} | "
-              f"{r['AER_mean']:.1f} ± {r['AER_std']:.1f} "
-              f"| {lost:.0f} | {cells} |")
+              f"{r['AER_mean']:.1f} ± {r['AER_std']:.1f} | {lost:.0f} | {cells} |")
     base = out / "baselines.json"
     if base.exists():
         for name, s in json.loads(base.read_text()).items():

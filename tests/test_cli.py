@@ -269,13 +269,15 @@ def test_final_evaluation_acts_with_the_configured_params(tmp_path, monkeypatch,
     import numpy as np
 
     from ramavt_jax.cli import train as cli_train
+    from ramavt_jax.train import LearnerState
     from ramavt_jax.train_config import preset
     from ramavt_jax.training import driver
 
     def fake_run(config, out, **kwargs):
         summary = driver.RunSummary(seed=0, out_dir=str(out), last=None, finished=True)
-        summary.state = SimpleNamespace(learner=SimpleNamespace(params={"w": np.ones(2)},
-                                                                target_params={"w": np.full(2, 7.0)}))
+        summary.state = SimpleNamespace(learner=LearnerState(params={"w": np.ones(2)},
+                                                             target_params={"w": np.full(2, 7.0)},
+                                                             opt_state=None, updates=0))
         return summary
 
     seen = {}

@@ -271,9 +271,13 @@ def test_a_flat_config_json_of_earlier_versions_loads_into_the_groups():
 def test_seed_params_picks_one_seed_of_the_named_set():
     from types import SimpleNamespace
 
+    from ramavt_jax.train import LearnerState
     from ramavt_jax.training import driver
 
     w = np.arange(6.0).reshape(2, 3)  # [seeds, ...]
-    state = SimpleNamespace(learner=SimpleNamespace(params={"w": w}, target_params={"w": -w}))
+    learner = LearnerState(params={"w": w}, target_params={"w": -w}, opt_state=None, updates=0)
+    state = SimpleNamespace(learner=learner)
     np.testing.assert_array_equal(driver.seed_params(state, 1, 2, "target")["w"], -w[1])
     np.testing.assert_array_equal(driver.seed_params(state, 1, 2)["w"], w[1])
+    with pytest.raises(KeyError):
+        learner.policy_params("ema")

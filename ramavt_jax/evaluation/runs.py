@@ -56,9 +56,8 @@ def load_policy(run_dir, step: int | None = None, name: str | None = None,
     like = jax.eval_shape(Trainer(config).init, jax.ShapeDtypeStruct((2,), jnp.uint32))
     if not config.run.checkpoint_replay:
         like = like.replace(replay=None)
-    which = config.run.policy_params
     params = jax.tree.map(jnp.asarray, store.restore_subtree(
-        like, lambda s: s.learner.target_params if which == "target" else s.learner.params, step))
+        like, lambda s: s.learner.policy_params(config.run.policy_params), step))
     meta = store.read_meta(step)
     store.close()
     policy = greedy_policy(config.network, params, tuple(config.env.obs_shape), name=name or run_dir.name)
