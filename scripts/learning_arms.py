@@ -6,6 +6,7 @@ policy). Results go to OUT/<arm>/ (run folders seed_k/) and OUT/<arm>/heldout.js
     python scripts/learning_arms.py train rgbd color --seeds 3 --out runs/arms       # Table I's inputs
     python scripts/learning_arms.py eval base see grid boot all baselines --out runs/arms
     python scripts/learning_arms.py train long-lr2 --seeds 3 --out runs/arms  # seed 0 is the shipped agent
+    python scripts/learning_arms.py train q-rgbd q-color q-origin q-aug q-se q-mha --seeds 3 --out runs/arms  # Tables
     python scripts/learning_arms.py report --out runs/arms
 """
 
@@ -108,6 +109,14 @@ ARMS["aux-al"] = lambda c: ARMS["prev-aux"](c).override(advantage_alpha=0.9)
 # aux-lr2 gained most with the target params: four times the learning rate, and twice it on the long budget.
 ARMS["aux-lr4"] = lambda c: ARMS["prev-aux"](c).override(lr=4 * _LR)
 ARMS["long-lr2"] = lambda c: ARMS["long-aux"](c).override(lr=2 * _LR)
+# Sixth session: Tables I and III again, each row one change to the quick preset of today ('aux-lr2', the depth /
+# RAMAVT row; evaluated with the target params, as the preset acts): the inputs, and the paper's ablation rows.
+ARMS["q-rgbd"] = lambda c: dataclasses.replace(ARMS["aux-lr2"](c), env=dataclasses.replace(c.env, obs_mode="rgbd"))
+ARMS["q-color"] = lambda c: dataclasses.replace(ARMS["aux-lr2"](c), env=dataclasses.replace(c.env, obs_mode="color"))
+ARMS["q-origin"] = lambda c: _net(ARMS["aux-lr2"](c), variant="origin")
+ARMS["q-aug"] = lambda c: ARMS["q-origin"](c).override(augment=True)
+ARMS["q-se"] = lambda c: _net(ARMS["aux-lr2"](c), variant="se")
+ARMS["q-mha"] = lambda c: _net(ARMS["aux-lr2"](c), variant="mha")
 
 
 def arm_config(name: str, preset: str = "quick", **overrides):
