@@ -265,6 +265,14 @@ def report(out: Path) -> None:
         tag = " [target params]" if r.get("policy_params") == "target" else ""
         print(f"| {r['arm']}{tag} | {r['AEL_mean']:.1f} ± {r['AEL_std']:.1f} | "
               f"{r['AER_mean']:.1f} ± {r['AER_std']:.1f} | {lost:.0f} | {cells} |")
+    print("\n| arm | AEL | AER | lost % | AEL per seed | AER per seed |\n|---|---|---|---|---|---|")
+    for r in rows:
+        tag = " [target params]" if r.get("policy_params") == "target" else ""
+        lost = 100 * np.mean([s["lost"] for s in r["seeds"]])
+        ael = ", ".join(f"{s['AEL']:.0f}" for s in r["seeds"])
+        aer = ", ".join(f"{s['AER']:+.0f}" for s in r["seeds"])
+        print(f"| {r['arm']}{tag} | {r['AEL_mean']:.1f} ± {r['AEL_std']:.1f} | {r['AER_mean']:.1f} ± "
+              f"{r['AER_std']:.1f} | {lost:.0f} | {ael} | {aer} |")
     base = out / "baselines.json"
     if base.exists():
         for name, s in json.loads(base.read_text()).items():
