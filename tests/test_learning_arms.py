@@ -1,0 +1,62 @@
+"""The learning experiments' script: every Table arm is one change to the row it is compared with, and `report`
+prints what the JSON says."""
+
+import dataclasses
+import json
+import sys
+from pathlib import Path
+
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts"))
+import learning_arms  # noqa: E402
+
+
+def _flat(x, prefix: str = "") -> dict:
+    """A nested config dataclass as {'group.field': value}."""
+    if not dataclasses.is_dataclass(x):
+        return {prefix[:-1]: x}
+    out = {}
+    for f in dataclasses.fields(x):
+        out.update(_flat(getattr(x, f.name), f"{prefix}{f.name}."))
+    return out
+
+
+def _changes(arm: str, reference: str) -> dict:
+    ref, cfg = _flat(learning_arms.arm_config(reference)), _flat(learning_arms.arm_config(arm))
+    assert ref.keys() == cfg.keys()
+    return {k: cfg[k] for k in cfg if cfg[k] != ref[k]}
+
+
+@pytest.mark.parametrize(
+    "arm, reference, change",
+    [
+        ("q-rgbd", "aux-lr2", {"env.obs_mode": "rgbd"}),
+        ("q-color", "aux-lr2", {"env.obs_mode": "color"}),
+        ("q-origin", "aux-lr2", {"network.variant": "origin"}),
+        ("q-se", "aux-lr2", {"network.variant": "se"}),
+        ("q-mha", "aux-lr2", {"network.variant": "mha"}),
+        ("q-aug", "q-origin", {"learner.augment": True}),
+        ("aux-lr2", "prev-aux", {"learner.lr": 2 * learning_arms._LR}),
+    ],
+)
+def test_each_table_arm_is_one_change(arm, reference, change):
+    assert _changes(arm, reference) == change
+
+
+def test_quick_preset_is_the_depth_row():
+    assert learning_arms.arm_config("aux-lr2") == learning_arms.train.preset("quick", eval_episodes=0)
+
+
+def test_report_prints_the_seeds(tmp_path, capsys):
+    names = list(learning_arms.targets_lib.TEST_TARGETS)
+    seeds = [{"AEL": ael, "AER": aer, "lost": 0.0, "per_target": {n: {"AEL": ael, "AER": aer} for n in names}}
+             for ael, aer in ((1000.0, 412.0), (980.0, -35.0))]
+    (tmp_path / "x").mkdir()
+    (tmp_path / "x" / "heldout.json").write_text(json.dumps(
+        {"arm": "x", "policy_params": "target", "seeds": seeds, "AEL_mean": 990.0, "AEL_std": 10.0,
+         "AER_mean": 188.5, "AER_std": 223.5}))
+    learning_arms.report(tmp_path)
+    out = capsys.readouterr().out
+    assert "| x [target params] | 990.0 ± 10.0 | 188.5 ± 223.5 | 0 | 1000, 980 | +412, -35 |" in out
+    assert "| x [target params] | 990.0 ± 10.0 | 188.5 ± 223.5 | 0 | " + " | ".join(["990 / 188"] * len(names)) in out
