@@ -9,6 +9,7 @@ from pathlib import Path
 from typing import Any, Callable
 
 import jax
+import jax.numpy as jnp
 
 from ramavt_jax import baselines
 from ramavt_jax import env as env_lib
@@ -17,30 +18,47 @@ from ramavt_jax.evaluation import rollouts
 from ramavt_jax.train import TrainConfig, greedy_policy
 from ramavt_jax.training import run_folder as folders
 
-__all__ = ["evaluate_policy", "final_evaluation", "evaluate_run"]
+__all__ = ["evaluate_policy", "split_envs", "final_evaluation", "evaluate_run"]
 
 
 def evaluate_policy(config: TrainConfig, policy: baselines.Policy, key: jax.Array, targets: tuple[str, ...],
                     num_episodes: int, max_steps: int) -> dict:
     """``num_episodes`` episodes over ``targets`` with the evaluation settings and the run's other EnvParams
     overrides; returns a rollouts.Summary dict."""
-    tracking_env = env_lib.TrackingEnv(dataclasses.replace(config.env, targets=tuple(targets)))
-    params = tracking_env.eval_params(**rollouts.run_env_overrides(config.env_params), max_steps=max_steps)
-    stats, _ = rollouts.run_episodes(tracking_env, policy, params, key, num_episodes, num_steps=max_steps)
+    tracking_env, params = split_envs(config, {"targets": tuple(targets)}, max_steps)
+    stats, _ = rollouts.run_episodes(tracking_env, policy, params["targets"], key, num_episodes, num_steps=max_steps)
     return rollouts.summarise(stats).as_dict()
 
 
+def split_envs(config: TrainConfig, splits: dict[str, tuple[str, ...]],
+               max_steps: int) -> tuple[env_lib.TrackingEnv, dict[str, env_lib.EnvParams]]:
+    """One env over every split's targets, and per split the evaluation EnvParams that draw only that split's
+    targets (uniformly). The target draw is a traced value, so one compiled rollout serves every split."""
+    names = tuple(dict.fromkeys(n for split in splits.values() for n in split))
+    tracking_env = env_lib.TrackingEnv(dataclasses.replace(config.env, targets=names))
+    base = tracking_env.eval_params(**rollouts.run_env_overrides(config.env_params), max_steps=max_steps)
+    params = {}
+    for split, members in splits.items():
+        member = jnp.asarray([n in members for n in names], jnp.float32)
+        params[split] = base.replace(target_probs=member / member.sum())
+    return tracking_env, params
+
+
 def final_evaluation(config: TrainConfig, params: Any, key: jax.Array, log: Callable[[str], None] = print) -> dict:
-    """{split: {'greedy' | 'random': Summary dict}} on the run's training targets and the held-out split."""
-    policy = greedy_policy(config.network, params, tuple(config.env.obs_shape))
+    """{split: {'greedy' | 'random': Summary dict}} on the run's training targets and the held-out split; one
+    compiled rollout per policy serves both splits."""
+    policies = {"greedy": greedy_policy(config.network, params, tuple(config.env.obs_shape)),
+                "random": baselines.random_policy()}
     splits = {"train": tuple(config.env.targets), "test": targets_lib.TEST_TARGETS}
+    tracking_env, split_params = split_envs(config, splits, config.run.eval_max_steps)
     out = {}
     for i, (split, names) in enumerate(splits.items()):
-        for j, (name, pol) in enumerate((("greedy", policy), ("random", baselines.random_policy()))):
+        for j, (name, policy) in enumerate(policies.items()):
             t = time.time()
             k = jax.random.fold_in(key, 2 * i + j)
-            out.setdefault(split, {})[name] = res = evaluate_policy(config, pol, k, names, config.run.eval_episodes,
-                                                                    config.run.eval_max_steps)
+            stats, _ = rollouts.run_episodes(tracking_env, policy, split_params[split], k, config.run.eval_episodes,
+                                             num_steps=config.run.eval_max_steps)
+            out.setdefault(split, {})[name] = res = rollouts.summarise(stats).as_dict()
             log(f"final evaluation: {name:<6} on {split:<5} targets ({len(names)}): mean episode length "
                 f"{res['length_mean']:.0f}, return {res['return_mean']:.1f} ({time.time() - t:.0f} s)")
     return out
