@@ -265,6 +265,11 @@ def report(out: Path) -> None:
         tag = " [target params]" if r.get("policy_params") == "target" else ""
         print(f"| {r['arm']}{tag} | {r['AEL_mean']:.1f} ± {r['AEL_std']:.1f} | "
               f"{r['AER_mean']:.1f} ± {r['AER_std']:.1f} | {lost:.0f} | {cells} |")
+    base = out / "baselines.json"
+    if base.exists():
+        for name, s in json.loads(base.read_text()).items():
+            cells = " | ".join(f"{s['per_target'][n]['AEL']:.0f} / {s['per_target'][n]['AER']:.0f}" for n in names)
+            print(f"| {name} (baseline) | {s['AEL']:.1f} | {s['AER']:.1f} | {100 * s['lost']:.0f} | {cells} |")
     print("\n| arm | AEL | AER | lost % | AEL per seed | AER per seed |\n|---|---|---|---|---|---|")
     for r in rows:
         tag = " [target params]" if r.get("policy_params") == "target" else ""
@@ -273,11 +278,6 @@ def report(out: Path) -> None:
         aer = ", ".join(f"{s['AER']:+.0f}" for s in r["seeds"])
         print(f"| {r['arm']}{tag} | {r['AEL_mean']:.1f} ± {r['AEL_std']:.1f} | {r['AER_mean']:.1f} ± "
               f"{r['AER_std']:.1f} | {lost:.0f} | {ael} | {aer} |")
-    base = out / "baselines.json"
-    if base.exists():
-        for name, s in json.loads(base.read_text()).items():
-            cells = " | ".join(f"{s['per_target'][n]['AEL']:.0f} / {s['per_target'][n]['AER']:.0f}" for n in names)
-            print(f"| {name} (baseline) | {s['AEL']:.1f} | {s['AER']:.1f} | {100 * s['lost']:.0f} | {cells} |")
 
 
 if __name__ == "__main__":
