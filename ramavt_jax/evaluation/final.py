@@ -18,16 +18,7 @@ from ramavt_jax.evaluation import rollouts
 from ramavt_jax.train import TrainConfig, greedy_policy
 from ramavt_jax.training import run_folder as folders
 
-__all__ = ["evaluate_policy", "split_envs", "final_evaluation", "evaluate_run"]
-
-
-def evaluate_policy(config: TrainConfig, policy: baselines.Policy, key: jax.Array, targets: tuple[str, ...],
-                    num_episodes: int, max_steps: int) -> dict:
-    """``num_episodes`` episodes over ``targets`` with the evaluation settings and the run's other EnvParams
-    overrides; returns a rollouts.Summary dict."""
-    tracking_env, params = split_envs(config, {"targets": tuple(targets)}, max_steps)
-    stats, _ = rollouts.run_episodes(tracking_env, policy, params["targets"], key, num_episodes, num_steps=max_steps)
-    return rollouts.summarise(stats).as_dict()
+__all__ = ["split_envs", "final_evaluation", "evaluate_run"]
 
 
 def split_envs(config: TrainConfig, splits: dict[str, tuple[str, ...]],
