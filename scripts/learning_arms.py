@@ -33,6 +33,10 @@ def _net(cfg, **kw):
     return dataclasses.replace(cfg, network=dataclasses.replace(cfg.network, **kw))
 
 
+def _obs(cfg, mode: str):
+    return dataclasses.replace(cfg, env=dataclasses.replace(cfg.env, obs_mode=mode))
+
+
 # One change per arm against 'base', the quick preset as it was before the learning fixes (a 2x2 final map, an
 # encoder blind to depth scale and position, 'target lost' as a terminal state, no previous action); 'all' combines
 # the first three changes, 'prev' is 'all' + the previous action into the LSTM, and 'prev-aux' ('prev' + the
@@ -56,8 +60,8 @@ ARMS = {
                           pools=(True, True, False)).override(bootstrap_lost=True),
 }
 # Table I's inputs at the quick budget: 'all' seeing colour or colour + depth instead of depth.
-ARMS["rgbd"] = lambda c: dataclasses.replace(ARMS["all"](c), env=dataclasses.replace(c.env, obs_mode="rgbd"))
-ARMS["color"] = lambda c: dataclasses.replace(ARMS["all"](c), env=dataclasses.replace(c.env, obs_mode="color"))
+ARMS["rgbd"] = lambda c: _obs(ARMS["all"](c), "rgbd")
+ARMS["color"] = lambda c: _obs(ARMS["all"](c), "color")
 # Train on the evaluation's reward weight (1.0 per metre, not the original training value 0.5): AER is scored with 1.0.
 ARMS["dw1"] = lambda c: ARMS["all"](c).override(env_params=(("dist_weight", 1.0),))
 # R2D2's recurrent input: the previous action one-hot beside the encoder's features at the LSTM's input.
@@ -111,8 +115,8 @@ ARMS["aux-lr4"] = lambda c: ARMS["prev-aux"](c).override(lr=4 * _LR)
 ARMS["long-lr2"] = lambda c: ARMS["long-aux"](c).override(lr=2 * _LR)
 # Sixth session: Tables I and III again, each row one change to the quick preset of today ('aux-lr2', the depth /
 # RAMAVT row; evaluated with the target params, as the preset acts): the inputs, and the paper's ablation rows.
-ARMS["q-rgbd"] = lambda c: dataclasses.replace(ARMS["aux-lr2"](c), env=dataclasses.replace(c.env, obs_mode="rgbd"))
-ARMS["q-color"] = lambda c: dataclasses.replace(ARMS["aux-lr2"](c), env=dataclasses.replace(c.env, obs_mode="color"))
+ARMS["q-rgbd"] = lambda c: _obs(ARMS["aux-lr2"](c), "rgbd")
+ARMS["q-color"] = lambda c: _obs(ARMS["aux-lr2"](c), "color")
 ARMS["q-origin"] = lambda c: _net(ARMS["aux-lr2"](c), variant="origin")
 ARMS["q-aug"] = lambda c: ARMS["q-origin"](c).override(augment=True)
 ARMS["q-se"] = lambda c: _net(ARMS["aux-lr2"](c), variant="se")
@@ -252,19 +256,23 @@ def main() -> None:
         report(args.out)
 
 
+def _row_head(r: dict) -> str:
+    """'| arm [tag] | AEL mean ± std | AER mean ± std | lost % |' of one heldout JSON."""
+    tag = " [target params]" if r.get("policy_params") == "target" else ""
+    lost = 100 * np.mean([s["lost"] for s in r["seeds"]])
+    return (f"| {r['arm']}{tag} | {r['AEL_mean']:.1f} ± {r['AEL_std']:.1f} | {r['AER_mean']:.1f} ± "
+            f"{r['AER_std']:.1f} | {lost:.0f} |")
+
+
 def report(out: Path) -> None:
     rows = [json.loads(p.read_text()) for p in sorted(out.glob("*/heldout*.json"))]
     names = list(targets_lib.TEST_TARGETS)
     print("| arm | AEL | AER | lost % | " + " | ".join(names) + " |")
     print("|---|---|---|---|" + "---|" * len(names))
     for r in rows:
-        lost = 100 * np.mean([s["lost"] for s in r["seeds"]])
         per = [np.mean([s["per_target"][n]["AEL"] for s in r["seeds"]]) for n in names]
         per_r = [np.mean([s["per_target"][n]["AER"] for s in r["seeds"]]) for n in names]
-        cells = " | ".join(f"{a:.0f} / {b:.0f}" for a, b in zip(per, per_r))
-        tag = " [target params]" if r.get("policy_params") == "target" else ""
-        print(f"| {r['arm']}{tag} | {r['AEL_mean']:.1f} ± {r['AEL_std']:.1f} | "
-              f"{r['AER_mean']:.1f} ± {r['AER_std']:.1f} | {lost:.0f} | {cells} |")
+        print(_row_head(r) + " " + " | ".join(f"{a:.0f} / {b:.0f}" for a, b in zip(per, per_r)) + " |")
     base = out / "baselines.json"
     if base.exists():
         for name, s in json.loads(base.read_text()).items():
@@ -272,13 +280,9 @@ def report(out: Path) -> None:
             print(f"| {name} (baseline) | {s['AEL']:.1f} | {s['AER']:.1f} | {100 * s['lost']:.0f} | {cells} |")
     print("\n| arm | AEL | AER | lost % | AEL per seed | AER per seed |\n|---|---|---|---|---|---|")
     for r in rows:
-        tag = " [target params]" if r.get("policy_params") == "target" else ""
-        lost = 100 * np.mean([s["lost"] for s in r["seeds"]])
         ael = ", ".join(f"{s['AEL']:.0f}" for s in r["seeds"])
         aer = ", ".join(f"{s['AER']:+.0f}" for s in r["seeds"])
-        print(f"| {r['arm']}{tag} | {r['AEL_mean']:.1f} ± {r['AEL_std']:.1f} | {r['AER_mean']:.1f} ± "
-              f"{r['AER_std']:.1f} | {lost:.0f} | {ael} | {aer} |")
-
+        print(f"{_row_head(r)} {ael} | {aer} |")
 
 if __name__ == "__main__":
     main()
