@@ -4,9 +4,10 @@ Everything here is shape-agnostic in the spatial size so one set of parameters w
 with the same channel count. Layout is NHWC throughout.
 
 Speed notes (2-core CPU, measured with ``benchmarks/bench_network.py``):
-- ``Im2colConv`` (pad + k*k strided slices + one matmul) is much faster than XLA's convolution on CPU,
-  above all in the backward pass. It stores its kernel exactly like ``flax.linen.Conv`` (``kernel``,
-  ``[k, k, C_in, C_out]``) so the two implementations share parameter trees.
+- The im2col conv (pad + k*k strided slices + one matmul) is much faster than XLA's convolution on CPU in the
+  backward pass, XLA's about twice as fast in a forward pass alone: ``conv2d_hybrid`` (the default) takes each
+  one's fast pass. Every implementation stores its kernel exactly like ``flax.linen.Conv`` (``kernel``,
+  ``[k, k, C_in, C_out]``), so they share parameter trees.
 - ``max_pool2`` is a reshape + max (ceil mode), not ``reduce_window``: its gradient is a cheap mask instead
   of XLA's ``select_and_scatter``.
 - ``LSTMStack`` hoists the first layer's input projection out of the time scan (one big matmul over all
@@ -15,6 +16,7 @@ Speed notes (2-core CPU, measured with ``benchmarks/bench_network.py``):
 
 from __future__ import annotations
 
+import functools
 from typing import Any
 
 import flax.linen as nn
@@ -67,37 +69,76 @@ def conv2d_im2col(x: Array, kernel: Array, stride: int) -> Array:
     return out.reshape(n, ho, wo, -1)
 
 
-class Im2colConv(nn.Module):
-    """Bias-free conv with padding k//2, same parameter layout as ``nn.Conv(use_bias=False)``."""
+def conv2d_lax(x: Array, kernel: Array, stride: int) -> Array:
+    """XLA's convolution with padding k//2: x [N, H, W, C], kernel [k, k, C, F] -> [N, H_out, W_out, F]. On this CPU
+    its forward is about twice the im2col forward, its backward slower than im2col's (benchmarks/RESULTS.md)."""
+    pad = kernel.shape[0] // 2
+    return lax.conv_general_dilated(x, kernel, (stride, stride), ((pad, pad), (pad, pad)),
+                                    dimension_numbers=("NHWC", "HWIO", "NHWC"))
+
+
+# Below this many input channels the im2col forward beats XLA's (2 channels, 32x32, stride 2: 14 vs 19 ms per 1,312
+# frames; 16 and 32 channels: XLA's is 2x faster; benchmarks/RESULTS.md).
+HYBRID_MIN_CHANNELS = 8
+
+
+def conv2d_hybrid(x: Array, kernel: Array, stride: int) -> Array:
+    """The fast conv of each pass, with the shapes and parameters of ``conv2d_im2col``. With at least
+    ``HYBRID_MIN_CHANNELS`` input channels: XLA's convolution where no gradient is taken (acting, the target net, the
+    burn-in), the im2col conv under a gradient (its forward builds the patches that its backward reuses, and its
+    backward is the faster one). With fewer: the im2col conv throughout."""
+    if x.shape[-1] < HYBRID_MIN_CHANNELS:
+        return conv2d_im2col(x, kernel, stride)
+    return _lax_forward_im2col_gradient(x, kernel, stride)
+
+
+@functools.partial(jax.custom_vjp, nondiff_argnums=(2,))
+def _lax_forward_im2col_gradient(x: Array, kernel: Array, stride: int) -> Array:
+    return conv2d_lax(x, kernel, stride)
+
+
+def _hybrid_fwd(x: Array, kernel: Array, stride: int):
+    return jax.vjp(functools.partial(conv2d_im2col, stride=stride), x, kernel)  # (output, pullback as residual)
+
+
+def _hybrid_bwd(stride: int, pullback, cotangent: Array):
+    return pullback(cotangent)
+
+
+_lax_forward_im2col_gradient.defvjp(_hybrid_fwd, _hybrid_bwd)
+CONV_FUNCTIONS = {"im2col": conv2d_im2col, "lax": conv2d_lax, "hybrid": conv2d_hybrid}
+
+
+class PaddedConv(nn.Module):
+    """Bias-free conv with padding k//2 (PyTorch ``padding=k//2``). Every ``impl`` of ``CONV_FUNCTIONS`` stores
+    the kernel like ``flax.linen.Conv(use_bias=False)`` (``kernel``, ``[k, k, C_in, C_out]``), so they share
+    parameter trees and checkpoints."""
 
     features: int
     kernel_size: int
     stride: int = 1
+    impl: str = "hybrid"
     dtype: Dtype = jnp.float32
 
     @nn.compact
-    def __call__(self, x: Array) -> Array:
-        k = self.kernel_size
-        kernel = self.param("kernel", he_init, (k, k, x.shape[-1], self.features), jnp.float32)
-        return conv2d_im2col(x.astype(self.dtype), kernel.astype(self.dtype), self.stride)
+    def __call__(self, x: Array, planes: Array | None = None) -> Array:
+        """x [N, H, W, C] -> [N, H_out, W_out, F]. ``planes`` [H, W, P]: input channels that are the same in every
+        frame (pixel coordinates), appended after x's: the kernel sees C + P channels, but the planes' share of the
+        output is computed once, on one frame, and added to every frame's (the patches are then built from C
+        channels only)."""
+        k, c = self.kernel_size, x.shape[-1]
+        p = 0 if planes is None else planes.shape[-1]
+        kernel = self.param("kernel", he_init, (k, k, c + p, self.features), jnp.float32).astype(self.dtype)
+        conv = CONV_FUNCTIONS[self.impl]
+        out = conv(x.astype(self.dtype), kernel[:, :, :c], self.stride)
+        if p:
+            out = out + conv(planes[None].astype(self.dtype), kernel[:, :, c:], self.stride)
+        return out
 
 
 def make_conv(features: int, kernel: int, stride: int, impl: str, dtype: Dtype, name: str) -> nn.Module:
-    """The block's conv: ``Im2colConv`` ('im2col') or ``flax.linen.Conv`` ('lax'); identical parameters."""
-    if impl == "im2col":
-        return Im2colConv(features, kernel, stride, dtype=dtype, name=name)
-    pad = kernel // 2
-    return nn.Conv(
-        features,
-        (kernel, kernel),
-        strides=(stride, stride),
-        padding=((pad, pad), (pad, pad)),
-        use_bias=False,
-        dtype=dtype,
-        param_dtype=jnp.float32,
-        kernel_init=he_init,
-        name=name,
-    )
+    """The block's conv, one of ``CONV_FUNCTIONS`` ('hybrid' | 'im2col' | 'lax'); identical parameters."""
+    return PaddedConv(features, kernel, stride, impl=impl, dtype=dtype, name=name)
 
 
 def max_pool2(x: Array) -> Array:

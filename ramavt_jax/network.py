@@ -131,16 +131,26 @@ def stack_frames(obs: jax.Array, reset: jax.Array, frames: jax.Array) -> tuple[j
     return jnp.swapaxes(stacked, 0, 1), hist
 
 
+def with_hit_mask(x: jax.Array) -> jax.Array:
+    """[N, H, W, C] -> [N, H, W, C + 1]: the frame and a hit mask (any channel > 0; the background is 0 in every
+    observation mode)."""
+    return jnp.concatenate([x, (jnp.max(x, axis=-1, keepdims=True) > 0).astype(x.dtype)], axis=-1)
+
+
+def coordinate_planes(h: int, w: int, dtype=jnp.float32) -> jax.Array:
+    """[H, W, 2]: the column and the row coordinate of each pixel in [-1, 1] (CoordConv)."""
+    cols = jnp.broadcast_to(jnp.linspace(-1.0, 1.0, w, dtype=dtype)[None, :], (h, w))
+    rows = jnp.broadcast_to(jnp.linspace(-1.0, 1.0, h, dtype=dtype)[:, None], (h, w))
+    return jnp.stack([cols, rows], axis=-1)
+
+
 def with_coordinates(x: jax.Array) -> jax.Array:
-    """[N, H, W, C] -> [N, H, W, C + 3]: the frame, a hit mask (any channel > 0; the background is 0 in every
-    observation mode) and the column / row coordinate of each pixel in [-1, 1] (CoordConv). The mask and the
-    coordinates do not scale with the depth values, so a conv over all channels followed by a per-frame norm
-    still tells a near small target from a far large one, and where in the image it is."""
-    n, h, w, _ = x.shape
-    mask = (jnp.max(x, axis=-1, keepdims=True) > 0).astype(x.dtype)
-    cols = jnp.broadcast_to(jnp.linspace(-1.0, 1.0, w, dtype=x.dtype)[None, None, :, None], (n, h, w, 1))
-    rows = jnp.broadcast_to(jnp.linspace(-1.0, 1.0, h, dtype=x.dtype)[None, :, None, None], (n, h, w, 1))
-    return jnp.concatenate([x, mask, cols, rows], axis=-1)
+    """[N, H, W, C] -> [N, H, W, C + 3]: the frame, its hit mask and the coordinate planes, as the encoder's
+    first conv sees them (coord_channels). The mask and the coordinates do not scale with the depth values, so a
+    conv over all channels followed by a per-frame norm still tells a near small target from a far large one, and
+    where in the image it is."""
+    planes = coordinate_planes(*x.shape[1:3], x.dtype)
+    return jnp.concatenate([with_hit_mask(x), jnp.broadcast_to(planes, (*x.shape[:3], 2))], axis=-1)
 
 
 class Encoder(nn.Module):
@@ -154,12 +164,13 @@ class Encoder(nn.Module):
         cfg = self.config
         dtype = cfg.jnp_dtype
         x = x.astype(dtype)
-        if cfg.coord_channels:
-            x = with_coordinates(x)
+        planes = None
+        if cfg.coord_channels:  # the hit mask joins the frame; the coordinate planes go to the first conv apart
+            x, planes = with_hit_mask(x), coordinate_planes(*x.shape[1:3], dtype)
         n_blocks = len(cfg.channels)
         skip = None
         for i, (ch, k, s, p) in enumerate(zip(cfg.channels, cfg.kernels, cfg.strides, cfg.pools)):
-            x = make_conv(ch, k, s, cfg.conv_impl, dtype, name=f"conv{i}")(x)
+            x = make_conv(ch, k, s, cfg.conv_impl, dtype, name=f"conv{i}")(x, planes if i == 0 else None)
             if p and cfg.pool_first:
                 x = max_pool2(x)
             if i == 0 and cfg.pooled_skip:  # [N, C_1]: scales with the input, unlike everything after the norm

@@ -12,7 +12,7 @@ from ramavt_jax.layers import conv_out_size
 
 VARIANTS = ("ramavt", "drlavt", "origin", "se", "mha")
 NORMS = ("batch", "layer", "none")
-CONV_IMPLS = ("im2col", "lax")
+CONV_IMPLS = ("hybrid", "im2col", "lax")
 DTYPES = {"float32": jnp.float32, "bfloat16": jnp.bfloat16}
 
 
@@ -37,7 +37,7 @@ class NetworkConfig:
     head: int = 256
     drlavt_dense: tuple = (1024, 512)
     frame_stack: int = 4  # drlavt only
-    conv_impl: str = "im2col"
+    conv_impl: str = "hybrid"
     dtype: str = "float32"
     # Absolute depth and image position made visible to the encoder (see Encoder): without these, a bias-free conv
     # followed by a per-frame LayerNorm is exactly invariant to a global scaling of the depth image.

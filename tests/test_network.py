@@ -14,7 +14,7 @@ import pytest
 jax.config.update("jax_compilation_cache_dir", "/tmp/ramavt_jax_test_cache")
 jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.5)
 
-from ramavt_jax.layers import conv2d_im2col
+from ramavt_jax.layers import CONV_FUNCTIONS, HYBRID_MIN_CHANNELS, PaddedConv
 from ramavt_jax.network import (
     VARIANTS,
     NetworkConfig,
@@ -178,31 +178,56 @@ def test_dueling_head_adds_a_value_to_mean_centred_advantages(variant):
     assert "value" not in init_params(small(variant), jax.random.key(0), (32, 32, 1))["params"]
 
 
-@pytest.mark.parametrize("k,s,size", [(3, 2, 16), (3, 1, 9), (1, 1, 6), (5, 2, 7)])
-def test_im2col_equals_lax_conv(k, s, size):
+@pytest.mark.parametrize("k,s,size,c", [(3, 2, 16, 3), (3, 1, 9, 8), (1, 1, 6, 8), (5, 2, 7, 3)])
+def test_conv_impls_equal_flax_conv(k, s, size, c):
+    """im2col and hybrid against flax's own conv (outputs and both gradients). The hybrid conv's gradients are the
+    im2col conv's, to the bit; its forward is XLA's convolution from HYBRID_MIN_CHANNELS input channels on, else
+    the im2col conv's."""
     kx, kk, kg = jax.random.split(jax.random.key(0), 3)
-    x = jax.random.normal(kx, (2, size, size, 3))
-    kernel = jax.random.normal(kk, (k, k, 3, 5))
+    x = jax.random.normal(kx, (2, size, size, c))
+    kernel = jax.random.normal(kk, (k, k, c, 5))
     p = k // 2
     conv = nn.Conv(5, (k, k), strides=(s, s), padding=((p, p), (p, p)), use_bias=False)
+    impls = {"flax": lambda x, w: conv.apply({"params": {"kernel": w}}, x),
+             **{name: functools.partial(CONV_FUNCTIONS[name], stride=s) for name in ("im2col", "hybrid", "lax")}}
 
-    def lax_fn(x, w):
-        return conv.apply({"params": {"kernel": w}}, x)
-
-    def im2col_fn(x, w):
-        return conv2d_im2col(x, w, s)
-
-    @jax.jit  # one program for both outputs and both gradients (eager: dozens of small compiles)
+    @jax.jit  # one program for all outputs and gradients (eager: dozens of small compiles)
     def outputs_and_grads(x, w, g):
-        grads = [jax.grad(lambda x, w, f=f: jnp.sum(f(x, w) * g), argnums=(0, 1))(x, w) for f in (im2col_fn, lax_fn)]
-        return im2col_fn(x, w), lax_fn(x, w), grads
+        return {name: (f(x, w), jax.grad(lambda x, w, f=f: jnp.sum(f(x, w) * g), argnums=(0, 1))(x, w))
+                for name, f in impls.items()}
 
-    shape1, shape2 = jax.eval_shape(im2col_fn, x, kernel).shape, jax.eval_shape(lax_fn, x, kernel).shape
-    assert shape1 == shape2
-    y1, y2, (g1, g2) = outputs_and_grads(x, kernel, jax.random.normal(kg, shape1))
-    np.testing.assert_allclose(y1, y2, atol=1e-4, rtol=1e-4)
-    for a, b in zip(g1, g2):
-        np.testing.assert_allclose(a, b, atol=1e-3, rtol=1e-4)
+    shape = jax.eval_shape(impls["flax"], x, kernel).shape
+    assert jax.eval_shape(impls["im2col"], x, kernel).shape == shape
+    res = outputs_and_grads(x, kernel, jax.random.normal(kg, shape))
+    for name in ("im2col", "hybrid"):
+        np.testing.assert_allclose(res[name][0], res["flax"][0], atol=1e-4, rtol=1e-4)
+        for a, b in zip(res[name][1], res["flax"][1]):
+            np.testing.assert_allclose(a, b, atol=1e-3, rtol=1e-4)
+    np.testing.assert_array_equal(res["hybrid"][0], res["lax" if c >= HYBRID_MIN_CHANNELS else "im2col"][0])
+    for a, b in zip(res["hybrid"][1], res["im2col"][1]):
+        np.testing.assert_array_equal(a, b)
+
+
+@pytest.mark.parametrize("impl", ["hybrid", "im2col"])
+def test_conv_constant_planes_equal_appended_channels(impl):
+    """PaddedConv(x, planes) = the same conv over [x, planes broadcast to every frame]: one kernel over C + P
+    channels, the planes' share computed once; gradients w.r.t. the kernel agree too."""
+    kx, kp = jax.random.split(jax.random.key(3))
+    x, planes = jax.random.normal(kx, (3, 9, 9, 2)), jax.random.normal(kp, (9, 9, 2))
+    full = jnp.concatenate([x, jnp.broadcast_to(planes, (3, 9, 9, 2))], axis=-1)
+    conv = PaddedConv(4, 3, 2, impl=impl)
+    variables = conv.init(jax.random.key(1), x, planes)
+    assert variables["params"]["kernel"].shape == (3, 3, 4, 4)
+
+    @jax.jit
+    def outputs_and_grads(v):
+        split = lambda v: jnp.sum(jnp.sin(conv.apply(v, x, planes)))  # noqa: E731
+        joined = lambda v: jnp.sum(jnp.sin(conv.apply(v, full)))  # noqa: E731
+        return conv.apply(v, x, planes), conv.apply(v, full), jax.grad(split)(v), jax.grad(joined)(v)
+
+    y_split, y_full, g_split, g_full = outputs_and_grads(variables)
+    np.testing.assert_allclose(y_split, y_full, atol=1e-5)
+    np.testing.assert_allclose(g_split["params"]["kernel"], g_full["params"]["kernel"], atol=1e-4)
 
 
 def test_network_conv_impls_share_params_and_agree():
@@ -210,14 +235,15 @@ def test_network_conv_impls_share_params_and_agree():
     _, variables, obs = _setup(cfg, (33, 33, 2), t=3)
     cfg_orig = dataclasses.replace(cfg, pool_first=False, norm="none")
     assert count_params(jax.eval_shape(lambda k: init_params(cfg_orig, k, (33, 33, 2)), jax.random.key(0))) > 0
-    cfg_lax = dataclasses.replace(cfg, conv_impl="lax")
-    v2 = jax.eval_shape(lambda k: init_params(cfg_lax, k, (33, 33, 2)), jax.random.key(0))
-    assert jax.tree_util.tree_structure(v2) == jax.tree_util.tree_structure(variables)
     reset = jnp.zeros((2, 3), bool)
     s = initial_state(cfg, 2)
     q1, _ = _apply(cfg, variables, obs, reset, s)
-    q2, _ = _apply(cfg_lax, variables, obs, reset, s)
-    np.testing.assert_allclose(q1, q2, atol=1e-4)
+    for impl in ("im2col", "lax"):
+        other = dataclasses.replace(cfg, conv_impl=impl)
+        v2 = jax.eval_shape(lambda k: init_params(other, k, (33, 33, 2)), jax.random.key(0))
+        assert jax.tree_util.tree_structure(v2) == jax.tree_util.tree_structure(variables)
+        q2, _ = _apply(other, variables, obs, reset, s)
+        np.testing.assert_allclose(q1, q2, atol=1e-4)
 
 
 @pytest.mark.parametrize("variant", ["ramavt", "se"])
@@ -352,3 +378,17 @@ def test_coordinate_channels_and_skip_shapes():
     _, variables, obs = _setup(cfg)
     q, _ = _apply(cfg, variables, obs, jnp.zeros(obs.shape[:2], bool), initial_state(cfg, obs.shape[0]))
     assert q.shape == (*obs.shape[:2], cfg.num_actions) and bool(jnp.all(jnp.isfinite(q)))
+
+
+def test_coordinate_encoder_equals_plain_encoder_on_appended_channels():
+    """coord_channels folds the constant coordinate planes into the first conv: the encoder then gives what the
+    same encoder without it gives on the frame with the mask and the planes appended (same parameters)."""
+    from ramavt_jax.network import Encoder, with_coordinates
+
+    cfg = small("ramavt", coord_channels=True, pooled_skip=True)
+    plain = dataclasses.replace(cfg, coord_channels=False)
+    obs = jax.random.uniform(jax.random.key(2), (3, 32, 32, 1)) * (jax.random.uniform(jax.random.key(3), (3, 32, 32, 1)) > 0.7)
+    params = init_params(cfg, jax.random.key(0), obs.shape[1:])["params"]["encoder"]
+    folded = jax.jit(Encoder(cfg).apply)({"params": params}, obs)
+    appended = jax.jit(Encoder(plain).apply)({"params": params}, with_coordinates(obs))
+    np.testing.assert_allclose(folded, appended, atol=1e-5)
