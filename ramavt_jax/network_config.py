@@ -37,7 +37,7 @@ class NetworkConfig:
     head: int = 256
     drlavt_dense: tuple = (1024, 512)
     frame_stack: int = 4  # drlavt only
-    conv_impl: str = "hybrid"
+    conv_impl: str = "hybrid"  # or "im2col" | "lax": the same parameters, other speed (layers.CONV_FUNCTIONS)
     dtype: str = "float32"
     # Absolute depth and image position made visible to the encoder (see Encoder): without these, a bias-free conv
     # followed by a per-frame LayerNorm is exactly invariant to a global scaling of the depth image.
