@@ -394,9 +394,12 @@ def test_coordinate_encoder_equals_plain_encoder_on_appended_channels():
     np.testing.assert_allclose(folded, appended, atol=1e-5)
 
 
-def test_hybrid_conv_vmapped_over_kernels_equals_each_kernel():
-    """vmapped over seeds (kernels batched), the hybrid conv runs one convolution per kernel instead of XLA's grouped
-    convolution: outputs and kernel gradients equal the per-kernel ones; a batch of inputs alone also works."""
+@pytest.mark.parametrize("backend", ["cpu", "gpu"])
+def test_hybrid_conv_vmapped_over_kernels_equals_each_kernel(backend, monkeypatch):
+    """vmapped over seeds (kernels batched), the hybrid conv runs one convolution per kernel on CPU instead of XLA's
+    grouped convolution (kept on accelerators: the 'gpu' case takes that branch, on the CPU): outputs and kernel
+    gradients equal the per-kernel ones; a batch of inputs alone also works."""
+    monkeypatch.setattr(jax, "default_backend", lambda: backend)
     kx, kk = jax.random.split(jax.random.key(4))
     x, kernels = jax.random.normal(kx, (3, 2, 6, 6, 8)), jax.random.normal(kk, (3, 3, 3, 8, 4))
     conv = functools.partial(CONV_FUNCTIONS["hybrid"], stride=1)
