@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import argparse
 import importlib
-import json
 import os
 import statistics
 import subprocess
@@ -27,8 +26,11 @@ from pathlib import Path
 import jax
 import jax.numpy as jnp
 
-from ramavt_jax import train as T
-from ramavt_jax.training.checkpoint import CheckpointStore
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from bench_train import merge_json  # noqa: E402
+
+from ramavt_jax import train as T  # noqa: E402
+from ramavt_jax.training.checkpoint import CheckpointStore  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 BASELINE_MODULE = "ramavt_baseline"
@@ -105,12 +107,9 @@ def main(argv=None) -> None:
     med = {k: statistics.median(v) for k, v in times.items()}
     for k, v in med.items():
         print(f"{k}: median chunk {v:.2f} s, {med[a.baseline] / v:.2f}x the baseline {a.baseline}")
-    path = Path(a.out)
-    old = json.loads(path.read_text()) if path.exists() else {}
-    old[f"{a.preset}_seeds{a.seeds}_vs_{a.baseline}"] = dict(
+    merge_json(a.out, f"{a.preset}_seeds{a.seeds}_vs_{a.baseline}", dict(
         run=str(a.run), env_steps=int(state.env_steps), chunk_s=times, median_s=med,
-        loadavg_start=load0, loadavg_end=os.getloadavg(), jax=jax.__version__)
-    path.write_text(json.dumps(old, indent=1))
+        loadavg_start=load0, loadavg_end=os.getloadavg(), jax=jax.__version__))
 
 
 if __name__ == "__main__":

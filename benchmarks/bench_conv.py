@@ -17,9 +17,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import functools
-import json
 import os
-import platform
 import statistics
 import sys
 import time
@@ -29,7 +27,7 @@ import jax
 import jax.numpy as jnp
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from bench_train import _filled_replay  # noqa: E402
+from bench_train import _filled_replay, machine_info, merge_json  # noqa: E402
 
 from ramavt_jax import train as T  # noqa: E402
 from ramavt_jax.layers import CONV_FUNCTIONS, conv_out_size, max_pool2  # noqa: E402
@@ -139,14 +137,9 @@ def main(argv=None) -> None:
     res = {"preset": a.preset, "seeds": a.seeds, "rounds": a.rounds, "layers": bench_layers(cfg, a.seeds, a.rounds)}
     if not a.skip_update:
         res["update"] = bench_update(cfg, a.rounds)
-    res["machine"] = {"platform": platform.platform(), "cpus": os.cpu_count(), "jax": jax.__version__,
-                      "backend": jax.default_backend(), "loadavg_start": load0, "loadavg_end": os.getloadavg(),
-                      "wall_s": time.time() - t0}
+    res["machine"] = machine_info(load0, t0)
     print(f"load {load0[0]:.2f} -> {os.getloadavg()[0]:.2f}, {time.time() - t0:.0f} s")
-    path = Path(a.out)
-    old = json.loads(path.read_text()) if path.exists() else {}
-    old[f"{a.preset}_seeds{a.seeds}"] = res
-    path.write_text(json.dumps(old, indent=1))
+    merge_json(a.out, f"{a.preset}_seeds{a.seeds}", res)
 
 
 if __name__ == "__main__":

@@ -32,6 +32,22 @@ from ramavt_jax.train_config import ActingConfig, LearnerConfig, ReplayConfig, R
 VARIANTS = ("ramavt", "drlavt", "origin", "se", "mha")
 
 
+def machine_info(load_start: tuple, start_time: float) -> dict:
+    """The machine, the load average at the start and now, and the wall time since ``start_time``, for a JSON."""
+    return {"platform": platform.platform(), "cpus": os.cpu_count(), "jax": jax.__version__,
+            "backend": jax.default_backend(), "loadavg_start": load_start, "loadavg_end": os.getloadavg(),
+            "wall_s": time.time() - start_time}
+
+
+def merge_json(path, key: str, value) -> None:
+    """Write ``value`` under ``key`` into the JSON object at ``path``, keeping its other keys."""
+    path = Path(path)
+    old = json.loads(path.read_text()) if path.exists() else {}
+    old[key] = value
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(old, indent=1))
+
+
 def _median_time(fn, repeats: int) -> float:
     jax.block_until_ready(fn())  # warm-up (compile)
     times = []
@@ -162,11 +178,7 @@ def run(variants=VARIANTS, resolution: int = 64, num_envs: int = 64, batch_size:
     if not quiet:
         print(table(rows))
     if out:
-        path = Path(out)
-        old = json.loads(path.read_text()) if path.exists() else {}
-        old[f"preset_{preset}" if preset else f"{resolution}x{resolution}"] = results
-        path.parent.mkdir(parents=True, exist_ok=True)
-        path.write_text(json.dumps(old, indent=1))
+        merge_json(out, f"preset_{preset}" if preset else f"{resolution}x{resolution}", results)
     return results
 
 

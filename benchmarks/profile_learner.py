@@ -20,11 +20,8 @@ innermost line of ramavt_jax that produced it, split into forward and backward (
 from __future__ import annotations
 
 import argparse
-import json
 import os
-import platform
 import time
-from pathlib import Path
 
 import jax
 import jax.numpy as jnp
@@ -33,7 +30,7 @@ import optax
 from ramavt_jax import train as T
 from ramavt_jax.network import Encoder
 
-from bench_train import _filled_replay, _median_time  # noqa: E402 (benchmarks/ is the script's directory)
+from bench_train import _filled_replay, _median_time, machine_info, merge_json  # noqa: E402 (the script's directory)
 from hlo_profile import trace_breakdown  # noqa: E402
 from profile_env import _line  # noqa: E402
 
@@ -109,9 +106,7 @@ def main(argv=None) -> None:
     a = p.parse_args(argv)
     t0, load0 = time.time(), os.getloadavg()
     res = profile(a.preset, a.repeats, a.batch_size, a.trace)
-    res["machine"] = {"platform": platform.platform(), "cpus": os.cpu_count(), "jax": jax.__version__,
-                      "backend": jax.default_backend(), "loadavg_start": load0, "loadavg_end": os.getloadavg(),
-                      "wall_s": time.time() - t0}
+    res["machine"] = machine_info(load0, t0)
     total = res["times_ms"]["update"]
     for name, ms in res["times_ms"].items():
         print(f"{name:13} {ms:8.2f} ms  {100 * ms / total:5.1f} % of an update")
@@ -122,10 +117,7 @@ def main(argv=None) -> None:
         print(f"\nprofiler trace of the update ({traced:.1f} ms of thunks per update), top 30:")
         for name, ms in list(res["trace_ms"].items())[:30]:
             print(f"  {ms:7.2f} ms {100 * ms / traced:5.1f} %  {name}")
-    path = Path(a.out)
-    old = json.loads(path.read_text()) if path.exists() else {}
-    old[f"{a.preset}_b{res['batch_size']}"] = res
-    path.write_text(json.dumps(old, indent=1))
+    merge_json(a.out, f"{a.preset}_b{res['batch_size']}", res)
 
 
 if __name__ == "__main__":
