@@ -9,7 +9,8 @@ Two parts, every implementation's calls alternating with the others' in the same
            gradient of the trained part (B * (train_len + 1) frames), for 'im2col' (the baseline), 'lax', 'hybrid'
   update   one whole learner update (Trainer.update on a full replay of random data) per conv_impl
 
-Medians over ``--rounds`` rounds of the fastest of 3 back-to-back calls; the 1-minute load average is printed beside the figures. Compare within one run.
+Medians over ``--rounds`` rounds of the fastest of 3 back-to-back calls; the 1-minute load average is printed
+beside the figures. Compare within one run.
 """
 
 from __future__ import annotations
@@ -30,7 +31,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_train import _filled_replay, machine_info, merge_json  # noqa: E402
 
 from ramavt_jax import train as T  # noqa: E402
-from ramavt_jax.layers import CONV_FUNCTIONS, conv_out_size, max_pool2  # noqa: E402
+from ramavt_jax.layers import CONV_FUNCTIONS, conv_out_size  # noqa: E402
 
 IMPLS = ("im2col", "lax", "hybrid")  # the first is the baseline
 
@@ -43,8 +44,8 @@ def _encoder_layers(cfg: T.TrainConfig) -> list[dict]:
     for ch, k, s, pool in zip(net.channels, net.kernels, net.strides, net.pools):
         layers.append(dict(frame=(h, w, c), kernel=(k, k, c, ch), stride=s))
         h, w, c = conv_out_size(h, k, s), conv_out_size(w, k, s), ch
-        if pool:
-            h, w = max_pool2(jnp.zeros((1, h, w, 1))).shape[1:3]
+        if pool:  # max_pool2: 2x2, ceil mode
+            h, w = -(-h // 2), -(-w // 2)
     return layers
 
 

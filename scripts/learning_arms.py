@@ -284,5 +284,6 @@ def report(out: Path) -> None:
         aer = ", ".join(f"{s['AER']:+.0f}" for s in r["seeds"])
         print(f"{_row_head(r)} {ael} | {aer} |")
 
+
 if __name__ == "__main__":
     main()
