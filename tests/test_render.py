@@ -341,7 +341,7 @@ def test_vmapped_render_uses_batch_rule_with_per_env_lighting():
 
 def test_specialised_kernels_match_general_cast():
     """The per-type kernels (ellipsoid, box, cylinder) give the general kernel's depths on random rays and poses."""
-    from ramavt_jax.render import intersect, renderer
+    from ramavt_jax.render import geometry, intersect
 
     rng = np.random.default_rng(7)
     cam = R.CameraConfig(resolution=32)
@@ -358,8 +358,8 @@ def test_specialised_kernels_match_general_cast():
             geom_rgb=jnp.ones((1, g, 3)), geom_rbound=jnp.ones((1, g)), geom_mask=jnp.ones((1, g), bool),
             bound_radius=jnp.ones((1,)), inertia=jnp.ones((1, 3)), mass=jnp.ones((1,)))
         pos = jnp.array([[0.2, -0.1, 3.0]])
-        p, r = renderer._geom_frames(model, pos, jnp.asarray(_random_rotation(rng), jnp.float32)[None])
-        table = renderer._cast_table(model, *renderer._unit_frames(model, p, r))  # [G, F]
+        p, r = geometry.geom_frames(model, pos, jnp.asarray(_random_rotation(rng), jnp.float32)[None])
+        table = geometry.cast_table(model, *geometry.unit_frames(model, p, r))  # [G, F]
         s = np.asarray(R.camera_rays(cam))
         x, y = jnp.asarray(s[..., 0])[None], jnp.asarray(s[..., 1])[None]  # [1, H, W]
         cols = [table[:, i, None, None] for i in range(table.shape[1])]
@@ -392,6 +392,25 @@ def test_hidden_targets_cost_no_work_and_render_empty(scene):
     behind = pos.at[:, 2].set(-1e6)
     frame = R.render_batch(batch, behind, rot, cam, R.default_lighting())
     assert not np.asarray(frame.hit).any() and not np.asarray(frame.depth).any() and not np.asarray(frame.rgb).any()
+
+
+@pytest.mark.parametrize("com_z, offset_z", [(-1.0, 5.0), (21.0, -4.0)])
+def test_no_work_shortcut_keeps_geoms_far_from_the_centre_of_mass(com_z, offset_z):
+    """The empty-batch shortcut looks at the centres of mass: a sphere (radius 2 m) 4-5 m from its target's centre of
+    mass reaches into view from behind the camera and from beyond the far plane (20 m), and is rendered as without
+    the shortcut."""
+    from ramavt_jax.render import renderer
+
+    cam = R.CameraConfig(resolution=16)
+    sphere = targets.TargetModel(
+        geom_type=jnp.full((1, 1), targets.SPHERE, jnp.int32), geom_size=jnp.full((1, 1, 3), 2.0),
+        geom_pos=jnp.array([[[0.0, 0.0, offset_z]]]), geom_mat=jnp.eye(3)[None, None], geom_rgb=jnp.ones((1, 1, 3)),
+        geom_rbound=jnp.full((1, 1), 2.0), geom_mask=jnp.ones((1, 1), bool), bound_radius=jnp.full((1,), 7.0),
+        inertia=jnp.ones((1, 3)), mass=jnp.ones((1,)))
+    pos, rot, light = jnp.array([[0.0, 0.0, com_z]]), jnp.eye(3)[None], R.default_lighting()
+    frame = R.render_batch(sphere, pos, rot, cam, light)
+    assert np.asarray(frame.hit).any()
+    _frames_equal(frame, renderer._render_seen(sphere, pos, rot, light, cam, True, None, renderer.DEFAULT_TILE, True))
 
 
 @pytest.mark.parametrize("n", [1, 5, 64, 65, 1000, 2049, 70000])
