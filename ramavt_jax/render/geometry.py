@@ -4,10 +4,9 @@ conservative pixel box from its bounding sphere and oriented bounding box."""
 
 from __future__ import annotations
 
-import functools
-
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from ramavt_jax.render import intersect
 from ramavt_jax.render.camera import CameraConfig
@@ -113,22 +112,20 @@ def screen_boxes(targets: TargetModel, p, r, cam: CameraConfig):
     umin, umax = extent(cx)
     vmin, vmax = extent(cy)
     visible = targets.geom_mask & (cz + radius > cam.near) & (cz - radius < cam.far)
+    # The 8 corners as one [8, B, G] array per coordinate, reduced over the corner axis. Not chains of minimum over 8
+    # arrays: XLA fuses such an elementwise chain into each of its consumers (the tile ranges, the item counts of every
+    # geom class), recomputing all corners in each; a reduction is computed once.
     ext = half_extents(targets)
-    us, vs, zs = [], [], []
-    for sx in (-1.0, 1.0):
-        for sy in (-1.0, 1.0):
-            for sz in (-1.0, 1.0):
-                off = (sx * ext[0], sy * ext[1], sz * ext[2])
-                corner = [p[i] + r[i][0] * off[0] + r[i][1] * off[1] + r[i][2] * off[2] for i in range(3)]
-                inv_z = 1.0 / jnp.where(corner[2] > 1e-3, corner[2], 1.0)
-                us.append(f * corner[0] * inv_z + c)
-                vs.append(f * corner[1] * inv_z + c)
-                zs.append(corner[2])
-    front = functools.reduce(jnp.minimum, zs) > 1e-3
-    umin = jnp.where(front, jnp.maximum(umin, functools.reduce(jnp.minimum, us) - 1.0), umin)
-    umax = jnp.where(front, jnp.minimum(umax, functools.reduce(jnp.maximum, us) + 1.0), umax)
-    vmin = jnp.where(front, jnp.maximum(vmin, functools.reduce(jnp.minimum, vs) - 1.0), vmin)
-    vmax = jnp.where(front, jnp.minimum(vmax, functools.reduce(jnp.maximum, vs) + 1.0), vmax)
+    signs = np.array([(sx, sy, sz) for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)], np.float32)
+    off = [signs[:, k, None, None] * ext[k][None] for k in range(3)]  # [8, B, G]
+    corner = [p[i][None] + r[i][0][None] * off[0] + r[i][1][None] * off[1] + r[i][2][None] * off[2] for i in range(3)]
+    inv_z = 1.0 / jnp.where(corner[2] > 1e-3, corner[2], 1.0)
+    us, vs = f * corner[0] * inv_z + c, f * corner[1] * inv_z + c
+    front = jnp.min(corner[2], axis=0) > 1e-3
+    umin = jnp.where(front, jnp.maximum(umin, jnp.min(us, axis=0) - 1.0), umin)
+    umax = jnp.where(front, jnp.minimum(umax, jnp.max(us, axis=0) + 1.0), umax)
+    vmin = jnp.where(front, jnp.maximum(vmin, jnp.min(vs, axis=0) - 1.0), vmin)
+    vmax = jnp.where(front, jnp.minimum(vmax, jnp.max(vs, axis=0) + 1.0), vmax)
     return umin, umax, vmin, vmax, visible
 
 
