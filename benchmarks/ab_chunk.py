@@ -36,8 +36,8 @@ REPO = Path(__file__).resolve().parents[1]
 BASELINE_MODULE = "ramavt_baseline"
 
 
-def import_baseline(rev: str, where: Path):
-    """The ``ramavt_jax`` package of git revision ``rev`` imported as ``ramavt_baseline`` (its train module)."""
+def import_baseline(rev: str, where: Path, module: str = "train"):
+    """The ``ramavt_jax`` package of git revision ``rev`` imported as ``ramavt_baseline``: its ``module``."""
     archive = subprocess.run(["git", "-C", str(REPO), "archive", rev, "ramavt_jax"], check=True,
                              capture_output=True).stdout
     tar_path = where / "baseline.tar"
@@ -49,7 +49,7 @@ def import_baseline(rev: str, where: Path):
     for path in package.rglob("*.py"):
         path.write_text(path.read_text().replace("ramavt_jax", BASELINE_MODULE))
     sys.path.insert(0, str(where))
-    return importlib.import_module(f"{BASELINE_MODULE}.train")
+    return importlib.import_module(f"{BASELINE_MODULE}.{module}")
 
 
 def _restore(run: Path, like):

@@ -1,9 +1,12 @@
 """Env throughput: full env steps/s (dynamics + render + auto-reset) vs number of envs, resolution and observation
 mode, beside two baselines measured in the same run: the previous renderer inside the same env step (calls
 interleaved with the new one, so both see the same machine load) and MuJoCo's C ray caster `mj_multiRay` (one
-thread) on the same targets and poses as the env's envs.
+thread) on the same targets and poses as the env's envs. ``--baseline REV`` adds a third: the whole env (env.py and
+its renderer) of an earlier git revision, imported beside this one, its calls interleaved too.
 
     python benchmarks/bench_env.py [--quick] [--out benchmarks/results_env.json]
+    python benchmarks/bench_env.py --mj-check --baseline 1baefdc   # 3 points; + that revision's env step
+    python benchmarks/bench_env.py --pixel-check  # cost per pixel: 64x64 and 128x128 depth at 64 and 256 envs
     python benchmarks/bench_env.py --gpu          # accelerator sweep: 1k .. 64k envs, one command
     ramavt bench env [--quick | --gpu]
 
@@ -37,17 +40,13 @@ from ramavt_jax.render import legacy, renderer  # noqa: E402
 
 STEPS_PER_CALL = 10
 RENDERERS = ("new", "legacy")
-PROPOSED = "new+env-fix"  # the new renderer in the env with the post-processing change proposed to its owner
-
-
-# The post-processing change this variant measured (no per-pixel noise draws when the noise is off, no frame
-# average for a one-frame history) is now in env.py itself, so 'new+env-fix' and 'new' run the same env.
-ProposedEnv = env_lib.TrackingEnv
+BASELINE = "baseline"  # the env of an earlier git revision (--baseline REV), in the same process
+_BASELINE_ENV = {}  # filled by run(baseline=REV): the baseline package's env module
 
 
 def _patched_render(which: str):
     """render.render as the env calls it, backed by the new or the previous batch renderer."""
-    if which in ("new", PROPOSED):
+    if which == "new":
         return renderer.render
 
     def old(target, position, rotation, cam, lighting, shade=True):
@@ -57,10 +56,19 @@ def _patched_render(which: str):
     return old
 
 
+def _env_modules(which: str):
+    """(env module, render module) of an arm: this checkout's, or the baseline revision's for 'baseline'."""
+    if which == BASELINE:
+        base_env = _BASELINE_ENV["env"]
+        return base_env, sys.modules[base_env.__name__.rsplit(".", 1)[0] + ".render"]
+    return env_lib, render
+
+
 def build(num_envs: int, res: int, mode: str, which: str = "new", seed: int = 0):
     """(compiled scan of STEPS_PER_CALL vmapped steps, warmed-up env state, env, params, compile seconds)."""
-    config = env_lib.EnvConfig(camera=render.CameraConfig(resolution=res), obs_mode=mode)
-    tenv = (ProposedEnv if which == PROPOSED else env_lib.TrackingEnv)(config)
+    env_mod, render_mod = _env_modules(which)
+    config = env_mod.EnvConfig(camera=render_mod.CameraConfig(resolution=res), obs_mode=mode)
+    tenv = env_mod.TrackingEnv(config)
     params = tenv.default_params()
     v_step = jax.vmap(tenv.step, in_axes=(0, 0, 0, None))
 
@@ -75,7 +83,8 @@ def build(num_envs: int, res: int, mode: str, which: str = "new", seed: int = 0)
     key = jax.random.key(seed)
     _, state = jax.jit(jax.vmap(tenv.reset, in_axes=(0, None)))(jax.random.split(key, num_envs), params)
     real = render.render
-    render.render = _patched_render(which)
+    if which != BASELINE:
+        render.render = _patched_render(which)
     try:
         t0 = time.perf_counter()
         compiled = jax.jit(run).lower(state, key).compile()
@@ -112,7 +121,7 @@ def _runner(compiled, state):
     return call
 
 
-def bench_point(num_envs: int, res: int, mode: str, budget_s: float, baselines=RENDERERS + (PROPOSED,)):
+def bench_point(num_envs: int, res: int, mode: str, budget_s: float, baselines=RENDERERS):
     """Rows for the new renderer and each baseline renderer at one (envs, res, mode), timed interleaved."""
     built = {w: build(num_envs, res, mode, w) for w in baselines}
     runners = {w: _runner(b[0], b[1]) for w, b in built.items()}
@@ -158,20 +167,30 @@ def machine() -> dict:
                 device_kind=jax.devices()[0].device_kind, glibc_tunables=os.environ.get("GLIBC_TUNABLES", ""))
 
 
-def run(out="benchmarks/results_env.json", quick=False, gpu=False, budget_s=3.0, mj_check=False) -> dict:
+def run(out="benchmarks/results_env.json", quick=False, gpu=False, budget_s=3.0, mj_check=False,
+        baseline: str | None = None, pixel_check: bool = False) -> dict:
+    """Every plan's points; ``baseline`` (a git revision) adds that revision's env step to every point's arms."""
+    extra = (BASELINE,) if baseline else ()
+    if baseline:
+        import tempfile
+
+        from ab_chunk import import_baseline
+
+        _BASELINE_ENV["env"] = import_baseline(baseline, Path(tempfile.mkdtemp()), "env")
     if gpu:  # (mode, res, envs, baselines); the old renderer only where it still fits a short run
-        plan = ([("depth", 64, n, RENDERERS + (PROPOSED,) if n <= 4096 else ("new", PROPOSED))
-                 for n in (1024, 4096, 16384, 65536)]
+        plan = ([("depth", 64, n, (RENDERERS if n <= 4096 else ("new",)) + extra) for n in (1024, 4096, 16384, 65536)]
                 + [("rgbd", 64, n, ("new",)) for n in (4096, 16384)] + [("depth", 128, 16384, ("new",))])
     elif mj_check:  # the per-core comparison with MuJoCo only, no old renderer
-        plan = [("depth", 64, 64, ("new", PROPOSED)), ("depth", 64, 256, ("new", PROPOSED)),
-                ("rgbd", 64, 64, ("new", PROPOSED))]
+        plan = [("depth", 64, 64, ("new",) + extra), ("depth", 64, 256, ("new",) + extra),
+                ("rgbd", 64, 64, ("new",) + extra)]
+    elif pixel_check:  # the cost per pixel: 64x64 against 128x128 depth at the same envs
+        plan = [("depth", res, n, ("new",) + extra) for n in (64, 256) for res in (64, 128)]
     elif quick:
-        both = RENDERERS + (PROPOSED,)
+        both = RENDERERS + extra
         plan = ([("depth", 64, n, both) for n in (64, 256, 1024)] + [("depth", 128, 256, both)]
                 + [("rgbd", 64, n, both) for n in (64, 256)])
     else:
-        both = RENDERERS + (PROPOSED,)
+        both = RENDERERS + extra
         plan = ([("depth", 64, n, both) for n in (1, 16, 64, 256, 1024, 4096)]
                 + [("depth", r, 256, both) for r in (84, 128, 256)]
                 + [("rgbd", 64, n, both) for n in (1, 64, 256, 1024)] + [("rgbd", 128, 256, both)])
@@ -199,7 +218,8 @@ def run(out="benchmarks/results_env.json", quick=False, gpu=False, budget_s=3.0,
                            load_avg_1min=[load0, os.getloadavg()[0]]))
         print(f"mj_multiRay, 1 thread, env poses, res {res:>3}: {m['fps']:>9.0f} frames/s   (load {load0:.2f})",
               flush=True)
-    result = dict(machine=machine(), steps_per_call=STEPS_PER_CALL, env=points, mujoco_mj_multiRay=mujoco,
+    result = dict(machine=machine(), steps_per_call=STEPS_PER_CALL, baseline_revision=baseline, env=points,
+                  mujoco_mj_multiRay=mujoco,
                   summary=_summary(points, mujoco))
     _write(out, result)
     print(f"wrote {out}")
@@ -250,6 +270,8 @@ if __name__ == "__main__":
     parser.add_argument("--gpu", action="store_true", help="accelerator sweep, 1k..64k envs (about 5-8 min)")
     parser.add_argument("--mj-check", action="store_true", help="only new vs mj_multiRay (interleaved), 3 points")
     parser.add_argument("--budget", type=float, default=3.0, help="seconds of timed calls per point and renderer")
+    parser.add_argument("--pixel-check", action="store_true", help="only 64x64 against 128x128 depth, 64 and 256 envs")
+    parser.add_argument("--baseline", default=None, help="a git revision whose env step joins every point, interleaved")
     args = parser.parse_args()
     default = "benchmarks/results_env_gpu.json" if args.gpu else "benchmarks/results_env.json"
-    run(args.out or default, args.quick, args.gpu, args.budget, args.mj_check)
+    run(args.out or default, args.quick, args.gpu, args.budget, args.mj_check, args.baseline, args.pixel_check)

@@ -61,12 +61,11 @@ def _repeat(fn):
 
 
 def profile(num_envs=64, res=64, mode="depth", budget_s=2.0, seed=0, which="new"):
-    """Part timings and the trace breakdown; ``which`` is 'new', 'legacy' (the previous renderer in the same env) or
-    'new+env-fix' (bench_env.ProposedEnv: the env with the proposed post-processing change)."""
-    from bench_env import PROPOSED, ProposedEnv, _patched_render
+    """Part timings and the trace breakdown; ``which`` is 'new' or 'legacy' (the previous renderer in the same env)."""
+    from bench_env import _patched_render
 
     config = env_lib.EnvConfig(camera=render.CameraConfig(resolution=res), obs_mode=mode)
-    tenv = (ProposedEnv if which == PROPOSED else env_lib.TrackingEnv)(config)
+    tenv = env_lib.TrackingEnv(config)
     real_render = render.render
     render.render = _patched_render(which)
     try:
@@ -200,7 +199,7 @@ def main(argv=None):
     p.add_argument("--mode", default="depth")
     p.add_argument("--budget", type=float, default=2.0)
     p.add_argument("--out", default=None)
-    p.add_argument("--renderer", default="new", choices=["new", "legacy", "new+env-fix"])
+    p.add_argument("--renderer", default="new", choices=["new", "legacy"])
     a = p.parse_args(argv)
     load0 = os.getloadavg()[0]
     res, hit, breakdown = profile(a.envs, a.res, a.mode, a.budget, which=a.renderer)
