@@ -223,7 +223,7 @@ def _render_seen(targets: TargetModel, positions: jax.Array, rotations: jax.Arra
         amb_all = jnp.broadcast_to(jnp.asarray(lighting.ambient, jnp.float32), (b,))
 
         def colour_body(state):
-            j, cbuf = state
+            j, bufs = state
             cls, pair, env, tv, tu, x, y = items(j)
             t = cast(cls, pair, x, y)
             safe_env = jnp.minimum(env, b - 1)
@@ -235,20 +235,25 @@ def _render_seen(targets: TargetModel, positions: jax.Array, rotations: jax.Arra
             amb = amb_all[safe_env][:, None, None]
             lam = jnp.maximum(n[0] * sun[0] + n[1] * sun[1] + n[2] * sun[2], 0.0)
             light = amb + (1.0 - amb) * lam
-            # One plane per channel (a [tile, tile] window each, like the depth buffer).
-            cbuf = tuple(cbuf[k].at[env, tv, :, tu, :].max(
-                jnp.where(win, jnp.clip(st[intersect.S_RGB0 + k] * light, 0.0, 1.0), 0.0), mode="drop") for k in range(3))
-            return j + 1, cbuf
+            # Two scatters: the light and which (env, geom) pair won each pixel; the colour is looked up once after the
+            # loop. With one scatter per colour channel XLA recomputed the normal and the light for each channel.
+            lbuf, wbuf = bufs
+            lbuf = lbuf.at[env, tv, :, tu, :].max(jnp.where(win, light, 0.0), mode="drop")
+            wbuf = wbuf.at[env, tv, :, tu, :].max(jnp.where(win, pair[:, None, None], -1), mode="drop")
+            return j + 1, (lbuf, wbuf)
 
-        cbuf = tuple(jnp.zeros((b, nt, tile, nt, tile), jnp.float32) for _ in range(3))
-        _, cbuf = jax.lax.while_loop(lambda s: s[0] < n_chunks, colour_body, (jnp.int32(0), cbuf))
+        bufs = (jnp.zeros((b, nt, tile, nt, tile), jnp.float32), jnp.full((b, nt, tile, nt, tile), -1, jnp.int32))
+        _, (lbuf, wbuf) = jax.lax.while_loop(lambda s: s[0] < n_chunks, colour_body, (jnp.int32(0), bufs))
 
     res = cam.resolution
     depth = dbuf.reshape(b, nt * tile, nt * tile)[:, :res, :res]
     hit = depth <= cam.far
     depth = jnp.where(hit, depth, 0.0)
     if shade:
-        rgb = jnp.stack([c.reshape(b, nt * tile, nt * tile)[:, :res, :res] for c in cbuf], axis=-1)
+        winner = wbuf.reshape(b, nt * tile, nt * tile)[:, :res, :res]  # [B, H, W] pair index, -1: no hit
+        light = lbuf.reshape(b, nt * tile, nt * tile)[:, :res, :res, None]
+        albedo = stable[jnp.maximum(winner, 0), intersect.S_RGB0:intersect.S_RGB0 + 3]  # [B, H, W, 3]
+        rgb = jnp.where(winner[..., None] >= 0, jnp.clip(albedo * light, 0.0, 1.0), 0.0)
     else:
         rgb = jnp.zeros(depth.shape + (3,), jnp.float32)
     return Frame(depth=depth, rgb=rgb, hit=hit)
