@@ -20,6 +20,7 @@ lower the absolute numbers; the ratios to the interleaved baseline are the robus
 from __future__ import annotations
 
 import argparse
+import importlib
 import json
 import os
 import platform
@@ -41,7 +42,7 @@ from ramavt_jax.render import legacy, renderer  # noqa: E402
 STEPS_PER_CALL = 10
 RENDERERS = ("new", "legacy")
 BASELINE = "baseline"  # the env of an earlier git revision (--baseline REV), in the same process
-_BASELINE_ENV = {}  # filled by run(baseline=REV): the baseline package's env module
+_BASELINE_MODULES = {}  # filled by run(baseline=REV): the baseline package's env and render modules
 
 
 def _patched_render(which: str):
@@ -59,8 +60,7 @@ def _patched_render(which: str):
 def _env_modules(which: str):
     """(env module, render module) of an arm: this checkout's, or the baseline revision's for 'baseline'."""
     if which == BASELINE:
-        base_env = _BASELINE_ENV["env"]
-        return base_env, sys.modules[base_env.__name__.rsplit(".", 1)[0] + ".render"]
+        return _BASELINE_MODULES["env"], _BASELINE_MODULES["render"]
     return env_lib, render
 
 
@@ -174,9 +174,10 @@ def run(out="benchmarks/results_env.json", quick=False, gpu=False, budget_s=3.0,
     if baseline:
         import tempfile
 
-        from ab_chunk import import_baseline
+        from ab_chunk import BASELINE_MODULE, import_baseline
 
-        _BASELINE_ENV["env"] = import_baseline(baseline, Path(tempfile.mkdtemp()), "env")
+        base_env = import_baseline(baseline, Path(tempfile.mkdtemp()), "env")
+        _BASELINE_MODULES.update(env=base_env, render=importlib.import_module(f"{BASELINE_MODULE}.render"))
     if gpu:  # (mode, res, envs, baselines); the old renderer only where it still fits a short run
         plan = ([("depth", 64, n, (RENDERERS if n <= 4096 else ("new",)) + extra) for n in (1024, 4096, 16384, 65536)]
                 + [("rgbd", 64, n, ("new",)) for n in (4096, 16384)] + [("depth", 128, 16384, ("new",))])
