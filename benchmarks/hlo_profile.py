@@ -95,3 +95,73 @@ def trace_breakdown(fn, args, calls: int, label, hlo_text: str):
             continue  # Python / runtime events
         total[label(inst.get(name, []), ops.get(name, ""), name)] += us * 1e-6 / calls
     return dict(total.most_common())
+
+
+_BYTES = {"pred": 1, "s8": 1, "u8": 1, "bf16": 2, "f16": 2, "s16": 2, "u16": 2, "f32": 4, "s32": 4, "u32": 4,
+          "f64": 8, "s64": 8, "u64": 8}
+_SKIP = {"parameter", "constant", "bitcast", "get-tuple-element", "tuple", "while", "conditional", "call"}
+_PARTIAL_READS = {"slice", "gather", "dynamic-slice"}  # read about as many bytes as they write, not their operand
+
+
+def _shape_bytes(text: str) -> int:
+    total = 0
+    for dtype, dims in re.findall(r"\b(" + "|".join(_BYTES) + r")\[([\d,]*)\]", text):
+        n = 1
+        for d in filter(None, dims.split(",")):
+            n *= int(d)
+        total += n * _BYTES[dtype]
+    return total
+
+
+def _computations(text: str) -> dict:
+    """name -> (is_entry, [(instruction, result type, opcode, rest of the line)], whether it only picks parts of its
+    input: its root is a slice or gather, or a bitcast of one)."""
+    comps = {}
+    for block in re.split(r"\n(?=\S)", text):
+        head = re.match(r"(ENTRY )?%?([\w.\-]+)", block.split("\n", 1)[0])
+        if not head:
+            continue
+        lines = list(re.finditer(r"^\s*(ROOT )?%?([\w.\-]+) = (\S+|\(.*?\)) ([\w\-]+)\((.*)$", block, re.M))
+        root = next((m.group(4) for m in lines if m.group(1)), None)
+        picks = root in _PARTIAL_READS or (root in ("bitcast", "reshape") and any(m.group(4) in _PARTIAL_READS
+                                                                                   for m in lines))
+        comps[head.group(2)] = (bool(head.group(1)), [m.groups()[1:] for m in lines], picks)
+    return comps
+
+
+def traffic_breakdown(hlo_text: str, label) -> tuple[dict, dict]:
+    """Bytes each top-level instruction of a compiled CPU program reads and writes per call (while-loop bodies times
+    their known trip count), attributed like ``trace_breakdown``. Returns ({label: bytes}, totals) where totals has
+    ``whole_operands`` (every operand counted whole, as XLA's cost analysis does) and ``used`` (slices and gathers
+    counted at their output's size: what they really read)."""
+    inst, ops = _parse_hlo_stacks(hlo_text)
+    comps = _computations(hlo_text)
+    size = {name: _shape_bytes(typ) for _, body, _ in comps.values() for name, typ, _, _ in body}
+    top, trips = set(), {}
+    for _, body, _ in comps.values():
+        for _, _, op, rest in body:
+            if op == "while":
+                loop = re.search(r"body=%?([\w.\-]+)", rest).group(1)
+                known = re.search(r'known_trip_count=\{"n":"(\d+)"\}', rest)
+                trips[loop] = int(known.group(1)) if known else 1
+            for called in re.findall(r"(?:body|condition|to_apply|true_computation|false_computation)=%?([\w.\-]+)",
+                                     rest) + sum((b.replace("%", "").replace(" ", "").split(",") for b in
+                                                  re.findall(r"branch_computations=\{([^}]*)\}", rest)), []):
+                top.add(called)
+    by_label, totals = collections.Counter(), {"whole_operands": 0, "used": 0}
+    for comp, (entry, body, _) in comps.items():
+        if not entry and comp not in top:
+            continue
+        times = trips.get(comp, 1)
+        for name, _, op, rest in body:
+            if op in _SKIP:
+                continue
+            operands = re.findall(r"%([\w.\-]+)", rest.split(")", 1)[0])
+            read = sum(size.get(o, 0) for o in operands)
+            fused = re.search(r"calls=%?([\w.\-]+)", rest)
+            partial = op in _PARTIAL_READS or (op == "fusion" and fused and comps.get(fused.group(1), (0, 0, 0))[2])
+            used = size[name] + (min(read, size[name]) if partial else read)
+            totals["whole_operands"] += times * (size[name] + read)
+            totals["used"] += times * used
+            by_label[label(inst.get(name, []), ops.get(name, ""), name)] += times * used
+    return dict(by_label.most_common()), totals
