@@ -129,35 +129,44 @@ def _computations(text: str) -> dict:
     return comps
 
 
+def _run_counts(comps: dict) -> dict:
+    """How often each computation that runs as a whole (not a fusion body) runs per call: ENTRY once, a while body
+    and condition times the loop's known trip count (times its caller's count), both branches of a conditional
+    and any called computation as often as their caller."""
+    calls = collections.defaultdict(list)  # caller -> [(callee, times per caller run)]
+    for caller, (_, body, _) in comps.items():
+        for _, _, op, rest in body:
+            known = re.search(r'known_trip_count=\{"n":"(\d+)"\}', rest)
+            trips = int(known.group(1)) if op == "while" and known else 1
+            names = re.findall(r"(?:body|condition|to_apply|true_computation|false_computation)=%?([\w.\-]+)", rest)
+            for group in re.findall(r"branch_computations=\{([^}]*)\}", rest):
+                names += [n.strip().lstrip("%") for n in group.split(",")]
+            calls[caller] += [(callee, trips) for callee in names]
+    counts = {name: 1 for name, (entry, _, _) in comps.items() if entry}
+    todo = list(counts)
+    while todo:
+        caller = todo.pop()
+        for callee, trips in calls[caller]:
+            if callee not in counts:
+                counts[callee] = counts[caller] * trips
+                todo.append(callee)
+    return counts
+
+
 def traffic_breakdown(hlo_text: str, label) -> tuple[dict, dict]:
-    """Bytes each top-level instruction of a compiled CPU program reads and writes per call (while-loop bodies times
-    their known trip count), attributed like ``trace_breakdown``. Returns ({label: bytes}, totals) where totals has
-    ``whole_operands`` (every operand counted whole, as XLA's cost analysis does) and ``used`` (slices and gathers
-    counted at their output's size: what they really read)."""
+    """Bytes each instruction of a compiled CPU program that is not inside a fusion reads and writes per call (see
+    ``_run_counts`` for loops and branches), attributed like ``trace_breakdown``. Returns ({label: bytes}, totals)
+    where totals has ``whole_operands`` (every operand counted whole, as XLA's cost analysis does) and ``used``
+    (slices and gathers counted at their output's size: what they really read)."""
     inst, ops = _parse_hlo_stacks(hlo_text)
     comps = _computations(hlo_text)
     size = {name: _shape_bytes(typ) for _, body, _ in comps.values() for name, typ, _, _ in body}
-    top, trips = set(), {}
-    for _, body, _ in comps.values():
-        for _, _, op, rest in body:
-            if op == "while":
-                loop = re.search(r"body=%?([\w.\-]+)", rest).group(1)
-                known = re.search(r'known_trip_count=\{"n":"(\d+)"\}', rest)
-                trips[loop] = int(known.group(1)) if known else 1
-            for called in re.findall(r"(?:body|condition|to_apply|true_computation|false_computation)=%?([\w.\-]+)",
-                                     rest) + sum((b.replace("%", "").replace(" ", "").split(",") for b in
-                                                  re.findall(r"branch_computations=\{([^}]*)\}", rest)), []):
-                top.add(called)
     by_label, totals = collections.Counter(), {"whole_operands": 0, "used": 0}
-    for comp, (entry, body, _) in comps.items():
-        if not entry and comp not in top:
-            continue
-        times = trips.get(comp, 1)
-        for name, _, op, rest in body:
+    for comp, times in _run_counts(comps).items():
+        for name, _, op, rest in comps.get(comp, (0, [], 0))[1]:
             if op in _SKIP:
                 continue
-            operands = re.findall(r"%([\w.\-]+)", rest.split(")", 1)[0])
-            read = sum(size.get(o, 0) for o in operands)
+            read = sum(size.get(o, 0) for o in re.findall(r"%([\w.\-]+)", rest.split(")", 1)[0]))
             fused = re.search(r"calls=%?([\w.\-]+)", rest)
             partial = op in _PARTIAL_READS or (op == "fusion" and fused and comps.get(fused.group(1), (0, 0, 0))[2])
             used = size[name] + (min(read, size[name]) if partial else read)
