@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import statistics
 import time
 
 import jax
@@ -31,20 +30,9 @@ import jax.numpy as jnp
 
 from ramavt_jax import train as T
 
-from bench_train import _filled_replay, machine_info, merge_json  # noqa: E402 (the script's directory)
+from bench_train import _filled_replay, _median_time, machine_info, merge_json  # noqa: E402 (the script's directory)
 from hlo_profile import traffic_breakdown  # noqa: E402
 from profile_learner import _label  # noqa: E402
-
-
-def _time(fn, *args, repeats: int) -> float:
-    """Median seconds of ``repeats`` calls of the compiled ``fn`` after one warm-up."""
-    jax.block_until_ready(fn(*args))
-    times = []
-    for _ in range(repeats):
-        t = time.perf_counter()
-        jax.block_until_ready(fn(*args))
-        times.append(time.perf_counter() - t)
-    return statistics.median(times)
 
 
 def _cost(compiled) -> tuple[float, float]:
@@ -59,12 +47,13 @@ def machine_limits(repeats: int) -> dict:
     key = jax.random.PRNGKey(0)
     big = jax.random.normal(key, (2048, 2048))
     matmul = jax.jit(jnp.matmul)
-    gemm = 2 * 2048 ** 3 / _time(matmul, big, big, repeats=repeats) / 1e9
+    gemm = 2 * 2048 ** 3 / _median_time(lambda: matmul(big, big), repeats) / 1e9
     # the second conv under the gradient: 672 frames x 8 x 8 positions, 3 x 3 x 16 patch -> 32 channels
     patches, kernel = jax.random.normal(key, (672 * 64, 144)), jax.random.normal(key, (144, 32))
-    small = 2 * patches.shape[0] * 144 * 32 / _time(matmul, patches, kernel, repeats=repeats) / 1e9
+    small = 2 * patches.shape[0] * 144 * 32 / _median_time(lambda: matmul(patches, kernel), repeats) / 1e9
     x = jnp.zeros((64 * 2 ** 20,), jnp.float32)  # 256 MiB
-    copy = 2 * x.nbytes / _time(jax.jit(lambda a: a + 1.0), x, repeats=repeats) / 1e9
+    add_one = jax.jit(lambda a: a + 1.0)
+    copy = 2 * x.nbytes / _median_time(lambda: add_one(x), repeats) / 1e9
     return {"gemm_gflops": gemm, "small_gemm_gflops": small, "copy_gbs": copy}
 
 
@@ -78,7 +67,7 @@ def roofline(preset: str, repeats: int, batch_size: int | None = None) -> dict:
     update = jax.jit(tr.update).lower(learner, replay_state, key).compile()
     flops, traffic = _cost(update)
     by_line, totals = traffic_breakdown(update.as_text(), _label)
-    seconds = _time(update, learner, replay_state, key, repeats=repeats)
+    seconds = _median_time(lambda: update(learner, replay_state, key), repeats)
     limits = machine_limits(repeats)
     trained = cfg.replay.batch_size * cfg.replay.train_len
     bound = max(flops / (limits["gemm_gflops"] * 1e9), traffic / (limits["copy_gbs"] * 1e9))

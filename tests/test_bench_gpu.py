@@ -27,7 +27,7 @@ def test_a_failing_item_is_recorded_and_late_items_are_skipped(tmp_path, monkeyp
         if item[0] == "env":
             return {"env_steps_per_s": 1e6 * item[3] / 65536, "compile_s": 3.0}
         return {"num_envs": 64, "resolution": 32, "batch_size": 32, "env_steps_per_s": 9000.0,
-                "updates_per_s": 30.0, "trained_frames_per_s": 19200.0, "chunk_s": [3.5, 3.6],
+                "updates_per_s": 30.0, "trained_frames_per_s": 19200.0, "chunk_s": [3.5, 3.6], "compile_s": 40.0,
                 "projected_train_wall_s": 60.0}
 
     monkeypatch.setattr(bench_gpu, "_measure", fake_measure)
@@ -40,7 +40,8 @@ def test_a_failing_item_is_recorded_and_late_items_are_skipped(tmp_path, monkeyp
     assert "env_steps_per_s" in rows[4]  # the quick preset still ran (150 s left)
     text = bench_gpu.report(result)
     assert "| depth | 64 | 4096 | 62,500 | 3.0 |" in text
-    assert "RESOURCE_EXHAUSTED" in text and "| quick | 64 | 32 | 32 | 9,000 | 30.00 | 19,200 | 3.5, 3.6 | 1.0 min |" in text
+    assert "RESOURCE_EXHAUSTED" in text
+    assert "| quick | 64 | 32 | 32 | 9,000 | 30.00 | 19,200 | 3.5, 3.6 | 40 | 1.0 min |" in text
     assert text.count("left before the deadline") == len(rows) - 5
 
 
@@ -49,5 +50,6 @@ def test_the_check_runs_end_to_end_at_toy_sizes(tmp_path):
     result = bench_gpu.run(str(tmp_path), smoke=True, budget_s=0.2)
     env, chunk = result["items"]
     assert env["env_steps_per_s"] > 0 and chunk["updates_per_s"] > 0 and chunk["trained_frames_per_s"] > 0
-    assert chunk["projected_train_wall_s"] > 0 and len(chunk["chunk_s"]) == 2
+    assert chunk["compile_s"] > 0 and len(chunk["chunk_s"]) == 2
+    assert chunk["projected_train_wall_s"] > chunk["compile_s"] + sum(chunk["chunk_s"])  # the whole run > 2 chunks
     assert result["device"]["backend"] == "cpu" and "cpu" in bench_gpu.report(result)
