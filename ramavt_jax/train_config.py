@@ -3,7 +3,7 @@ beside the env's and the network's own), composed into `TrainConfig`, and the na
 
 Each group checks its own values when it is built; `TrainConfig` checks once, at construction, how the groups fit
 together (window vs replay rows, whole gradient steps per iteration, ...). ``TrainConfig.to_dict`` is the
-config.json form and ``TrainConfig.from_dict`` reads it back, including the flat form written before the groups.
+config.json form and ``TrainConfig.from_dict`` reads it back.
 """
 
 from __future__ import annotations
@@ -21,8 +21,7 @@ from ramavt_jax.network import NetworkConfig
 from ramavt_jax.render import CameraConfig
 from ramavt_jax.replay import ReplayConfig
 
-__all__ = ["ActingConfig", "ReplayConfig", "LearnerConfig", "RunConfig", "TrainConfig", "FLAT_NAMES",
-           "upgrade_dict", "PRESETS", "preset"]
+__all__ = ["ActingConfig", "ReplayConfig", "LearnerConfig", "RunConfig", "TrainConfig", "PRESETS", "preset"]
 
 
 def _check_ints(owner: str, config, lows: dict[str, int]) -> None:
@@ -140,32 +139,9 @@ class RunConfig:
 
 
 _GROUPS = {"acting": ActingConfig, "replay": ReplayConfig, "learner": LearnerConfig, "run": RunConfig}
-# {name: (group, field)}: every group field by its own name (the names are unique across the groups), plus the two
-# fields the flat TrainConfig (before the groups) named differently. Routes TrainConfig.override's keywords, the
-# fields of an old config.json and the flat command-line flags of earlier versions.
-FLAT_NAMES = {f.name: (g, f.name) for g, cls in _GROUPS.items() for f in dataclasses.fields(cls)}
-FLAT_NAMES.update(replay_capacity=("replay", "capacity_steps"), sample_period=("replay", "period"))
-_DROPPED = ("debug_nan_at_update",)  # flat fields that are no longer configuration (a test hook of the trainer)
-
-
-def upgrade_dict(data: dict) -> dict:
-    """A config dict (``TrainConfig.to_dict()`` form) with any flat fields of the format before the groups moved
-    into their groups; a dict already in the current form comes back equal. Fields it lacks stay absent."""
-    out: dict = {}
-    for key, value in data.items():
-        if key in _DROPPED:
-            continue
-        if key in FLAT_NAMES:
-            group, name = FLAT_NAMES[key]
-            out.setdefault(group, {})[name] = value
-        elif key in _GROUPS and isinstance(value, dict):
-            out.setdefault(key, {}).update(value)
-        else:
-            out[key] = value
-    learner = out.get("learner", {})
-    if learner.get("augment_config", {}) is None:  # the flat format's "no config" meant the default (cutout only)
-        del learner["augment_config"]
-    return out
+# {name: (group, field)}: every group field by its own name (the names are unique across the groups), so that
+# TrainConfig.override(lr=1e-3) needs no group prefix.
+_FIELD_GROUPS = {f.name: (g, f.name) for g, cls in _GROUPS.items() for f in dataclasses.fields(cls)}
 
 
 def _build(cls, data: dict):
@@ -294,14 +270,14 @@ class TrainConfig:
     # ---- changing and serialising
     def override(self, **fields: Any) -> "TrainConfig":
         """A copy with fields replaced: this class's own (``env=``, ``learner=``, ...) and any group's field by its
-        own name (``lr=1e-3`` is ``learner.lr``; see FLAT_NAMES). Validated once, as a whole."""
+        own name (``lr=1e-3`` is ``learner.lr``; see _FIELD_GROUPS). Validated once, as a whole."""
         top = {k: v for k, v in fields.items() if k in _TOP_FIELDS}
         groups: dict[str, dict] = {}
         for key, value in fields.items():
             if key not in _TOP_FIELDS:
-                if key not in FLAT_NAMES:
+                if key not in _FIELD_GROUPS:
                     _fail(f"unknown field {key!r}: fields are {sorted(_TOP_FIELDS)} or a group's field by name")
-                group, name = FLAT_NAMES[key]
+                group, name = _FIELD_GROUPS[key]
                 groups.setdefault(group, {})[name] = value
         for group, changes in groups.items():
             top[group] = dataclasses.replace(top.get(group, getattr(self, group)), **changes)
@@ -321,9 +297,9 @@ class TrainConfig:
 
     @classmethod
     def from_dict(cls, data: dict) -> "TrainConfig":
-        """The config of a ``to_dict()`` dict (config.json's "config"), current or flat (older) form: lists become
-        tuples, fields it lacks take their defaults, unknown keys are ignored."""
-        return _build(cls, upgrade_dict(data))
+        """The config of a ``to_dict()`` dict (config.json's "config"): lists become tuples, fields it lacks take
+        their defaults, unknown keys are ignored."""
+        return _build(cls, data)
 
 
 _TOP_FIELDS = {f.name for f in dataclasses.fields(TrainConfig)}

@@ -8,9 +8,6 @@ import json
 import sys
 from pathlib import Path
 
-from ramavt_jax.train_config import upgrade_dict
-
-
 def main(root: str = "runs/repro") -> None:
     root = Path(root)
     walls = {}
@@ -24,7 +21,7 @@ def main(root: str = "runs/repro") -> None:
     print("|---|---|---|---|---|---|---|---|---|")
     for ev in sorted(root.glob("**/eval.json")):
         run = ev.parent
-        cfg = upgrade_dict(json.loads((run / "config.json").read_text())["config"])  # old folders: flat
+        cfg = json.loads((run / "config.json").read_text())["config"]
         e = json.loads(ev.read_text())
         name = str(run.relative_to(root))
         wall = walls.get(name.split("/")[0], "")

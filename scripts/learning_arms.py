@@ -75,7 +75,7 @@ ARMS["mha"] = lambda c: _net(ARMS["all"](c), variant="mha")
 # The longer CPU budget: 'all' with 3x the env steps, slower exploration decay, a bigger replay (the `long` preset
 # until the fifth session; 'long-aux' below is the preset now, `ramavt train --preset long` without its
 # end-of-training evaluation; arm_config checks it).
-_LONGER = dict(total_env_steps=1_152_000, eps_decay_steps=400_000, replay_capacity=128_000, checkpoint_every_chunks=6)
+_LONGER = dict(total_env_steps=1_152_000, eps_decay_steps=400_000, capacity_steps=128_000, checkpoint_every_chunks=6)
 ARMS["long"] = lambda c: ARMS["all"](c).override(**_LONGER)
 # The same budget with the previous-action input ('prev', the quick preset's network).
 ARMS["long-prev"] = lambda c: ARMS["prev"](c).override(**_LONGER)

@@ -13,16 +13,16 @@ train() {  # name, then ramavt-train flags
   echo "$name $(( $(date +%s) - t0 )) s" | tee -a "$OUT/wall_times.txt"
 }
 # Table I: both agents, three input modes (augmentation on, as in the paper's full agents)
-train ramavt_depth --network ramavt --obs depth --augment True
+train ramavt_depth --network.variant ramavt --env.obs-mode depth --learner.augment
 # the target run: RAMAVT depth, 3x the quick budget, quick-preset recipe (no augmentation)
-train ramavt_depth_long --network ramavt --obs depth --augment False --total-env-steps 1152000
-train drlavt_depth --network drlavt --obs depth --augment True
-train ramavt_rgbd  --network ramavt --obs rgbd  --augment True
-train ramavt_color --network ramavt --obs color --augment True
-train drlavt_rgbd  --network drlavt --obs rgbd  --augment True
-train drlavt_color --network drlavt --obs color --augment True
+train ramavt_depth_long --network.variant ramavt --env.obs-mode depth --learner.no-augment --run.total-env-steps 1152000
+train drlavt_depth --network.variant drlavt --env.obs-mode depth --learner.augment
+train ramavt_rgbd  --network.variant ramavt --env.obs-mode rgbd  --learner.augment
+train ramavt_color --network.variant ramavt --env.obs-mode color --learner.augment
+train drlavt_rgbd  --network.variant drlavt --env.obs-mode rgbd  --learner.augment
+train drlavt_color --network.variant drlavt --env.obs-mode color --learner.augment
 # Table III: cumulative ablation on depth (RAMAVT + augment is ramavt_depth above)
-train origin       --network origin --obs depth --augment False
-train origin_aug   --network origin --obs depth --augment True
-train se_aug       --network se     --obs depth --augment True
-train mha_aug      --network mha    --obs depth --augment True
+train origin       --network.variant origin --env.obs-mode depth --learner.no-augment
+train origin_aug   --network.variant origin --env.obs-mode depth --learner.augment
+train se_aug       --network.variant se     --env.obs-mode depth --learner.augment
+train mha_aug      --network.variant mha    --env.obs-mode depth --learner.augment

@@ -4,6 +4,6 @@
 set -euo pipefail
 OUT=${1:-runs/repro}
 t0=$(date +%s)
-ramavt train --preset quick --network ramavt --obs depth --augment True --seeds 2 --seed 1 \
+ramavt train --preset quick --network.variant ramavt --env.obs-mode depth --learner.augment --seeds 2 --seed 1 \
   --out "$OUT/ramavt_depth_seeds" --no-progress > "$OUT/ramavt_depth_seeds.log" 2>&1
 echo "ramavt_depth_seeds (2 seeds, one program) $(( $(date +%s) - t0 )) s" | tee -a "$OUT/wall_times.txt"

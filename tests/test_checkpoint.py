@@ -11,7 +11,7 @@ import pytest
 from flax import struct
 
 from ramavt_jax import train as T
-from ramavt_jax.cli.train import train_and_evaluate
+from ramavt_jax.experiment import train_and_evaluate
 from ramavt_jax.training import driver, run_folder
 from ramavt_jax.training.checkpoint import CheckpointNotFoundError, CheckpointStore, has_checkpoint
 
@@ -152,36 +152,6 @@ def test_other_config_is_refused_before_writing_and_a_run_can_be_extended(tmp_pa
     assert [r["chunk"] for r in rows] == list(range(1, 2 * SMOKE.num_chunks + 1))
     ref = _rows(Path(full_run["out_dir"]) / "metrics.jsonl")
     assert json.dumps(rows[:SMOKE.num_chunks]) == json.dumps(ref)  # the first half is the reference run
-
-
-def _flat(config_dict: dict) -> dict:
-    """A config dict in the flat form written before the config groups (the shipped agent's config.json)."""
-    flat = {k: v for k, v in config_dict.items() if k not in ("acting", "replay", "learner", "run")}
-    for group in ("acting", "replay", "learner", "run"):
-        flat.update(config_dict[group])
-    flat["replay_capacity"], flat["sample_period"] = flat.pop("capacity_steps"), flat.pop("period")
-    del flat["state_dtype"], flat["min_fill_steps"]
-    return dict(flat, augment_config=None, debug_nan_at_update=-1)
-
-
-def test_a_run_folder_written_before_the_config_groups_resumes(tmp_path, full_run):
-    """Its config.json and checkpoint metadata hold the flat config: the resume compares them in the new form."""
-    out = tmp_path / "run"
-    driver.run(SMOKE, out, seed=3, progress=False, max_chunks=2)
-    saved = json.loads((out / "config.json").read_text())
-    (out / "config.json").write_text(json.dumps(dict(saved, config=_flat(saved["config"]))))
-    metas = [p for p in (out / "checkpoints").rglob("*") if p.is_file() and b'"_num_leaves"' in p.read_bytes()]
-    assert metas
-    for p in metas:
-        meta = json.loads(p.read_text())
-        p.write_text(json.dumps(dict(meta, config=_flat(meta["config"]))))
-    rest = driver.run(SMOKE, out, seed=3, progress=False)
-    assert rest["chunks_done"] == SMOKE.num_chunks
-    ref = _rows(Path(full_run["out_dir"]) / "metrics.jsonl")
-    assert json.dumps(_rows(out / "metrics.jsonl")) == json.dumps(ref)  # bit-exact continuation
-    (out / "config.json").write_text(json.dumps(dict(saved, config=_flat(saved["config"]))))
-    with pytest.raises(run_folder.RunFolderError, match=r"learner.lr 0.0005 -> 0.001"):  # still compared
-        driver.run(SMOKE.override(lr=1e-3), out, seed=3, progress=False)
 
 
 def test_damaged_newest_checkpoint_falls_back_to_the_older_one(tmp_path, full_run, capsys):

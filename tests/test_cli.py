@@ -92,8 +92,8 @@ BAD_INPUTS = {  # id: (arguments, {tmp} filled in, what the one-line message mus
     "render out is a folder": (["render", "--steps", "2", "--out", "{tmp}/a_folder"], "must end in .gif or .mp4"),
     "render out under a file": (["render", "--steps", "2", "--out", "{tmp}/a_file/x.gif"], "is a file"),
     "total steps negative": (TRAIN + ["--run.total-env-steps", "-320"], "total_env_steps must be >= 1"),
-    "total steps not a multiple": (TRAIN + ["--total-env-steps", "1000"], "must be a multiple"),
-    "bad learning rate": (TRAIN + ["--lr", "-1"], "lr and adam_eps must be > 0"),
+    "total steps not a multiple": (TRAIN + ["--run.total-env-steps", "1000"], "must be a multiple"),
+    "bad learning rate": (TRAIN + ["--learner.lr", "-1"], "lr and adam_eps must be > 0"),
     "seeds zero": (TRAIN + ["--seeds", "0"], "--seeds must be an integer >= 1"),
     "more devices than visible": (TRAIN + ["--devices", "3", "--out", "{tmp}/three"], "device(s) are visible"),
     "train out is a file": (TRAIN + ["--out", "{tmp}/a_file"], "is a file, not a folder"),
@@ -136,7 +136,7 @@ def test_read_only_out_is_one_line(tmp_path, capsys):
 
 # ============================================================================================ train flags
 def test_every_training_field_is_a_flag_and_preset_picks_the_defaults(monkeypatch):
-    """Grouped flags, the short forms of earlier versions (--network, --obs, a field's own name), --preset."""
+    """Grouped flags set every config group's fields, and --preset picks the defaults they change."""
     from ramavt_jax.cli import train as cli_train
     from ramavt_jax.train_config import preset
 
@@ -149,9 +149,10 @@ def test_every_training_field_is_a_flag_and_preset_picks_the_defaults(monkeypatc
     monkeypatch.setattr(cli_train, "train_and_evaluate", fake)
     with pytest.raises(SystemExit):
         cli.main(["train", "--preset", "smoke", "--learner.lr", "3e-4", "--network.lstm", "48",
-                  "--env.camera.resolution", "24", "--gamma", "0.9", "--network", "drlavt", "--obs", "rgbd",
-                  "--augment", "True", "--learner.augment-config.crop", "--no-double-q", "--run.total-env-steps",
-                  "2560", "--env-params", "dist_weight=0.5", "lost_patience=10", "--replay-capacity=1600",
+                  "--env.camera.resolution", "24", "--learner.gamma", "0.9", "--network.variant", "drlavt",
+                  "--env.obs-mode", "rgbd", "--learner.augment", "--learner.augment-config.crop",
+                  "--learner.no-double-q", "--run.total-env-steps", "2560", "--env-params", "dist_weight=0.5",
+                  "lost_patience=10", "--replay.capacity-steps=1600",
                   "--out", "somewhere"])
     cfg = seen["config"]
     smoke = preset("smoke")
@@ -201,7 +202,7 @@ def test_sigterm_to_ramavt_train_exits_143_and_the_rerun_resumes(tmp_path):
 
     out = tmp_path / "run"
     cmd = [sys.executable, "-m", "ramavt_jax.cli", "train", "--preset", "smoke", "--out", str(out), "--no-progress",
-           "--eval-episodes", "0", "--checkpoint-every-chunks", "0"]
+           "--run.eval-episodes", "0", "--run.checkpoint-every-chunks", "0"]
     env = {**__import__("os").environ, "RAMAVT_COMPILE_CACHE": str(tmp_path / "cache")}
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
     metrics = out / "metrics.jsonl"
@@ -268,7 +269,7 @@ def test_final_evaluation_acts_with_the_configured_params(tmp_path, monkeypatch,
 
     import numpy as np
 
-    from ramavt_jax.cli import train as cli_train
+    from ramavt_jax import experiment
     from ramavt_jax.train import LearnerState
     from ramavt_jax.train_config import preset
     from ramavt_jax.training import driver
@@ -281,7 +282,7 @@ def test_final_evaluation_acts_with_the_configured_params(tmp_path, monkeypatch,
         return summary
 
     seen = {}
-    monkeypatch.setattr(cli_train.driver, "run", fake_run)
-    monkeypatch.setattr(cli_train, "evaluate_run", lambda config, d, seed, params, log: seen.update(params=params))
-    cli_train.train_and_evaluate(preset("smoke", policy_params=which), tmp_path, seed=0, progress=False)
+    monkeypatch.setattr(experiment.driver, "run", fake_run)
+    monkeypatch.setattr(experiment, "evaluate_run", lambda config, d, seed, params, log: seen.update(params=params))
+    experiment.train_and_evaluate(preset("smoke", policy_params=which), tmp_path, seed=0, progress=False)
     np.testing.assert_array_equal(seen["params"]["w"], np.full(2, 7.0 if which == "target" else 1.0))

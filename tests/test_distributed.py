@@ -147,7 +147,7 @@ def test_two_process_run_on_loopback_matches_a_single_process_run(tmp_path):
         pytest.skip("cannot open a loopback port here")
     out = tmp_path / "multihost"
     cmd = [sys.executable, "-m", "ramavt_jax.cli", "train", "--preset", "smoke", "--out", str(out), "--no-progress",
-           "--eval-episodes", "0", "--coordinator-address", f"127.0.0.1:{port}", "--num-processes", "2"]
+           "--run.eval-episodes", "0", "--coordinator-address", f"127.0.0.1:{port}", "--num-processes", "2"]
     procs = [subprocess.Popen(cmd + ["--process-id", str(i)], env=_env(2), stdout=subprocess.PIPE,
                               stderr=subprocess.STDOUT, text=True) for i in range(2)]
     logs = []

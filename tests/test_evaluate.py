@@ -202,7 +202,7 @@ def test_load_policy_reads_the_parameter_set_the_config_or_the_caller_names(tmp_
 @pytest.mark.slow
 def test_load_policy_of_a_real_training_run(tmp_path):
     from ramavt_jax import train
-    from ramavt_jax.cli.train import train_and_evaluate
+    from ramavt_jax.experiment import train_and_evaluate
 
     cfg = train.preset("smoke", eval_episodes=0)
     summary = train_and_evaluate(cfg, tmp_path / "smoke_s0", seed=0, progress=False)
@@ -245,25 +245,10 @@ def test_config_json_round_trips_to_the_same_train_config(name):
     assert set(json.loads(text)["config"]) == {"env", "env_params", "network", "acting", "replay", "learner", "run"}
 
 
-def test_a_flat_config_json_of_earlier_versions_loads_into_the_groups():
-    """The config.json of a run folder written before the config groups (the shipped agent's, too) loads."""
-    from ramavt_jax.augment import AugmentConfig
+def test_the_shipped_config_json_loads_as_the_long_preset():
+    """The shipped agent's config.json reads back into the config it was trained with."""
     from ramavt_jax.train_config import TrainConfig, preset
 
-    flat = {"env": {"camera": {"resolution": 32}, "autoreset": "next_step"}, "env_params": [["dist_weight", 0.5]],
-            "network": {"variant": "origin", "channels": [8, 8], "kernels": [3, 3], "strides": [1, 1],
-                        "pools": [True, True], "dense": 32, "lstm": 32, "lstm_layers": 1, "head": 32},
-            "num_envs": 8, "rollout_steps": 10, "iterations_per_chunk": 4, "total_env_steps": 1280,
-            "eps_decay_steps": 1280, "replay_capacity": 800, "burn_in": 3, "train_len": 5, "sample_period": 2,
-            "batch_size": 4, "learning_starts": 160, "replay_ratio": 0.5, "n_step": 2, "lr": 3e-4, "augment": True,
-            "augment_config": None, "eval_episodes": 0, "debug_nan_at_update": -1, "a_field_from_the_future": 1}
-    cfg = TrainConfig.from_dict(flat)
-    expected = preset("smoke", sample_period=2, lr=3e-4, augment=True, eval_episodes=0,
-                      env_params=(("dist_weight", 0.5),))
-    assert cfg == expected.override(env=dataclasses.replace(expected.env, camera=dataclasses.replace(
-        expected.env.camera, resolution=32)), eval_max_steps=1000, checkpoint_every_chunks=10)
-    assert cfg.replay.capacity_steps == 800 and cfg.replay.period == 2 and cfg.learner.lr == 3e-4
-    assert cfg.learner.augment_config == AugmentConfig(crop=False, flip=False, rot90=False)  # None meant cutout only
     shipped = json.loads((Path(pretrained.AGENTS_DIR) / pretrained.DEFAULT_AGENT / "config.json").read_text())
     long = preset("long", eval_episodes=0)  # it was trained with the im2col conv, the default before the hybrid one
     assert TrainConfig.from_dict(shipped["config"]) == long.override(

@@ -57,7 +57,7 @@ def test_presets():
     [
         (dict(total_env_steps=1000), "multiple of the env steps per chunk"),
         (dict(capacity_steps=801), "divisible by acting.num_envs"),
-        (dict(replay_capacity=64), "steps per env"),  # the flat (older) name of replay.capacity_steps
+        (dict(capacity_steps=64), "steps per env"),
         (dict(eps_start=1.5), r"eps_start must be in \[0, 1\]"),
         (dict(gamma=-0.1), "gamma"),
         (dict(lr=0.0), "lr and adam_eps must be > 0"),
@@ -111,8 +111,8 @@ def test_lr_final_decays_the_learning_rate_over_the_runs_gradient_steps():
     assert 1e-5 < float(schedule(cfg.total_updates // 2)) < cfg.learner.lr
 
 
-def test_override_routes_flat_names_to_their_groups():
-    cfg = SMOKE.override(lr=1e-3, sample_period=2, eval_episodes=0, learner=LearnerConfig(learning_starts=0))
+def test_override_routes_field_names_to_their_groups():
+    cfg = SMOKE.override(lr=1e-3, period=2, eval_episodes=0, learner=LearnerConfig(learning_starts=0))
     assert (cfg.learner.lr, cfg.learner.learning_starts, cfg.replay.period, cfg.run.eval_episodes) == (1e-3, 0, 2, 0)
     assert cfg.acting == SMOKE.acting and cfg.network == SMOKE.network
     assert not any(hasattr(cfg, name) for name in ("lr", "debug_nan_at_update"))  # no flat fields, no test hooks
@@ -367,7 +367,7 @@ EASY = SMOKE.override(
     network=NetworkConfig(variant="origin", channels=(8, 16), kernels=(3, 3), strides=(1, 1), pools=(True, True),
                           dense=64, lstm=64, lstm_layers=1, head=64),
     num_envs=16, rollout_steps=16, iterations_per_chunk=10, total_env_steps=40_960, eps_start=1.0, eps_end=0.05,
-    eps_decay_steps=16_000, replay_capacity=8192, burn_in=2, train_len=8, batch_size=16, learning_starts=1024,
+    eps_decay_steps=16_000, capacity_steps=8192, burn_in=2, train_len=8, batch_size=16, learning_starts=1024,
     replay_ratio=4.0, lr=1e-3, gamma=0.9, n_step=3, reward_scale=0.1, polyak_tau=0.05,
 )
 

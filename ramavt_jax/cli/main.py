@@ -67,8 +67,6 @@ def _one_line(e: BaseException) -> str:
 def _dispatch(argv: list[str]) -> None:
     if argv[:1] == ["bench"]:
         return commands.bench_main(argv[1:])
-    if argv[:1] == ["train"]:
-        argv = ["train", *train.rewrite_args(argv[1:])]
     cmds = {
         "targets": commands.targets_cmd,
         "render": commands.render_cmd,

@@ -1,8 +1,7 @@
 """`ramavt train`: every TrainConfig field is a flag (tyro), named by its group (``--learner.lr``,
 ``--network.lstm``, ``--env.camera.resolution``); ``--preset`` picks the defaults the flags change.
 
-``train_and_evaluate`` is the whole command as a function: the driver trains, then the run folder gets its
-training curves (figures layer) and, when the run is complete, the final evaluation (evaluation layer).
+The command parses its flags and calls ``ramavt_jax.experiment.train_and_evaluate`` (train, plot, evaluate).
 """
 
 from __future__ import annotations
@@ -11,7 +10,7 @@ import ast
 import dataclasses
 import json
 from pathlib import Path
-from typing import Callable, Literal
+from typing import Literal
 
 import tyro
 from tyro import constructors
@@ -19,14 +18,10 @@ from typing_extensions import Annotated
 
 from ramavt_jax import distributed
 from ramavt_jax.cli.checks import positive
-from ramavt_jax.evaluation.final import evaluate_run
-from ramavt_jax.figures.training import plot_run
-from ramavt_jax.train_config import FLAT_NAMES, PRESETS, TrainConfig, preset
+from ramavt_jax.experiment import train_and_evaluate
+from ramavt_jax.train_config import PRESETS, TrainConfig, preset
 from ramavt_jax.training import driver
 
-# short flags kept from earlier versions (scripts use them): --network VARIANT, --obs MODE; the flat names of the
-# group fields (--lr, --total-env-steps, --eval-episodes, ...) are kept too (FLAT_NAMES, see rewrite_args)
-ALIASES = {"--network": "--network.variant", "--obs": "--env.obs-mode"}
 DEFAULT_PRESET = "quick"
 PresetName = Literal[tuple(PRESETS)]  # the choices of --preset: train_config.PRESETS
 # How tyro parses the one untyped-tuple field, TrainConfig.env_params (--env-params dist_weight=0.5
@@ -89,26 +84,6 @@ def _checked_configs_rule(info: constructors.StructTypeInfo) -> constructors.Str
     return dataclasses.replace(spec, instantiate=instantiate)
 
 
-def train_and_evaluate(config: TrainConfig, out: Path, seed: int = 0, seeds: int = 1, resume=True,
-                       progress: bool = True, devices: int = 0, log: Callable[[str], None] = print,
-                       **run_kwargs) -> driver.RunSummary:
-    """Train into ``out`` (see ``driver.run``), then write each seed folder's ``training_curves.png`` and, when the
-    run reached ``total_env_steps`` and ``config.run.eval_episodes > 0``, its ``eval.json``. Returns the summary."""
-    summary = driver.run(config, out, seed=seed, resume=resume, progress=progress, num_seeds=seeds,
-                         num_devices=devices or None, **run_kwargs)
-    if not distributed.is_primary():
-        return summary
-    per_seed = summary.get("seeds", [summary])
-    for k, one in enumerate(per_seed):
-        if one["last"] is not None:
-            plot_run(one["out_dir"], title=f"{config.network.variant} seed {one['seed']}")
-        if summary["finished"] and config.run.eval_episodes > 0:
-            params = driver.seed_params(summary.state, k, len(per_seed), config.run.policy_params)
-            one["eval"] = evaluate_run(config, one["out_dir"], one["seed"], params,
-                                       log if progress else (lambda msg: None))
-    return summary
-
-
 def _print_summary(summary: driver.RunSummary, seeds: int) -> None:
     for one in summary.get("seeds", [summary]):
         print(json.dumps({"run": one["out_dir"], **{k: v for k, v in one.items() if not isinstance(v, dict)}},
@@ -143,8 +118,6 @@ def make_train_cmd(preset_name: str):
         Writes metrics.jsonl, checkpoints/ (re-running the same command resumes; a larger --run.total-env-steps
         extends the run), training_curves.png, eval.json. Every training field is a flag, grouped as below
         (--env.*, --network.*, --acting.*, --replay.*, --learner.*, --run.*); --preset picks their defaults.
-        Short forms: --network VARIANT (= --network.variant), --obs MODE (= --env.obs-mode), and a group field's
-        own name (--lr = --learner.lr, --total-env-steps = --run.total-env-steps, --no-double-q, ...).
         SIGINT / SIGTERM save the chunk in flight and exit with 130 / 143.
 
         Args:
@@ -183,40 +156,3 @@ def preset_in(argv: list[str]) -> str:
         if arg.startswith("--preset="):
             return arg.split("=", 1)[1]
     return DEFAULT_PRESET
-
-
-def full_flag(flag: str) -> str:
-    """The grouped name of a short flag: ALIASES, or a group field's own name (FLAT_NAMES): ``--lr`` ->
-    ``--learner.lr``, ``--no-double-q`` -> ``--learner.no-double-q``; any other flag unchanged."""
-    if flag in ALIASES:
-        return ALIASES[flag]
-    negated = flag.startswith("--no-")
-    name = flag[len("--no-" if negated else "--"):].replace("-", "_")
-    if not flag.startswith("--") or name not in FLAT_NAMES:
-        return flag
-    group, field = FLAT_NAMES[name]
-    return f"--{group}.{'no-' if negated else ''}{field.replace('_', '-')}"
-
-
-def _negated(flag: str) -> str:
-    """``--learner.augment`` -> ``--learner.no-augment`` (tyro's name for False), ``--resume`` -> ``--no-resume``."""
-    head, dot, last = flag[2:].rpartition(".")
-    return f"--{head}{dot}no-{last}"
-
-
-def rewrite_args(argv: list[str]) -> list[str]:
-    """Short flags to their full names (:func:`full_flag`) and ``--flag True|False`` to ``--flag`` / its
-    negation."""
-    out: list[str] = []
-    i = 0
-    while i < len(argv):
-        arg, nxt = argv[i], argv[i + 1] if i + 1 < len(argv) else None
-        name, eq, value = arg.partition("=")
-        name = full_flag(name) if name.startswith("--") else name
-        if not eq and name.startswith("--") and nxt in ("True", "False", "true", "false"):
-            out.append(name if nxt.lower() == "true" else _negated(name))
-            i += 1
-        else:
-            out.append(name + eq + value)
-        i += 1
-    return out

@@ -66,14 +66,14 @@ def plot_training_runs(run_dirs: Sequence[str | Path], out: str | Path, keys=CUR
     for d in run_dirs:
         groups.setdefault(group_name(d), []).append(read_run(d, keys))
     fig, axes = plt.subplots(1, len(keys), figsize=(4.2 * len(keys), 3.3), squeeze=False)
-    for ax, (key, title) in zip(axes[0], keys):
+    for ax, (key, panel_title) in zip(axes[0], keys):
         for name, runs in groups.items():
             x, mean, std = band([(rx, m[key]) for rx, m in runs])
             label = (labels or {}).get(name, name) + (f" ({len(runs)} seeds)" if len(runs) > 1 else "")
             (line,) = ax.plot(x, mean, lw=1.5, label=label, marker="." if len(x) < 50 else None)
             if len(runs) > 1:
                 ax.fill_between(x, mean - std, mean + std, color=line.get_color(), alpha=0.25, lw=0)
-        ax.set_title(title, fontsize=10)
+        ax.set_title(panel_title, fontsize=10)
         ax.set_xlabel("env steps")
         ax.grid(alpha=0.3)
     axes[0][0].legend(fontsize=8)

@@ -20,7 +20,6 @@ import numpy as np
 
 from ramavt_jax import distributed
 from ramavt_jax.train import TrainConfig, TrainingDivergedError
-from ramavt_jax.train_config import upgrade_dict
 from ramavt_jax.training import run_folder as folders
 from ramavt_jax.training.program import _compiled, _Program
 from ramavt_jax.training.checkpoint import CheckpointError, CheckpointNotFoundError, CheckpointStore, has_checkpoint
@@ -113,7 +112,7 @@ def _restore(prog: _Program, state, config: TrainConfig, config_json: dict, f: _
         like = _seed_slice(state, k, num_seeds)
         like = like if config.run.checkpoint_replay else like.replace(replay=None)
         st, meta, _ = CheckpointStore(src, create=False).restore_newest_loadable(like, log)
-        saved = upgrade_dict(meta.get("config", {}))  # a checkpoint written before the config groups: flat
+        saved = meta.get("config", {})
         diff = {k: v for k, v in folders.config_differences(saved, config_json, _default_json()).items()
                 if k not in folders.RESUMABLE_FIELDS}
         if diff:

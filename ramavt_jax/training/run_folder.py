@@ -23,7 +23,6 @@ from typing import Any
 
 import numpy as np
 
-from ramavt_jax.train_config import upgrade_dict
 
 __all__ = ["CONFIG_FILE", "METRICS_FILE", "CHECKPOINTS", "EVAL_FILE", "CURVES_FILE", "RESUMABLE_FIELDS",
            "seed_dir", "seed_folders", "is_seed_dir", "to_strict_json", "dumps", "read_metrics", "append_metrics",
@@ -122,8 +121,7 @@ def check_config(run_dir: Path, config_json: dict, seed: int, defaults: dict | N
         saved = json.loads(path.read_text())
     except (OSError, ValueError) as e:
         raise RunFolderError(f"cannot read {path} ({e}); resume with --no-resume or train into a new --out") from None
-    # a folder written before the config groups holds the flat form: compared in the current one
-    diff = config_differences(upgrade_dict(saved.get("config", {})), config_json, defaults)
+    diff = config_differences(saved.get("config", {}), config_json, defaults)
     fixed = {k: v for k, v in diff.items() if k not in RESUMABLE_FIELDS}
     if saved.get("seed") != seed:
         fixed["seed"] = (saved.get("seed"), seed)
