@@ -42,7 +42,7 @@ def _obs(cfg, mode: str):
 # the first three changes, 'prev' is 'all' + the previous action into the LSTM, and 'prev-aux' ('prev' + the
 # auxiliary tracking-error loss) with twice the learning rate ('aux-lr2') is the quick preset of today (arm_config
 # checks that).
-_LR = 5e-4  # the quick preset's learning rate until the fifth session: every arm's, unless it changes it
+_LR = 5e-4  # the quick preset's learning rate before 'aux-lr2': every arm's, unless it changes it
 
 
 def _base(c):
@@ -72,14 +72,14 @@ ARMS["origin"] = lambda c: _net(ARMS["all"](c), variant="origin")
 ARMS["aug"] = lambda c: ARMS["origin"](c).override(augment=True)
 ARMS["se"] = lambda c: _net(ARMS["all"](c), variant="se")
 ARMS["mha"] = lambda c: _net(ARMS["all"](c), variant="mha")
-# The longer CPU budget: 'all' with 3x the env steps, slower exploration decay, a bigger replay (the `long` preset
-# until the fifth session; 'long-aux' below is the preset now, `ramavt train --preset long` without its
+# The longer CPU budget: 'all' with 3x the env steps, slower exploration decay, a bigger replay (the first `long`
+# preset; 'long-lr2' below is the preset now, `ramavt train --preset long` without its
 # end-of-training evaluation; arm_config checks it).
 _LONGER = dict(total_env_steps=1_152_000, eps_decay_steps=400_000, capacity_steps=128_000, checkpoint_every_chunks=6)
 ARMS["long"] = lambda c: ARMS["all"](c).override(**_LONGER)
 # The same budget with the previous-action input ('prev', the quick preset's network).
 ARMS["long-prev"] = lambda c: ARMS["prev"](c).override(**_LONGER)
-# Fourth session, each one change to 'prev' (the quick preset when they ran). SE without the attention (the best
+# Each one change to 'prev' (the quick preset when they ran). SE without the attention (the best
 # AER of Table III's single modules):
 ARMS["prev-se"] = lambda c: _net(ARMS["prev"](c), variant="se")
 # Two levers on distance keeping: the evaluation's distance weight in training, and a learning rate decaying
@@ -104,7 +104,7 @@ ARMS["prev-aux"] = lambda c: _with_aux(ARMS["prev"](c))
 # The same auxiliary loss on the long budget (one change to `long`); with twice the learning rate ('long-lr2',
 # below) it is the `long` preset and the shipped agent now.
 ARMS["long-aux"] = lambda c: _with_aux(ARMS["long"](c))
-# Fifth session, each one change to 'prev-aux' (the quick preset then): the auxiliary loss weighted 3x, twice the
+# Each one change to 'prev-aux' (the quick preset then): the auxiliary loss weighted 3x, twice the
 # learning rate (a decaying one cost AER: the agent is still learning at the end), a dueling head, advantage learning.
 ARMS["aux-w3"] = lambda c: ARMS["prev-aux"](c).override(aux_weight=3.0)
 ARMS["aux-lr2"] = lambda c: ARMS["prev-aux"](c).override(lr=2 * _LR)
@@ -113,7 +113,7 @@ ARMS["aux-al"] = lambda c: ARMS["prev-aux"](c).override(advantage_alpha=0.9)
 # aux-lr2 gained most with the target params: four times the learning rate, and twice it on the long budget.
 ARMS["aux-lr4"] = lambda c: ARMS["prev-aux"](c).override(lr=4 * _LR)
 ARMS["long-lr2"] = lambda c: ARMS["long-aux"](c).override(lr=2 * _LR)
-# Sixth session: Tables I and III again, each row one change to the quick preset of today ('aux-lr2', the depth /
+# Tables I and III, each row one change to the quick preset ('aux-lr2', the depth /
 # RAMAVT row; evaluated with the target params, as the preset acts): the inputs, and the paper's ablation rows.
 ARMS["q-rgbd"] = lambda c: _obs(ARMS["aux-lr2"](c), "rgbd")
 ARMS["q-color"] = lambda c: _obs(ARMS["aux-lr2"](c), "color")
