@@ -1,14 +1,17 @@
 """Env throughput: full env steps/s (dynamics + render + auto-reset) vs number of envs, resolution and observation
-mode, beside two baselines measured in the same run: the previous renderer inside the same env step (calls
-interleaved with the new one, so both see the same machine load) and MuJoCo's C ray caster `mj_multiRay` (one
-thread) on the same targets and poses as the env's envs. ``--baseline REV`` adds a third: the whole env (env.py and
-its renderer) of an earlier git revision, imported beside this one, its calls interleaved too.
+mode, beside the baselines measured in the same run: MuJoCo's C ray caster `mj_multiRay` (one thread) on the same
+targets and poses as the env's envs (at 64 envs or more, up to 128x128), timed interleaved with each point, and with
+``--baseline REV`` the whole env (env.py and its renderer) of an earlier git revision, imported beside this one, its
+calls interleaved too (so both see the same machine load).
 
-    python benchmarks/bench_env.py [--quick] [--out benchmarks/results_env.json]
-    python benchmarks/bench_env.py --mj-check --baseline 1baefdc   # 3 points; + that revision's env step
-    python benchmarks/bench_env.py --pixel-check  # cost per pixel: 64x64 and 128x128 depth at 64 and 256 envs
+    python benchmarks/bench_env.py --mj-check --baseline 1baefdc      # 3 points; + that revision's env step
+    python benchmarks/bench_env.py --pixel-check --baseline 1baefdc   # cost per pixel: 64x64 and 128x128 depth
+    python benchmarks/bench_env.py [--quick] [--baseline REV]          # the sweep (--quick: 6 points)
     python benchmarks/bench_env.py --gpu          # accelerator sweep: 1k .. 64k envs, one command
-    ramavt bench env [--quick | --gpu]
+    ramavt bench env [--quick | --gpu | --mj-check | --pixel-check] [--baseline REV]
+
+Results go into one JSON file (default benchmarks/results_env.json), under a key per plan and baseline (e.g.
+``mj_check_vs_1baefdc``); a run replaces its own key and keeps the others.
 
 Each point jit-compiles a `lax.scan` of 10 vmapped `env.step` calls with random actions over the training targets
 (same_step auto-reset with the final observation in info: two renders per step, the second culled for envs that
@@ -21,7 +24,6 @@ from __future__ import annotations
 
 import argparse
 import importlib
-import json
 import os
 import platform
 import statistics
@@ -37,24 +39,11 @@ from bench_render import mujoco_caster, mujoco_on_poses  # noqa: E402
 
 from ramavt_jax import env as env_lib  # noqa: E402
 from ramavt_jax import render  # noqa: E402
-from ramavt_jax.render import legacy, renderer  # noqa: E402
 
 STEPS_PER_CALL = 10
-RENDERERS = ("new", "legacy")
+RENDERERS = ("new",)  # this checkout's env step; the row label of its arm
 BASELINE = "baseline"  # the env of an earlier git revision (--baseline REV), in the same process
 _BASELINE_MODULES = {}  # filled by run(baseline=REV): the baseline package's env and render modules
-
-
-def _patched_render(which: str):
-    """render.render as the env calls it, backed by the new or the previous batch renderer."""
-    if which == "new":
-        return renderer.render
-
-    def old(target, position, rotation, cam, lighting, shade=True):
-        fn = renderer.vmappable_render(cam, bool(shade), legacy.render_batch)
-        return fn(target, position, rotation, lighting)
-
-    return old
 
 
 def _env_modules(which: str):
@@ -82,15 +71,9 @@ def build(num_envs: int, res: int, mode: str, which: str = "new", seed: int = 0)
 
     key = jax.random.key(seed)
     _, state = jax.jit(jax.vmap(tenv.reset, in_axes=(0, None)))(jax.random.split(key, num_envs), params)
-    real = render.render
-    if which != BASELINE:
-        render.render = _patched_render(which)
-    try:
-        t0 = time.perf_counter()
-        compiled = jax.jit(run).lower(state, key).compile()
-        compile_s = time.perf_counter() - t0
-    finally:
-        render.render = real
+    t0 = time.perf_counter()
+    compiled = jax.jit(run).lower(state, key).compile()
+    compile_s = time.perf_counter() - t0
     for i in range(3):  # warm-up moves envs into the tracked regime
         state, out = compiled(state, jax.random.key(100 + i))
     jax.block_until_ready(out)
@@ -122,7 +105,7 @@ def _runner(compiled, state):
 
 
 def bench_point(num_envs: int, res: int, mode: str, budget_s: float, baselines=RENDERERS):
-    """Rows for the new renderer and each baseline renderer at one (envs, res, mode), timed interleaved."""
+    """Rows for this checkout's env step ('new') and each baseline arm at one (envs, res, mode), timed interleaved."""
     built = {w: build(num_envs, res, mode, w) for w in baselines}
     runners = {w: _runner(b[0], b[1]) for w, b in built.items()}
     mj_frames = 0
@@ -178,23 +161,25 @@ def run(out="benchmarks/results_env.json", quick=False, gpu=False, budget_s=3.0,
 
         base_env = import_baseline(baseline, Path(tempfile.mkdtemp()), "env")
         _BASELINE_MODULES.update(env=base_env, render=importlib.import_module(f"{BASELINE_MODULE}.render"))
-    if gpu:  # (mode, res, envs, baselines); the old renderer only where it still fits a short run
-        plan = ([("depth", 64, n, (RENDERERS if n <= 4096 else ("new",)) + extra) for n in (1024, 4096, 16384, 65536)]
+    name = "gpu" if gpu else "mj_check" if mj_check else "pixel_check" if pixel_check else "quick" if quick else "sweep"
+    key = f"{name}_vs_{baseline}" if baseline else name
+    if gpu:  # (mode, res, envs, arms); the baseline revision only where it still fits a short run
+        plan = ([("depth", 64, n, ("new",) + (extra if n <= 4096 else ())) for n in (1024, 4096, 16384, 65536)]
                 + [("rgbd", 64, n, ("new",)) for n in (4096, 16384)] + [("depth", 128, 16384, ("new",))])
-    elif mj_check:  # the per-core comparison with MuJoCo only, no old renderer
+    elif mj_check:  # the per-core comparison with MuJoCo at the issue's three points
         plan = [("depth", 64, 64, ("new",) + extra), ("depth", 64, 256, ("new",) + extra),
                 ("rgbd", 64, 64, ("new",) + extra)]
     elif pixel_check:  # the cost per pixel: 64x64 against 128x128 depth at the same envs
         plan = [("depth", res, n, ("new",) + extra) for n in (64, 256) for res in (64, 128)]
     elif quick:
-        both = RENDERERS + extra
-        plan = ([("depth", 64, n, both) for n in (64, 256, 1024)] + [("depth", 128, 256, both)]
-                + [("rgbd", 64, n, both) for n in (64, 256)])
+        arms = RENDERERS + extra
+        plan = ([("depth", 64, n, arms) for n in (64, 256, 1024)] + [("depth", 128, 256, arms)]
+                + [("rgbd", 64, n, arms) for n in (64, 256)])
     else:
-        both = RENDERERS + extra
-        plan = ([("depth", 64, n, both) for n in (1, 16, 64, 256, 1024, 4096)]
-                + [("depth", r, 256, both) for r in (84, 128, 256)]
-                + [("rgbd", 64, n, both) for n in (1, 64, 256, 1024)] + [("rgbd", 128, 256, both)])
+        arms = RENDERERS + extra
+        plan = ([("depth", 64, n, arms) for n in (1, 16, 64, 256, 1024, 4096)]
+                + [("depth", r, 256, arms) for r in (84, 128, 256)]
+                + [("rgbd", 64, n, arms) for n in (1, 64, 256, 1024)] + [("rgbd", 128, 256, arms)])
     print(f"backend {jax.default_backend()} ({jax.devices()[0].device_kind}), {os.cpu_count()} CPUs, "
           f"GLIBC_TUNABLES={os.environ.get('GLIBC_TUNABLES', '')!r}", flush=True)
     points, poses = [], {}
@@ -210,7 +195,7 @@ def run(out="benchmarks/results_env.json", quick=False, gpu=False, budget_s=3.0,
                 vs += (f"  | per core {r['per_core_vs_mj_multiRay']:.2f}x mj_multiRay "
                        f"({r['mj_multiRay_fps_interleaved']:,.0f} frames/s interleaved)")
             print(_row(r) + vs, flush=True)
-        _write(out, dict(partial=True, env=points))
+        _write(out, key, dict(partial=True, env=points))
     mujoco = []
     for res, (names, pos, rot) in sorted(poses.items()):
         load0 = os.getloadavg()[0]
@@ -222,14 +207,15 @@ def run(out="benchmarks/results_env.json", quick=False, gpu=False, budget_s=3.0,
     result = dict(machine=machine(), steps_per_call=STEPS_PER_CALL, baseline_revision=baseline, env=points,
                   mujoco_mj_multiRay=mujoco,
                   summary=_summary(points, mujoco))
-    _write(out, result)
-    print(f"wrote {out}")
+    _write(out, key, result)
+    print(f"wrote {out} [{key}]")
     return result
 
 
-def _write(out, obj):
-    Path(out).parent.mkdir(parents=True, exist_ok=True)
-    Path(out).write_text(json.dumps(obj, indent=1))
+def _write(out, key, obj):
+    from bench_train import merge_json  # (the script's directory; imported here: it loads the trainer)
+
+    merge_json(out, key, obj)
 
 
 def _row(p: dict) -> str:
@@ -244,7 +230,7 @@ def _summary(points, mujoco) -> list:
     mj = {m["resolution"]: m["fps"] for m in mujoco}
     lines = []
     for p in points:
-        if p["renderer"] != "legacy" and (p["resolution"] in mj or "per_core_vs_mj_multiRay" in p):
+        if p["resolution"] in mj or "per_core_vs_mj_multiRay" in p:
             # prefer the MuJoCo figure timed interleaved with this point (same load) over the separate one
             ratio = p.get("per_core_vs_mj_multiRay") or p["env_steps_per_s"] / cores / mj[p["resolution"]]
             lines.append(dict(mode=p["mode"], resolution=p["resolution"], num_envs=p["num_envs"],
@@ -266,13 +252,12 @@ def _summary(points, mujoco) -> list:
 
 if __name__ == "__main__":
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--out", default=None, help="JSON path (default benchmarks/results_env[_gpu].json)")
+    parser.add_argument("--out", default="benchmarks/results_env.json", help="JSON file (a key per plan and baseline)")
     parser.add_argument("--quick", action="store_true")
     parser.add_argument("--gpu", action="store_true", help="accelerator sweep, 1k..64k envs (about 5-8 min)")
-    parser.add_argument("--mj-check", action="store_true", help="only new vs mj_multiRay (interleaved), 3 points")
-    parser.add_argument("--budget", type=float, default=3.0, help="seconds of timed calls per point and renderer")
+    parser.add_argument("--mj-check", action="store_true", help="only the step vs mj_multiRay (interleaved), 3 points")
+    parser.add_argument("--budget", type=float, default=3.0, help="seconds of timed calls per point and arm")
     parser.add_argument("--pixel-check", action="store_true", help="only 64x64 against 128x128 depth, 64 and 256 envs")
     parser.add_argument("--baseline", default=None, help="a git revision whose env step joins every point, interleaved")
     args = parser.parse_args()
-    default = "benchmarks/results_env_gpu.json" if args.gpu else "benchmarks/results_env.json"
-    run(args.out or default, args.quick, args.gpu, args.budget, args.mj_check, args.baseline, args.pixel_check)
+    run(args.out, args.quick, args.gpu, args.budget, args.mj_check, args.baseline, args.pixel_check)

@@ -1,7 +1,8 @@
 """Network throughput: params, FLOPs/frame, batched forward, single-env acting Hz, train-step speed.
 
-    python benchmarks/bench_network.py [--variants ramavt,drlavt] [--res 64,256] [--out bench_network.json]
-        [--train-res 64] [--profile]
+    python benchmarks/bench_network.py [--variants ramavt,drlavt] [--res 64,256] [--train-res 64] [--profile]
+        [--out benchmarks/results_network.json]
+    python benchmarks/bench_network.py --variants ramavt --res 64,256 --train-variants ""   # acting figures only
 
 Timings vary ±30% on shared CPUs: each figure is the median of several timed repeats in one run.
 """
@@ -11,6 +12,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import os
 import platform
 import statistics
 import time
@@ -151,11 +153,11 @@ def main():
     ap.add_argument("--train-variants", default="ramavt,drlavt")
     ap.add_argument("--profile", action="store_true")
     ap.add_argument("--extra", default="", help="comma list of extra ramavt configs: lax,bf16,nonorm,batchnorm")
-    ap.add_argument("--out", default="bench_network.json")
+    ap.add_argument("--out", default="benchmarks/results_network.json")
     args = ap.parse_args()
     ch = args.channels
     results = {"platform": platform.processor() or platform.machine(), "devices": str(jax.devices()),
-               "jax": jax.__version__, "rows": [], "train": [], "profile": []}
+               "jax": jax.__version__, "loadavg_start": os.getloadavg(), "rows": [], "train": [], "profile": []}
 
     print(f"{'variant':8s} {'res':>4s} {'params':>10s} {'MFLOP/frame':>12s} {'fwd obs/s B64':>14s} {'acting Hz':>10s}")
     for variant in args.variants.split(","):
@@ -191,6 +193,8 @@ def main():
                 results["profile"].append(dict(config=name, res=res, **prof))
                 print("   " + ", ".join(f"{k}={v:.1f}" for k, v in prof.items()), flush=True)
 
+    results["loadavg_end"] = os.getloadavg()
+    os.makedirs(os.path.dirname(args.out) or ".", exist_ok=True)
     with open(args.out, "w") as f:
         json.dump(results, f, indent=1)
     print(f"\nwrote {args.out}")

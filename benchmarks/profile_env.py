@@ -60,18 +60,11 @@ def _repeat(fn):
     return jax.jit(run)
 
 
-def profile(num_envs=64, res=64, mode="depth", budget_s=2.0, seed=0, which="new"):
-    """Part timings and the trace breakdown; ``which`` is 'new' or 'legacy' (the previous renderer in the same env)."""
-    from bench_env import _patched_render
-
+def profile(num_envs=64, res=64, mode="depth", budget_s=2.0, seed=0):
+    """Part timings and the trace breakdown of this checkout's env step."""
     config = env_lib.EnvConfig(camera=render.CameraConfig(resolution=res), obs_mode=mode)
     tenv = env_lib.TrackingEnv(config)
-    real_render = render.render
-    render.render = _patched_render(which)
-    try:
-        return _profile(tenv, config, num_envs, mode, budget_s, seed)
-    finally:
-        render.render = real_render
+    return _profile(tenv, config, num_envs, mode, budget_s, seed)
 
 
 def _profile(tenv, config, num_envs, mode, budget_s, seed):
@@ -199,13 +192,12 @@ def main(argv=None):
     p.add_argument("--mode", default="depth")
     p.add_argument("--budget", type=float, default=2.0)
     p.add_argument("--out", default=None)
-    p.add_argument("--renderer", default="new", choices=["new", "legacy"])
     a = p.parse_args(argv)
     load0 = os.getloadavg()[0]
-    res, hit, breakdown = profile(a.envs, a.res, a.mode, a.budget, which=a.renderer)
+    res, hit, breakdown = profile(a.envs, a.res, a.mode, a.budget)
     load1 = os.getloadavg()[0]
     full = res["full step"]
-    print(f"renderer {a.renderer}: {a.mode} {a.res}x{a.res}, {a.envs} envs, {REPEATS} steps per call, hit fraction {hit:.3f}, "
+    print(f"{a.mode} {a.res}x{a.res}, {a.envs} envs, {REPEATS} steps per call, hit fraction {hit:.3f}, "
           f"load {load0:.2f} -> {load1:.2f}")
     for k, v in res.items():
         print(f"  {k:<18} {1e3 * v:8.2f} ms   {100 * v / full:5.1f}% of the full step   "
@@ -221,7 +213,7 @@ def main(argv=None):
             if k.split(" | ")[0] == g and w > 0.005 * total:
                 print(f"           {100 * w / total:5.1f}%  {k.split(' | ', 1)[1]}")
     if a.out:
-        Path(a.out).write_text(json.dumps(dict(renderer=a.renderer, envs=a.envs, res=a.res, mode=a.mode, hit_fraction=hit,
+        Path(a.out).write_text(json.dumps(dict(envs=a.envs, res=a.res, mode=a.mode, hit_fraction=hit,
                                                load=[load0, load1], seconds_per_10=res, trace=breakdown), indent=1))
 
 

@@ -280,7 +280,7 @@ def render(
 @functools.lru_cache(maxsize=None)
 def vmappable_render(cam: CameraConfig, shade: bool, batch_fn=None):
     """render(target, position, rotation, lighting) for one target whose ``jax.vmap`` is one ``batch_fn`` call
-    (default `render_batch`; the benchmarks pass the old renderer's to compare inside the same env step)."""
+    (default `render_batch`)."""
     batch_fn = render_batch if batch_fn is None else batch_fn
 
     @jax.custom_batching.custom_vmap
