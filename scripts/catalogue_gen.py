@@ -1,4 +1,5 @@
-"""Generator of the 18 catalogue MJCF files in ``models/`` (run ``python -m ramavt_jax.targets.catalogue_gen``).
+"""Generator of the catalogue MJCF files in ``ramavt_jax/targets/models/`` (run ``python scripts/catalogue_gen.py``
+from the repository root). It is build-time code: the package only reads the committed files.
 
 Size rule: the task holds the target's centre 5 m in front of a 60-degree camera, where the view's half-width is
 5 tan 30 = 2.89 m. A target whose bounding sphere (about its centre of mass) is larger than that sweeps its parts
@@ -21,10 +22,11 @@ from pathlib import Path
 
 import numpy as np
 
-from ramavt_jax.targets.mjcf_builder import Target
+from mjcf_builder import Target
 
 MAX_BOUND_RADIUS = 2.4  # m: the largest bounding radius of a catalogue target (see the size rule above)
-MODEL_DIR = Path(__file__).parent / "models"
+# The repository's model folder, not the imported package's: an installed copy of the package may live elsewhere.
+MODEL_DIR = Path(__file__).resolve().parents[1] / "ramavt_jax" / "targets" / "models"
 
 # Colours (rgb in [0, 1]).
 GOLD = (0.83, 0.66, 0.22)        # gold MLI foil
