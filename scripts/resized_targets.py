@@ -11,8 +11,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+import catalogue_gen  # the catalogue generator beside this script
 from ramavt_jax import targets as targets_lib
-from ramavt_jax.targets import catalogue_gen
 
 
 def write_resized(out: Path, factors: list[float], names=targets_lib.TEST_TARGETS) -> list[Path]:

@@ -9,10 +9,13 @@ def test_targets_lists_catalogue(capsys):
     cli.main(["targets"])
     out = capsys.readouterr().out
     lines = [line for line in out.splitlines()[1:] if line.strip()]
-    assert len(lines) == 18
-    assert sum(" test " in line for line in lines) == 6
+    assert len(lines) == 24
+    assert sum(" test " in line for line in lines) == 6 and sum(" val " in line for line in lines) == 6
     cli.main(["targets", "--split", "test"])
     assert len(capsys.readouterr().out.strip().splitlines()) == 7
+    cli.main(["targets", "--split", "val"])
+    val_lines = capsys.readouterr().out.strip().splitlines()[1:]
+    assert len(val_lines) == 6 and all(" val " in line and "-val" in line for line in val_lines)
 
 
 def test_render_writes_gif(tmp_path, capsys):

@@ -295,7 +295,11 @@ def test_unknown_target_error_is_target_error():
 # ------------------------------------------------------------------------------------------------ stand-off scale
 def _enlarged_satellite(tmp_path, factor: float):
     """Satellite-v1 with every length times `factor`, written as a user MJCF file."""
-    from ramavt_jax.targets import catalogue_gen
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts"))  # the generator is a build-time script
+    import catalogue_gen
 
     sat = catalogue_gen.satellite_v1()
     sat.scale = factor * next(t.scale for t in catalogue_gen.all_targets() if t.name == "Satellite-v1")

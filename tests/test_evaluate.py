@@ -89,7 +89,8 @@ def test_target_specs_and_unknown_target(tmp_path):
     path = tmp_path / "probe.xml"
     path.write_text(PROBE_XML)
     assert rollouts.resolve_targets(f"Capsule-v2,{path}") == ("Capsule-v2", str(path))
-    with pytest.raises(ValueError, match="unknown target 'Sputnik-v9': not in the catalogue .*splits test, train"):
+    with pytest.raises(ValueError, match="unknown target 'Sputnik-v9': not in the catalogue .*splits test, val, "
+                                         "train"):
         rollouts.resolve_targets("Satellite-v2,Sputnik-v9")
     with pytest.raises(ValueError, match="Did you mean Satellite-v1"):
         rollouts.resolve_targets("Satelite-v1")
@@ -271,8 +272,9 @@ def test_seed_params_picks_one_seed_of_the_named_set():
 
 
 def test_final_evaluation_draws_only_each_splits_targets_with_one_rollout_program_per_policy(monkeypatch):
-    """Both splits run in one env with per-split target draws (traced), so the jitted rollout, cached on (env,
-    policy, steps), compiles once per policy instead of once per policy and split."""
+    """Every split runs in one env with per-split target draws (traced), so the jitted rollout, cached on (env,
+    policy, steps), compiles once per policy instead of once per policy and split. Each split's key comes from its
+    name: validation and test episodes never share a key, and a split's key does not depend on the others."""
     from ramavt_jax import train
     from ramavt_jax import targets as targets_lib
     from ramavt_jax.evaluation import final
@@ -281,13 +283,19 @@ def test_final_evaluation_draws_only_each_splits_targets_with_one_rollout_progra
     calls = []
 
     def record(tracking_env, policy, params, key, num_episodes, num_steps):
-        calls.append((tracking_env, policy, num_steps, np.asarray(params.target_probs)))
+        calls.append((tracking_env, policy, num_steps, np.asarray(params.target_probs), tuple(np.asarray(key))))
         return _stats([2] * num_episodes, [0.0] * num_episodes, [False] * num_episodes), None
 
     monkeypatch.setattr(final.rollouts, "run_episodes", record)
     results = final.final_evaluation(cfg, {}, jax.random.PRNGKey(1), log=lambda _: None)
-    assert len({(id(env), id(policy), steps) for env, policy, steps, _ in calls}) == 2  # greedy, random
+    assert len({(id(env), id(policy), steps) for env, policy, steps, _, _ in calls}) == 2  # greedy, random
     names = calls[0][0].config.targets
-    for (_, _, _, probs), members in zip(calls, [cfg.env.targets] * 2 + [targets_lib.TEST_TARGETS] * 2):
+    splits = [cfg.env.targets] * 2 + [targets_lib.VAL_TARGETS] * 2 + [targets_lib.TEST_TARGETS] * 2
+    for (_, _, _, probs, _), members in zip(calls, splits, strict=True):
         np.testing.assert_allclose(probs, [1 / len(members) if n in members else 0.0 for n in names], rtol=1e-6)
-    assert {s: sorted(r) for s, r in results.items()} == {"train": ["greedy", "random"], "test": ["greedy", "random"]}
+    assert {s: sorted(r) for s, r in results.items()} == {s: ["greedy", "random"] for s in ("train", "val", "test")}
+    keys = [k for *_, k in calls]
+    assert len(set(keys)) == len(keys)  # no two (split, policy) pairs share episodes' key
+    root = jax.random.PRNGKey(1)
+    assert keys[4] == tuple(np.asarray(jax.random.fold_in(final.split_key(root, "test"), 0)))
+    assert final.split_key(root, "val").tolist() != final.split_key(root, "test").tolist()

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import sys
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
@@ -10,7 +11,11 @@ import mujoco
 import numpy as np
 import pytest
 
-from ramavt_jax import targets
+from ramavt_jax import render, targets
+from ramavt_jax.rotations import quat_to_mat, random_quaternion
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts"))  # the generator is a build-time script
+import catalogue_gen  # noqa: E402
 
 # bound_radius (m) and mass (kg) ranges per class. The size rule (catalogue_gen) caps every bounding radius at
 # 2.4 m so that the target fits the 60-degree view at the 5 m stand-off; spacecraft classes are scaled down to it
@@ -95,20 +100,76 @@ def _check_body_frame(arrays: dict, densities: np.ndarray, rtol: float = 2e-3) -
 
 # ------------------------------------------------------------------------------------------------- catalogue
 def test_catalogue_names_classes_and_split():
-    assert len(targets.CATALOGUE) == 18
+    assert len(targets.CATALOGUE) == 24
     counts = {}
     for name, cls in targets.CATALOGUE.items():
         assert name.lower().startswith(cls)
         counts[cls] = counts.get(cls, 0) + 1
-    assert counts == {"asteroid": 6, "capsule": 3, "rocket": 3, "satellite": 3, "station": 3}
-    train, test = set(targets.TRAIN_TARGETS), set(targets.TEST_TARGETS)
-    assert len(targets.TRAIN_TARGETS) == 12 and len(targets.TEST_TARGETS) == 6
-    assert not train & test and train | test == set(targets.ALL_TARGETS)
+    assert counts == {"asteroid": 8, "capsule": 4, "rocket": 4, "satellite": 4, "station": 4}
+    train, val, test = set(targets.TRAIN_TARGETS), set(targets.VAL_TARGETS), set(targets.TEST_TARGETS)
+    assert len(targets.TRAIN_TARGETS) == 12 and len(targets.VAL_TARGETS) == 6 and len(targets.TEST_TARGETS) == 6
+    assert not train & test and not train & val and not val & test
+    assert train | val | test == set(targets.ALL_TARGETS) == set(targets.CATALOGUE)
     assert test == {"Asteroid-v4", "Asteroid-v5", "Capsule-v2", "Rocket-v2", "Satellite-v2", "Station-v2"}
+    # the split shows in the name; the 18 original models keep their catalogue indices
+    assert all("-val" in n for n in val) and not any("-val" in n for n in train | test)
+    counts = (("Asteroid", 6), ("Capsule", 3), ("Rocket", 3), ("Satellite", 3), ("Station", 3))
+    assert targets.ALL_TARGETS[:18] == tuple(f"{c}-v{i}" for c, k in counts for i in range(k))
+    assert sorted(targets.CATALOGUE[n] for n in val) == sorted(targets.CATALOGUE[n] for n in test)  # same class mix
     assert targets.split("train") == targets.TRAIN_TARGETS and targets.split("test") == targets.TEST_TARGETS
-    assert targets.split("all") == targets.ALL_TARGETS
+    assert targets.split("val") == targets.VAL_TARGETS and targets.split("all") == targets.ALL_TARGETS
     with pytest.raises(targets.TargetError, match="unknown split"):
         targets.split("validation")
+
+
+def test_validation_models_follow_their_class_size_rule():
+    """Each validation model is drawn at its class's factor and is not the largest of its class, so adding it left
+    the training and test models' scale (and files) as they were."""
+    models = {t.name: t for t in catalogue_gen.all_targets()}
+    radii = {r["name"]: r["bound_radius"] for r in targets.catalogue_table()}
+    for name in targets.VAL_TARGETS:
+        cls = targets.CATALOGUE[name]
+        originals = [n for n in targets.TRAIN_TARGETS + targets.TEST_TARGETS if targets.CATALOGUE[n] == cls]
+        assert {models[n].scale for n in originals} == {models[name].scale}, name
+        assert radii[name] <= max(radii[n] for n in originals) <= catalogue_gen.MAX_BOUND_RADIUS + 1e-3, name
+        assert radii[name] >= min(radii[n] for n in originals) / 1.5, name
+
+
+def test_validation_models_are_seen_whole_at_the_stand_off():
+    """A depth frame of each validation model at the 5 m stand-off, in a few attitudes: the target covers pixels,
+    at depths within its bounding sphere, and never reaches the image border."""
+    cam = render.CameraConfig(resolution=32)
+    batch, infos = targets.load_many(targets.VAL_TARGETS)
+    n, poses = len(infos), 3
+    rotations = jax.vmap(lambda k: quat_to_mat(random_quaternion(k)))(
+        jax.random.split(jax.random.PRNGKey(0), n * poses))
+    tiled = jax.tree.map(lambda a: np.repeat(np.asarray(a), poses, axis=0), batch)
+    positions = np.tile([0.0, 0.0, 5.0], (n * poses, 1)).astype(np.float32)
+    frames = render.render_batch(tiled, positions, rotations, cam, render.default_lighting(), shade=False)
+    hit, depth = np.asarray(frames.hit), np.asarray(frames.depth)
+    for i in range(n * poses):
+        info, r = infos[i // poses], infos[i // poses].bound_radius
+        assert hit[i].sum() >= 10, (info.name, hit[i].sum())
+        assert np.all((depth[i][hit[i]] >= 5.0 - r - 1e-3) & (depth[i][hit[i]] <= 5.0 + r + 1e-3)), info.name
+        border = np.concatenate([hit[i][0], hit[i][-1], hit[i][:, 0], hit[i][:, -1]])
+        assert not border.any(), info.name
+
+
+def test_val_is_a_target_spec_like_test():
+    from ramavt_jax.evaluation import rollouts
+
+    assert rollouts.resolve_targets("val") == targets.VAL_TARGETS
+    assert rollouts.resolve_targets("val,Capsule-v0,Capsule-val0") == targets.VAL_TARGETS + ("Capsule-v0",)
+    assert not set(rollouts.resolve_targets("val")) & set(rollouts.resolve_targets("test"))
+
+
+def test_package_does_not_ship_the_generator():
+    package = Path(targets.__file__).parent
+    assert not (package / "catalogue_gen.py").exists() and not (package / "mjcf_builder.py").exists()
+    with pytest.raises(ModuleNotFoundError):
+        __import__("ramavt_jax.targets.catalogue_gen")
+    assert Path(catalogue_gen.__file__).parent.name == "scripts"
+    assert catalogue_gen.MODEL_DIR.resolve() == targets.MODEL_DIR.resolve()
 
 
 def test_catalogue_loads_with_plausible_sizes_and_masses(catalogue):
@@ -133,8 +194,6 @@ def test_catalogue_loads_with_plausible_sizes_and_masses(catalogue):
 def test_every_catalogue_target_fits_the_view_at_the_stand_off(catalogue):
     """Size rule: bounding radius <= 2.4 m, below the 2.89 m half-width of the 60-degree view at 5 m; the
     largest model of each scaled class sits at the cap."""
-    from ramavt_jax.targets import catalogue_gen
-
     _, infos = catalogue
     half_width = 5.0 * np.tan(np.deg2rad(30.0))
     radii = {i.name: i.bound_radius for i in infos}
@@ -145,8 +204,6 @@ def test_every_catalogue_target_fits_the_view_at_the_stand_off(catalogue):
 
 
 def test_generator_reproduces_the_committed_files():
-    from ramavt_jax.targets import catalogue_gen
-
     for t in catalogue_gen.all_targets():
         assert (targets.MODEL_DIR / f"{t.name}.xml").read_text() == t.xml(), t.name
 
@@ -238,7 +295,8 @@ def test_catalogue_table():
     for r in rows:
         assert set(r) == {"name", "class", "split", "num_geoms", "bound_radius", "mass"}
         assert r["class"] == targets.CATALOGUE[r["name"]]
-        assert r["split"] == ("test" if r["name"] in targets.TEST_TARGETS else "train")
+        assert r["split"] == ("test" if r["name"] in targets.TEST_TARGETS else
+                              "val" if r["name"] in targets.VAL_TARGETS else "train")
         assert r["num_geoms"] >= 1 and r["bound_radius"] > 0 and r["mass"] > 0
 
 

@@ -20,7 +20,7 @@ from ramavt_jax.figures import episode
 BENCHMARKS = ("env", "train", "gpu", "conv", "network", "render", "scaling", "mjx_ray")
 
 
-def targets_cmd(split: Literal["all", "train", "test"] = "all") -> None:
+def targets_cmd(split: Literal["all", "train", "val", "test"] = "all") -> None:
     """List the target catalogue: name, class, split, geoms, bounding radius and mass."""
     rows = targets.catalogue_table(targets.split(split))
     print(f"{'name':<14} {'class':<10} {'split':<6} {'geoms':>5} {'radius_m':>9} {'mass_kg':>10}")

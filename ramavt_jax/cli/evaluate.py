@@ -114,7 +114,8 @@ def eval_cmd(
         agent: the shipped agent evaluated by --policy pretrained.
         baselines: with --policy checkpoint, also evaluate oracle, depth tracker and random in every table (a
             baseline given as --policy is evaluated alone).
-        targets: 'test' (held-out split), 'train', 'all', or comma-separated catalogue names / MJCF files.
+        targets: 'test' (held-out split), 'val' (validation split), 'train', 'all', or comma-separated catalogue
+            names / MJCF files.
         episodes: episodes per target (run side by side).
         max_steps: episode length cap (the paper: 1000).
         tables: which tables to produce (2 runs the five perturbation settings, 5x the episodes).

@@ -113,7 +113,7 @@ def make_train_cmd(preset_name: str):
         num_processes: int | None = None,
         process_id: int | None = None,
     ) -> None:
-        """Train a tracker (recurrent DQN with burn-in), then evaluate it greedily on the train and held-out targets.
+        """Train a tracker (recurrent DQN with burn-in), then evaluate it greedily on the train, val and test targets.
 
         Writes metrics.jsonl, checkpoints/ (re-running the same command resumes; a larger --run.total-env-steps
         extends the run), training_curves.png, eval.json. Every training field is a flag, grouped as below

@@ -1,10 +1,12 @@
-"""The end-of-training evaluation of a run folder: the greedy policy and a random agent on the training and the
-held-out targets, with the evaluation settings (``env.eval_params``), written to ``eval.json``."""
+"""The end-of-training evaluation of a run folder: the greedy policy and a random agent on the training, the
+validation and the held-out (test) targets, with the evaluation settings (``env.eval_params``), written to
+``eval.json``. Choose among runs by the validation split; the test split is for the final numbers."""
 
 from __future__ import annotations
 
 import dataclasses
 import time
+import zlib
 from pathlib import Path
 from typing import Any, Callable
 
@@ -18,7 +20,13 @@ from ramavt_jax.evaluation import rollouts
 from ramavt_jax.train import TrainConfig, greedy_policy
 from ramavt_jax.training import run_folder as folders
 
-__all__ = ["split_envs", "final_evaluation", "evaluate_run"]
+__all__ = ["split_envs", "split_key", "final_evaluation", "evaluate_run"]
+
+
+def split_key(key: jax.Array, split: str) -> jax.Array:
+    """The key of one split's episodes, from the split's name (not its position): a split's key does not change with
+    the other splits evaluated beside it, and validation and test episodes never share a key."""
+    return jax.random.fold_in(key, zlib.crc32(split.encode()))
 
 
 def split_envs(config: TrainConfig, splits: dict[str, tuple[str, ...]],
@@ -36,17 +44,17 @@ def split_envs(config: TrainConfig, splits: dict[str, tuple[str, ...]],
 
 
 def final_evaluation(config: TrainConfig, params: Any, key: jax.Array, log: Callable[[str], None] = print) -> dict:
-    """{split: {'greedy' | 'random': Summary dict}} on the run's training targets and the held-out split; one
-    compiled rollout per policy serves both splits."""
+    """{split: {'greedy' | 'random': Summary dict}} on the run's training targets, the validation and the held-out
+    (test) split; one compiled rollout per policy serves every split."""
     policies = {"greedy": greedy_policy(config.network, params, tuple(config.env.obs_shape)),
                 "random": baselines.random_policy()}
-    splits = {"train": tuple(config.env.targets), "test": targets_lib.TEST_TARGETS}
+    splits = {"train": tuple(config.env.targets), "val": targets_lib.VAL_TARGETS, "test": targets_lib.TEST_TARGETS}
     tracking_env, split_params = split_envs(config, splits, config.run.eval_max_steps)
     out = {}
-    for i, (split, names) in enumerate(splits.items()):
+    for split, names in splits.items():
         for j, (name, policy) in enumerate(policies.items()):
             t = time.time()
-            k = jax.random.fold_in(key, 2 * i + j)
+            k = jax.random.fold_in(split_key(key, split), j)
             stats, _ = rollouts.run_episodes(tracking_env, policy, split_params[split], k, config.run.eval_episodes,
                                              num_steps=config.run.eval_max_steps)
             out.setdefault(split, {})[name] = res = rollouts.summarise(stats).as_dict()

@@ -229,22 +229,23 @@ def perturbation_overrides(name: str, values: dict | None = None) -> dict:
 
 # ============================================================================================ targets
 def resolve_targets(spec: str | Sequence[str]) -> tuple[str, ...]:
-    """'test' (held-out split) | 'train' | 'all' | comma-separated catalogue names and/or MJCF file paths.
+    """'test' (held-out split) | 'val' (validation split) | 'train' | 'all' | comma-separated catalogue names and/or
+    MJCF file paths.
 
     Raises ValueError naming the entry that is neither a catalogue name nor a readable MJCF file."""
     items = [s.strip() for s in spec.split(",")] if isinstance(spec, str) else [str(s).strip() for s in spec]
     items = [s for s in items if s]
     if not items:
-        raise ValueError("no targets given: use 'test', 'train', 'all' or comma-separated names / MJCF files")
+        raise ValueError("no targets given: use 'test', 'val', 'train', 'all' or comma-separated names / MJCF files")
     out: list[str] = []
     for item in items:
-        if item in ("test", "train", "all"):
+        if item in targets_lib.SPLITS:
             out.extend(targets_lib.split(item))
             continue
         try:
             targets_lib.resolve(item)
         except (ValueError, OSError) as e:
-            raise targets_lib.TargetError(f"{e} (the splits test, train and all are accepted too)") from None
+            raise targets_lib.TargetError(f"{e} (the splits test, val, train and all are accepted too)") from None
         out.append(item)
     return tuple(dict.fromkeys(out))  # keep order, drop repeats
 

@@ -35,10 +35,16 @@ CATALOGUE: dict[str, str] = {
     **{f"Rocket-v{i}": "rocket" for i in range(3)},
     **{f"Satellite-v{i}": "satellite" for i in range(3)},
     **{f"Station-v{i}": "station" for i in range(3)},
+    # validation models, appended so that the 18 original models keep their catalogue indices
+    **{f"Asteroid-val{i}": "asteroid" for i in range(2)},
+    **{f"{cls.capitalize()}-val0": cls for cls in ("capsule", "rocket", "satellite", "station")},
 }
 # Held-out split as in the original benchmark: asteroids v4, v5 and the v2 of every other class.
 TEST_TARGETS: tuple[str, ...] = ("Asteroid-v4", "Asteroid-v5", "Capsule-v2", "Rocket-v2", "Satellite-v2", "Station-v2")
-TRAIN_TARGETS: tuple[str, ...] = tuple(n for n in CATALOGUE if n not in TEST_TARGETS)
+# Validation split (models named *-val*, in neither of the others): for choosing among runs and settings, so that the
+# test split is only looked at for the final numbers.
+VAL_TARGETS: tuple[str, ...] = tuple(n for n in CATALOGUE if "-val" in n)
+TRAIN_TARGETS: tuple[str, ...] = tuple(n for n in CATALOGUE if n not in TEST_TARGETS and n not in VAL_TARGETS)
 ALL_TARGETS: tuple[str, ...] = tuple(CATALOGUE)
 
 
@@ -251,9 +257,12 @@ def scaled(target: TargetModel, factor: jax.Array) -> TargetModel:
                           geom_rbound=target.geom_rbound * factor, bound_radius=target.bound_radius * factor)
 
 
+SPLITS: tuple[str, ...] = ("train", "val", "test", "all")
+
+
 def split(name: str) -> tuple[str, ...]:
-    """'train', 'test' or 'all' -> catalogue names."""
-    table = {"train": TRAIN_TARGETS, "test": TEST_TARGETS, "all": ALL_TARGETS}
+    """'train', 'val', 'test' or 'all' -> catalogue names."""
+    table = {"train": TRAIN_TARGETS, "val": VAL_TARGETS, "test": TEST_TARGETS, "all": ALL_TARGETS}
     if name not in table:
         raise TargetError(f"unknown split {name!r}; choose one of {sorted(table)}")
     return table[name]
@@ -266,7 +275,7 @@ def catalogue_table(names: Sequence[str | os.PathLike] | None = None) -> list[di
     for target in ALL_TARGETS if names is None else names:
         _, info = load_numpy(target)
         key = str(target)
-        split_name = "test" if key in TEST_TARGETS else "train" if key in TRAIN_TARGETS else "custom"
+        split_name = next((n for n in ("train", "val", "test") if key in split(n)), "custom")
         rows.append({"name": info.name, "class": CATALOGUE.get(key, "custom"), "split": split_name,
                      "num_geoms": info.num_geoms, "bound_radius": info.bound_radius, "mass": info.mass})
     return rows

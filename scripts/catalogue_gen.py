@@ -1,4 +1,5 @@
-"""Generator of the 18 catalogue MJCF files in ``models/`` (run ``python -m ramavt_jax.targets.catalogue_gen``).
+"""Generator of the catalogue MJCF files in ``ramavt_jax/targets/models/`` (run ``python scripts/catalogue_gen.py``
+from the repository root). It is build-time code: the package only reads the committed files.
 
 Size rule: the task holds the target's centre 5 m in front of a 60-degree camera, where the view's half-width is
 5 tan 30 = 2.89 m. A target whose bounding sphere (about its centre of mass) is larger than that sweeps its parts
@@ -21,10 +22,11 @@ from pathlib import Path
 
 import numpy as np
 
-from ramavt_jax.targets.mjcf_builder import Target
+from mjcf_builder import Target
 
 MAX_BOUND_RADIUS = 2.4  # m: the largest bounding radius of a catalogue target (see the size rule above)
-MODEL_DIR = Path(__file__).parent / "models"
+# The repository's model folder, not the imported package's: an installed copy of the package may live elsewhere.
+MODEL_DIR = Path(__file__).resolve().parents[1] / "ramavt_jax" / "targets" / "models"
 
 # Colours (rgb in [0, 1]).
 GOLD = (0.83, 0.66, 0.22)        # gold MLI foil
@@ -347,6 +349,91 @@ def asteroids() -> list[Target]:
     ]
 
 
+# ----------------------------------------------------------------------------------------------------------- validation
+# Models of neither the training nor the test split (one per spacecraft class, two asteroids, as in the test split),
+# for choosing among runs and settings without looking at the test split.
+def validation_asteroids() -> list[Target]:
+    return [
+        asteroid("Asteroid-val0", 106, 6, [1.2, 1.0, 0.65], 1, 2100.0, "2.4 m lumpy oblate rock (6 primitives)"),
+        asteroid("Asteroid-val1", 107, 10, [1.7, 0.95, 0.85], 2, 1950.0, "3.4 m contact binary (10 primitives)"),
+    ]
+
+
+def capsule_val0() -> Target:
+    t = Target("Capsule-val0", "Gemini-like two-part spacecraft: dark conical re-entry module on its heat shield, "
+               "stepped white adapter section behind it with radiator panels, nose RCS section")
+    for i, (z0, z1, r) in enumerate(((-1.2, -0.8, 1.4), (-0.8, -0.4, 1.28), (-0.4, 0.0, 1.15))):
+        t.cylinder(f"adapter_{i}", [0, 0, z0], [0, 0, z1], r, WHITE, 250.0)
+    t.ellipsoid("heat_shield", [0, 0, 0.1], [1.12, 1.12, 0.18], SHIELD, 450.0)
+    for i, (z0, z1, r) in enumerate(((0.15, 0.75, 1.05), (0.75, 1.3, 0.8), (1.3, 1.8, 0.58))):
+        t.cylinder(f"cabin_{i}", [0, 0, z0], [0, 0, z1], r, DARK, 400.0)
+    t.cylinder("rcs_section", [0, 0, 1.8], [0, 0, 2.3], 0.45, DARK, 350.0)
+    t.cylinder("rendezvous_nose", [0, 0, 2.3], [0, 0, 2.55], 0.3, SILVER, 350.0)
+    for k in range(2):
+        a = np.deg2rad(60 + 180 * k)
+        t.box(f"hatch_{k}", [0.72 * np.cos(a), 0.72 * np.sin(a), 1.1], [0.03, 0.28, 0.4], GREY, 300.0,
+              euler=[0, -25, 60 + 180 * k])
+    t.box("radiator", [1.42, 0, -0.7], [0.02, 0.45, 0.4], RADIATOR, 200.0)
+    return t
+
+def rocket_val0() -> Target:
+    t = Target("Rocket-val0", "Delta-IV-like cryogenic upper stage: wide white hydrogen tank over a narrower "
+               "orange oxygen tank hung on exposed struts, RL10-like engine with a long extendable nozzle")
+    ORANGE = (0.80, 0.45, 0.18)
+    t.cylinder("lh2_tank", [0, 0, 0.2], [0, 0, 4.4], 2.0, WHITE, D_TANK)
+    t.ellipsoid("lh2_dome_top", [0, 0, 4.4], [2.0, 2.0, 0.9], WHITE, D_TANK)
+    t.ellipsoid("lh2_dome_aft", [0, 0, 0.2], [2.0, 2.0, 0.6], WHITE, D_TANK)
+    t.ellipsoid("lox_tank", [0, 0, -1.6], [1.55, 1.55, 1.05], ORANGE, D_TANK)
+    for k in range(4):
+        a = np.deg2rad(45 + 90 * k)
+        c, s = np.cos(a), np.sin(a)
+        t.cylinder(f"strut_{k}", [1.85 * c, 1.85 * s, 0.0], [1.2 * c, 1.2 * s, -2.2], 0.06, GREY, 300.0)
+    t.cylinder("thrust_frame", [0, 0, -2.6], [0, 0, -2.9], 0.7, GREY, 300.0)
+    t.capsule("engine", [0, 0, -2.9], [0, 0, -3.4], 0.35, DARK, D_DENSE)
+    t.cylinder("nozzle", [0, 0, -3.4], [0, 0, -4.6], 0.75, DARK, 100.0)
+    t.cylinder("nozzle_ext", [0, 0, -4.6], [0, 0, -5.3], 1.05, (0.35, 0.33, 0.32), 50.0)
+    t.cylinder("forward_ring", [0, 0, 5.3], [0, 0, 5.5], 1.3, GREY, 200.0)
+    t.sphere("helium_a", [1.4, 0, -2.3], 0.32, DARK, 300.0)
+    t.sphere("helium_b", [-1.4, 0, -2.3], 0.32, DARK, 300.0)
+    return t
+
+def satellite_val0() -> Target:
+    t = Target("Satellite-val0", "mobile-comms satellite: white box bus, large offset mesh reflector on a long "
+               "boom, two short single-panel wings, feed array and radiators")
+    t.box("bus", [0, 0, 0], [0.6, 0.6, 0.8], WHITE, D_BUS)
+    t.box("radiator_n", [0, 0.62, 0], [0.58, 0.02, 0.75], RADIATOR, D_PANEL)
+    t.box("radiator_s", [0, -0.62, 0], [0.58, 0.02, 0.75], RADIATOR, D_PANEL)
+    for s, tag in ((1, "p"), (-1, "m")):
+        t.cylinder(f"yoke_{tag}", [0, s * 0.64, 0], [0, s * 1.1, 0], 0.04, GREY, D_DENSE)
+        t.box(f"wing_{tag}", [0, s * 1.85, 0], [0.65, 0.75, 0.015], PANEL2, D_PANEL)
+    t.cylinder("boom", [0.6, 0, 0.6], [2.0, 0, 1.9], 0.05, GREY, D_BOOM)
+    t.ellipsoid("reflector", [2.35, 0, 2.25], [0.05, 1.35, 1.35], GOLD, 60.0, euler=[0, -45, 0])
+    t.box("feed_array", [0.62, 0, 0.4], [0.05, 0.35, 0.3], DARK, D_DENSE)
+    t.cylinder("engine", [0, 0, -0.8], [0, 0, -1.15], 0.2, DARK, D_DENSE)
+    t.cylinder("tt_c_antenna", [-0.3, 0.3, 0.8], [-0.3, 0.3, 1.2], 0.06, WHITE, D_BOOM)
+    return t
+
+def station_val0() -> Target:
+    t = Target("Station-val0", "Skylab-like station: wide orbital workshop with one surviving wing, airlock and "
+               "docking adapter in line, a solar observatory on a truss with four windmill arrays, docked capsule")
+    t.cylinder("workshop", [-6.4, 0, 0], [2.5, 0, 0], 3.0, WHITE, D_MODULE)
+    t.cylinder("aft_skirt", [-6.4, 0, 0], [-7.0, 0, 0], 2.6, GREY, D_MODULE)
+    t.box("wing", [-3.0, 6.3, 0], [3.0, 3.2, 0.015], PANEL, D_PANEL)
+    t.box("wing_beam", [-3.0, 3.2, 0], [3.0, 0.2, 0.1], GREY, 200.0)
+    t.cylinder("airlock", [2.5, 0, 0], [4.5, 0, 0], 1.6, GOLD, D_MODULE)
+    t.cylinder("docking_adapter", [4.5, 0, 0], [7.5, 0, 0], 1.4, SILVER, D_MODULE)
+    t.ellipsoid("capsule", [8.4, 0, 0], [0.9, 1.3, 1.3], SILVER, 400.0)
+    t.box("atm_truss", [5.5, 0, 2.3], [0.3, 0.3, 1.0], GREY, 200.0)
+    t.box("atm", [5.5, 0, 4.0], [1.1, 1.1, 1.0], GOLD, D_MODULE)
+    for k in range(4):
+        a = np.deg2rad(45 + 90 * k)
+        c, s = np.cos(a), np.sin(a)
+        t.box(f"windmill_{k}", [5.5, 3.4 * c, 4.0 + 3.4 * s], [0.015, 2.1, 0.6], PANEL, D_PANEL,
+              euler=[45 + 90 * k, 0, 0])
+    t.box("radiator", [-6.7, 0, -2.7], [0.3, 1.2, 0.015], RADIATOR, D_PANEL)
+    return t
+
+
 def bound_radius(target: Target) -> float:
     """Bounding radius (m) about the centre of mass of the model as written, computed by the loader (MuJoCo)."""
     import tempfile
@@ -360,19 +447,28 @@ def bound_radius(target: Target) -> float:
 
 
 def all_targets() -> list[Target]:
-    """The 18 targets, each class scaled by the size rule (module docstring)."""
+    """The catalogue, each class scaled by the size rule (module docstring): the 18 training and test targets, then
+    the validation targets.
+
+    A class's factor is set by its training and test models; its validation models take that factor and must fit
+    under the cap, since a larger one would rescale the class and so change the models agents are trained and
+    tested on."""
     classes = [
-        asteroids(),
-        [capsule_v0(), capsule_v1(), capsule_v2()],
-        [rocket_v0(), rocket_v1(), rocket_v2()],
-        [satellite_v0(), satellite_v1(), satellite_v2()],
-        [station_v0(), station_v1(), station_v2()],
+        (asteroids(), validation_asteroids()),
+        ([capsule_v0(), capsule_v1(), capsule_v2()], [capsule_val0()]),
+        ([rocket_v0(), rocket_v1(), rocket_v2()], [rocket_val0()]),
+        ([satellite_v0(), satellite_v1(), satellite_v2()], [satellite_val0()]),
+        ([station_v0(), station_v1(), station_v2()], [station_val0()]),
     ]
-    for members in classes:
+    for members, validation in classes:
         scale = min(1.0, MAX_BOUND_RADIUS / max(bound_radius(t) for t in members))
-        for t in members:
+        for t in members + validation:
             t.scale, t.scale_reason = scale, f"size rule: bounding radius <= {MAX_BOUND_RADIUS} m"
-    return [t for members in classes for t in members]
+        for t in validation:
+            if bound_radius(t) > MAX_BOUND_RADIUS + 1e-6:
+                raise ValueError(f"{t.name}: bounding radius {bound_radius(t):.3f} m at its class's scale {scale:.4f} "
+                                 f"exceeds {MAX_BOUND_RADIUS} m; make it smaller than its class's largest model")
+    return [t for members, _ in classes for t in members] + [t for _, validation in classes for t in validation]
 
 
 def main() -> None:
