@@ -68,6 +68,19 @@ def test_training_bands_mean_std(tmp_path):
         training.read_run(tmp_path / "missing")
 
 
+def test_a_run_figure_keeps_the_title_it_is_given(tmp_path, monkeypatch):
+    """The figure's title is the caller's, not the last panel's ('epsilon')."""
+    import matplotlib.figure
+
+    _write_run(tmp_path / "ramavt_s0", [100, 200], [10.0, 20.0])
+    titles = []
+    real = matplotlib.figure.Figure.suptitle
+    monkeypatch.setattr(matplotlib.figure.Figure, "suptitle",
+                        lambda fig, text, **kw: titles.append(text) or real(fig, text, **kw))
+    training.plot_run(tmp_path / "ramavt_s0", title="ramavt seed 0")
+    assert titles == ["ramavt seed 0"]
+
+
 def test_plot_cmd_baseline(tmp_path):
     _write_run(tmp_path / "runs" / "a_s0", [1, 2], [3.0, 4.0])
     paths = cli_eval.plot_cmd(runs=(tmp_path / "runs" / "a_s0",), policy="oracle", target="Satellite-v2", steps=12,
