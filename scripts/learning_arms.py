@@ -214,8 +214,8 @@ def evaluate_arm(out: Path, arm: str, episodes: int, key: jax.Array, max_steps: 
 def evaluate_baselines(resolution: int, episodes: int, key: jax.Array, max_steps: int = 1000) -> dict:
     tracking_env, params_b, ids = heldout_setup(resolution, episodes)
     out = {}
-    for name in ("oracle", "depth", "random"):
-        policy = baselines.make_policy(name, tracking_env.config.camera)
+    for name in ("mpc", "proportional", "depth", "random"):
+        policy = baselines.make_policy(name, tracking_env.config.camera, tracking_env.config.dynamics)
         length, ret, lost = jax.jit(lambda: batched_rollout(tracking_env, params_b, policy, key, max_steps))()
         out[name] = _summary(length, ret, lost, ids, tracking_env.config.targets)
     return out
