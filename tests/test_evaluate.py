@@ -329,16 +329,20 @@ def test_final_evaluation_draws_only_each_splits_targets_with_one_rollout_progra
     calls = []
 
     def record(tracking_env, policy, params, key, num_episodes, num_steps):
-        calls.append((tracking_env, policy, num_steps, np.asarray(params.target_probs)))
-        return _stats([2] * num_episodes, [0.0] * num_episodes, [False] * num_episodes), None
+        calls.append((tracking_env, policy, num_steps, np.asarray(params.target_probs), jax.random.key_data(key)))
+        ret = {"greedy": 3.0, "mpc": 4.0}.get(policy.name, 0.0)
+        return _stats([2] * num_episodes, [ret] * num_episodes, [False] * num_episodes), None
 
     monkeypatch.setattr(final.rollouts, "run_episodes", record)
     results = final.final_evaluation(cfg, {}, jax.random.PRNGKey(1), log=lambda _: None)
-    assert len({(id(env), id(policy), steps) for env, policy, steps, _ in calls}) == 2  # greedy, random
+    assert len({(id(env), id(policy), steps) for env, policy, steps, _, _ in calls}) == 3  # greedy, random, mpc
     names = calls[0][0].config.targets
-    for (_, _, _, probs), members in zip(calls, [cfg.env.targets] * 2 + [targets_lib.TEST_TARGETS] * 2):
+    for (_, _, _, probs, _), members in zip(calls, [cfg.env.targets] * 3 + [targets_lib.TEST_TARGETS] * 3):
         np.testing.assert_allclose(probs, [1 / len(members) if n in members else 0.0 for n in names], rtol=1e-6)
-    assert {s: sorted(r) for s, r in results.items()} == {"train": ["greedy", "random"], "test": ["greedy", "random"]}
+    assert {s: sorted(r) for s, r in results.items()} == {s: ["greedy", "mpc", "random"] for s in ("train", "test")}
+    for split, first in (("train", 0), ("test", 3)):  # the ceiling flies the greedy policy's episodes
+        np.testing.assert_array_equal(calls[first][4], calls[first + 2][4])
+        assert results[split]["greedy"]["ceiling_fraction"] == pytest.approx(0.75)
 
 
 def test_statistics_intervals_iqm_and_probability_of_improvement():
