@@ -62,7 +62,9 @@ def proportional_policy(gain: float = 1.0) -> Policy:
 
 
 # ----------------------------------------------------------------------------------------- mpc (the ceiling)
-MPC_HORIZON = 2  # default look-ahead steps (see mpc_policy)
+# Default look-ahead steps (see mpc_policy): every pair of the next two commands, the second held for 10 more steps
+# scoring the view only. On 600 held-out episodes it lost none where 2 steps lost one (1.2 s ahead; 2 s lost it again).
+MPC_HORIZON = 12
 
 
 def candidate_sequences(branch: int, num_actions: int = env_lib.NUM_ACTIONS) -> jax.Array:
@@ -72,35 +74,42 @@ def candidate_sequences(branch: int, num_actions: int = env_lib.NUM_ACTIONS) -> 
 
 
 def mpc_policy(config: env_lib.EnvConfig, horizon: int = MPC_HORIZON, branch: int = 2,
-               tail: str = "hold") -> Policy:
+               tail: str = "view") -> Policy:
     """Receding-horizon control on the true state: every sequence of `branch` actions (11 ** branch) is simulated
-    with the env's own `transition` + `score` from the current state, followed for the remaining
-    `horizon - branch` steps by its last action held (`tail='hold'`) or by the proportional controller on the
-    model's state (`tail='proportional'`, a rollout of a base policy); the first action of the sequence with the
-    highest summed reward is taken.
+    with the env's own `transition` + `score` from the current state, then `horizon - branch` tail steps; the first
+    action of the sequence with the highest model return is taken. Tails:
+
+    - 'view': the last action held, scoring only whether the target is in view (+1 / -5). A 2-step search cannot
+      see the reward's -5 -> +1 cliff when an out-of-view target is more than 2 steps from the view, and a held
+      command's distance term would mislead (held for 1 s it overshoots), but its view term shows which first
+      moves bring the target back soonest; when the target stays in view every plan's tail scores the same.
+    - 'hold': the last action held, full reward. 'proportional': the proportional controller on the model's
+      state, full reward (a rollout of a base policy).
 
     The model is noise-free (actuator noise and time delay off in its params, so one step lasts exactly dt): the
     real env still applies its perturbations when it steps. It never renders. `config` supplies the motion model
     and the camera (the reward's in-view test); the attitude, which no reward reads, gets one RK4 substep."""
     if not 1 <= branch <= horizon:
         raise ValueError(f"mpc needs 1 <= branch <= horizon, got branch {branch}, horizon {horizon}")
-    if tail not in ("hold", "proportional"):
-        raise ValueError(f"mpc tail must be 'hold' or 'proportional', got {tail!r}")
+    if tail not in ("view", "hold", "proportional"):
+        raise ValueError(f"mpc tail must be 'view', 'hold' or 'proportional', got {tail!r}")
     model = env_lib.TrackingEnv(dataclasses.replace(config, attitude_substeps=1))
     base = proportional_policy()
     sequences = candidate_sequences(branch)  # [S, branch]
     hold = jnp.broadcast_to(sequences[:, -1:], (sequences.shape[0], horizon - branch))
     plans = jnp.concatenate([sequences, hold], axis=1)  # [S, horizon]; tail 'proportional' ignores the held part
-    follow_base = jnp.arange(horizon) >= branch if tail == "proportional" else jnp.zeros(horizon, bool)
+    in_tail = jnp.arange(horizon) >= branch
+    follow_base = in_tail & (tail == "proportional")
+    view_only = in_tail & (tail == "view")
 
     def plan_return(keys, state, params, plan):
-        """Summed model reward [] of one plan [horizon]; `keys` [horizon] (inert: the model has no noise)."""
+        """Model return [] of one plan [horizon]; `keys` [horizon] (inert: the model has no noise)."""
         def step(s, xs):
-            k, a, use_base = xs
+            k, a, use_base, only_view = xs
             a = jnp.where(use_base, base.act(k, None, None, s, params)[0], a)
-            s, reward, *_ = model.score(model.transition(k, s, a, params), params)
-            return s, reward
-        return jax.lax.scan(step, state, (keys, plan, follow_base))[1].sum()
+            s, reward, _, _, info = model.score(model.transition(k, s, a, params), params)
+            return s, jnp.where(only_view, jnp.where(info["in_view"], 1.0, -5.0), reward)
+        return jax.lax.scan(step, state, (keys, plan, follow_base, view_only))[1].sum()
 
     def act(key, pstate, obs, env_state: env_lib.EnvState, params: env_lib.EnvParams):
         model_params = params.replace(actuator_noise=jnp.zeros_like(params.actuator_noise),

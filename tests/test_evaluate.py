@@ -161,7 +161,7 @@ def test_eval_mpc_perturbations_custom_target_and_figures(tmp_path):
     overall = row["settings"]["none"]["overall"]
     assert overall["length_min"] == 12 and overall["ceiling_fraction"] == pytest.approx(1.0)
     assert 0.0 <= overall["within_quarter_fraction"] <= overall["within_half_fraction"] <= 1.0
-    assert overall["error_mean"] > 0 and row["info"] == {"variant": "mpc", "horizon": 2}
+    assert overall["error_mean"] > 0 and row["info"] == {"variant": "mpc", "horizon": baselines.MPC_HORIZON}
     assert overall["return_ci_low"] <= overall["return_mean"] <= overall["return_ci_high"]
     md = (out / "tables.md").read_text()
     assert "## Table II" in md and md.count("| mpc ceiling (true state) |") >= 6

@@ -133,7 +133,8 @@ def eval_cmd(
         speed_steps: single-env steps timed for the speed column (0 = skip).
         seed: evaluation seed (the same episodes for every policy; a setting's episodes depend only on the seed,
             the setting's name and the target).
-        horizon: look-ahead steps of the mpc ceiling (2: every pair of the next two commands).
+        horizon: look-ahead steps of the mpc ceiling: every pair of the next two commands, the second then held
+            for horizon - 2 steps scoring only whether the target stays in view (2: the pairs alone).
         out: output folder (tables.md, results.json, figures/).
         figures: also plot one episode per policy (tracking error, 3-D trajectory, frame strip), attention maps and
             training curves of the runs.
