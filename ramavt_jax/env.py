@@ -126,6 +126,14 @@ class TrackingEnv:
     def __init__(self, config: EnvConfig = EnvConfig()):
         self.config = config
 
+    # Equal configs make equal envs (the object holds nothing else), so caches of compiled rollouts keyed on the
+    # env are shared by every env built from the same config.
+    def __eq__(self, other) -> bool:
+        return type(other) is type(self) and other.config == self.config
+
+    def __hash__(self) -> int:
+        return hash((type(self), self.config))
+
     # ----------------------------------------------------------------------------------------- parameters
     def default_params(self, **overrides: Any) -> EnvParams:
         """Original training values with this config's targets loaded; keyword overrides replace fields."""

@@ -25,7 +25,7 @@ import numpy as np
 from ramavt_jax import baselines, train
 from ramavt_jax import env as env_lib
 from ramavt_jax import targets as targets_lib
-from ramavt_jax.evaluation import runs
+from ramavt_jax.evaluation import runs, statistics
 from ramavt_jax.training.driver import run as train_run
 
 
@@ -207,15 +207,15 @@ def evaluate_arm(out: Path, arm: str, episodes: int, key: jax.Array, max_steps: 
     ael, aer = np.array([s["AEL"] for s in seeds]), np.array([s["AER"] for s in seeds])
     return {"arm": arm, "policy_params": config.run.policy_params, "episodes_per_target": episodes,
             "eval_wall_s": time.time() - t, "seeds": seeds,
-            "AEL_mean": float(ael.mean()), "AEL_std": float(ael.std()), "AER_mean": float(aer.mean()),
-            "AER_std": float(aer.std())}
+            "AEL_mean": float(ael.mean()), "AEL_std": statistics.sample_std(ael), "AER_mean": float(aer.mean()),
+            "AER_std": statistics.sample_std(aer)}
 
 
 def evaluate_baselines(resolution: int, episodes: int, key: jax.Array, max_steps: int = 1000) -> dict:
     tracking_env, params_b, ids = heldout_setup(resolution, episodes)
     out = {}
-    for name in ("oracle", "depth", "random"):
-        policy = baselines.make_policy(name, tracking_env.config.camera)
+    for name in ("mpc", "proportional", "depth", "random"):
+        policy = baselines.make_policy(name, tracking_env.config.camera, tracking_env.config.dynamics)
         length, ret, lost = jax.jit(lambda: batched_rollout(tracking_env, params_b, policy, key, max_steps))()
         out[name] = _summary(length, ret, lost, ids, tracking_env.config.targets)
     return out
@@ -283,6 +283,25 @@ def report(out: Path) -> None:
         ael = ", ".join(f"{s['AEL']:.0f}" for s in r["seeds"])
         aer = ", ".join(f"{s['AER']:+.0f}" for s in r["seeds"])
         print(f"{_row_head(r)} {ael} | {aer} |")
+    if rows:
+        compare_report(rows, names)
+
+
+def seed_scores(r: dict, names: list[str]) -> np.ndarray:
+    """AER per seed and held-out target [seeds, targets] of one heldout JSON (rliable's score matrix)."""
+    return np.array([[s["per_target"][n]["AER"] for n in names] for s in r["seeds"]])
+
+
+def compare_report(rows: list[dict], names: list[str]) -> None:
+    """Interquartile mean of AER over seeds x targets (95 % stratified bootstrap interval) and the probability of
+    improvement over the reference arm ('base' if evaluated, else the first), both from rliable."""
+    ref = next((r for r in rows if r["arm"] == "base"), rows[0])
+    print(f"\n| arm | seeds | IQM AER [95 % CI] | P(arm > {ref['arm']}) |\n|---|---|---|---|")
+    for r in rows:
+        scores = seed_scores(r, names)
+        low, high = statistics.iqm_ci(scores)
+        poi = statistics.probability_of_improvement(scores, seed_scores(ref, names))
+        print(f"| {r['arm']} | {len(scores)} | {statistics.iqm(scores):+.1f} [{low:+.1f}, {high:+.1f}] | {poi:.2f} |")
 
 
 if __name__ == "__main__":

@@ -3,8 +3,8 @@ mean (bias) and its spread (std) per axis, per held-out target, after the first 
 
     python scripts/position_error.py depth pretrained runs/arms/prev/seed_0 --episodes 8
 
-Policies: 'depth' / 'oracle' (baselines), 'pretrained' (the shipped agent) or a training run folder. Every policy
-runs the same episodes (fixed key) with the evaluation's reward rules.
+Policies: 'depth' / 'proportional' / 'mpc' (baselines), 'pretrained' (the shipped agent) or a training run folder.
+Every policy runs the same episodes (fixed key) with the evaluation's reward rules.
 """
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ from ramavt_jax.evaluation import pretrained, rollouts, runs
 
 
 def load(spec: str, resolution: int):
-    if spec in ("depth", "oracle"):
+    if spec in ("depth", "proportional", "mpc"):
         return baselines.make_policy(spec, env_lib.CameraConfig(resolution=resolution))
     return pretrained.load().policy if spec == "pretrained" else runs.load_policy(spec).policy
 

@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # Evaluation behind RESULTS.md: Tables I-III on the held-out targets from the run folders of scripts/reproduce.sh,
-# with the oracle, depth-tracker and random baselines at the runs' resolution (32x32). Writes results/table{1,2,3}/.
+# with the mpc ceiling, proportional, depth-tracker and random baselines at the runs' resolution (32x32).
+# Writes results/table{1,2,3}/.
 # Usage: bash scripts/reproduce_eval.sh [runs/repro] [results] [tables, default "1 2 3 seeds"]
 set -euo pipefail
 RUNS=${1:-runs/repro}
@@ -14,8 +15,8 @@ mkdir -p "$OUT"
 # Table I: agents x input modes (+ the longer RAMAVT-depth run)
 want 1 && timed ramavt eval --policy checkpoint --tables 1 --obs depth rgbd color "${COMMON[@]}" --out "$OUT/table1" --figures \
   --run $(have ramavt_depth ramavt_rgbd ramavt_color drlavt_depth drlavt_rgbd drlavt_color ramavt_depth_long)
-# Table II: perturbations, the best depth agent. Baselines: the 64x64 baseline Table II in RESULTS.md (the oracle
-# and random agent do not depend on the resolution); left out here to fit the CPU budget (each row ~2 min).
+# Table II: perturbations, the best depth agent. Baselines: the 64x64 baseline Table II in RESULTS.md (the true-state
+# controllers and random agent do not depend on the resolution); left out here to fit the CPU budget (each row ~2 min).
 want 2 && timed ramavt eval --policy checkpoint --tables 2 --obs depth --no-baselines "${COMMON[@]}" \
   --out "$OUT/table2" --run $(have ramavt_depth_long)
 # Table III: the ablation (cumulative: Origin, +Augment, +SE, +MHA, RAMAVT = all). The RAMAVT row and the

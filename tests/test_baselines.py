@@ -1,4 +1,5 @@
-"""Baselines over whole episodes: the oracle is the upper bound, the depth tracker comes close, random ends early."""
+"""Baselines over whole episodes: the mpc ceiling beats the proportional controller, which tracks every target; the
+depth tracker comes close to it, random ends early."""
 
 import jax
 import numpy as np
@@ -9,37 +10,45 @@ from ramavt_jax.evaluation import rollouts as evaluate
 
 
 @pytest.fixture(scope="module")
-def oracle_results():
-    # The oracle reads the true state, so a tiny image keeps rendering cheap; 100 episodes per target.
+def proportional_results():
+    # The controller reads the true state, so a tiny image keeps rendering cheap; 100 episodes per target.
     config = env.EnvConfig(camera=render.CameraConfig(resolution=8), targets=targets.ALL_TARGETS)
-    policy = baselines.oracle_policy()
+    policy = baselines.proportional_policy()
     return evaluate.evaluate_per_target(config, policy, jax.random.key(0), episodes_per_target=100)
 
 
+<<<<<<< HEAD
 def test_oracle_tracks_every_catalogue_target(oracle_results):
     lengths = {name: s.length_mean for name, s in oracle_results.items()}
     print("oracle mean episode length per target:", lengths)
     assert len(lengths) == len(targets.ALL_TARGETS)
     assert all(s.episodes == 100 for s in oracle_results.values())
+=======
+def test_proportional_tracks_every_catalogue_target(proportional_results):
+    lengths = {name: s.length_mean for name, s in proportional_results.items()}
+    print("proportional mean episode length per target:", lengths)
+    assert len(lengths) == 18
+    assert all(s.episodes == 100 for s in proportional_results.values())
+>>>>>>> 35984e6
     for name, mean in lengths.items():
-        assert mean >= 990.0, f"oracle lost {name}: mean length {mean}"
+        assert mean >= 990.0, f"proportional lost {name}: mean length {mean}"
 
 
-def test_random_ends_early_and_depth_tracker_comes_close(oracle_results):
+def test_random_ends_early_and_depth_tracker_comes_close(proportional_results):
     names = ("Satellite-v2", "Capsule-v2", "Asteroid-v5")
     config = env.EnvConfig(camera=render.CameraConfig(resolution=32), targets=names)
     depth = evaluate.evaluate_per_target(config, baselines.make_policy("depth", config.camera), jax.random.key(1), 8)
     rand = evaluate.evaluate_per_target(config, baselines.random_policy(), jax.random.key(2), 8)
     depth_mean = np.mean([s.length_mean for s in depth.values()])
     rand_mean = np.mean([s.length_mean for s in rand.values()])
-    oracle_mean = np.mean([oracle_results[n].length_mean for n in names])
-    print(f"mean episode length: oracle {oracle_mean:.1f}, depth tracker {depth_mean:.1f}, random {rand_mean:.1f}")
-    assert rand_mean < 0.5 * oracle_mean
-    assert depth_mean >= 0.9 * oracle_mean
+    prop_mean = np.mean([proportional_results[n].length_mean for n in names])
+    print(f"mean episode length: proportional {prop_mean:.1f}, depth tracker {depth_mean:.1f}, random {rand_mean:.1f}")
+    assert rand_mean < 0.5 * prop_mean
+    assert depth_mean >= 0.9 * prop_mean
     # the classical tracker's position estimate is biased (it sees the surface, not the centre of mass)
     depth_return = np.mean([s.return_mean for s in depth.values()])
-    oracle_return = np.mean([oracle_results[n].return_mean for n in names])
-    assert depth_return < oracle_return
+    prop_return = np.mean([proportional_results[n].return_mean for n in names])
+    assert depth_return < prop_return
 
 
 def test_quantise_velocity_picks_nearest_command():
@@ -70,3 +79,26 @@ def test_depth_estimate_recovers_centred_sphere():
 def test_unknown_policy():
     with pytest.raises(ValueError, match="unknown baseline"):
         baselines.make_policy("telepathy", render.CameraConfig())
+    with pytest.raises(ValueError, match="renamed 'proportional'"):
+        baselines.make_policy("oracle", render.CameraConfig())
+    with pytest.raises(ValueError, match="branch"):
+        baselines.mpc_policy(env.EnvConfig(), horizon=2, branch=3)
+
+
+def test_candidate_sequences_are_every_pair():
+    seqs = np.asarray(baselines.candidate_sequences(2, num_actions=3))
+    assert seqs.shape == (9, 2) and len({tuple(s) for s in seqs}) == 9 and set(seqs.ravel()) == {0, 1, 2}
+
+
+def test_mpc_ceiling_beats_proportional_on_the_same_episodes():
+    # Same key, so the same initial states; 4 episodes of 40 steps, an 8x8 image (neither policy looks).
+    config = env.EnvConfig(camera=render.CameraConfig(resolution=8), targets=("Satellite-v2",))
+    key, overrides = jax.random.key(5), {"max_steps": 40}
+    prop = evaluate.evaluate_per_target(config, baselines.make_policy("proportional", config.camera), key, 4, overrides)
+    mpc = evaluate.evaluate_per_target(config, baselines.make_policy("mpc", config.camera), key, 4, overrides)
+    for name in config.targets:
+        print(f"{name}: AER mpc {mpc[name].return_mean:.1f} proportional {prop[name].return_mean:.1f}; error (m) "
+              f"{mpc[name].error_mean:.2f} {prop[name].error_mean:.2f}")
+        assert mpc[name].length_mean == 40  # it does not lose the target
+        assert mpc[name].return_mean > prop[name].return_mean + 5.0
+        assert mpc[name].error_mean < prop[name].error_mean

@@ -20,7 +20,7 @@ def test_targets_lists_catalogue(capsys):
 
 def test_render_writes_gif(tmp_path, capsys):
     out = tmp_path / "episode.gif"
-    cli.main(["render", "--target", "Capsule-v0", "--policy", "oracle", "--steps", "6", "--resolution", "16",
+    cli.main(["render", "--target", "Capsule-v0", "--policy", "proportional", "--steps", "6", "--resolution", "16",
               "--size", "64", "--out", str(out)])
     assert out.is_file() and out.stat().st_size > 1000
     import imageio.v2 as imageio

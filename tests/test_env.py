@@ -336,13 +336,13 @@ def test_large_user_target_is_seen_as_the_small_one_at_a_scaled_stand_off(tmp_pa
         assert float(obs_s.max()) > 0.0
 
 
-def test_oracle_holds_a_large_user_target_at_its_stand_off(tmp_path):
+def test_proportional_holds_a_large_user_target_at_its_stand_off(tmp_path):
     from ramavt_jax import baselines
 
     big = env.TrackingEnv(env.EnvConfig(camera=render.CameraConfig(resolution=16),
                                         targets=(str(_enlarged_satellite(tmp_path, 5.0)),)))
     p = big.eval_params(max_steps=150)
-    policy = baselines.oracle_policy()
+    policy = baselines.proportional_policy()
     step = jax.jit(big.step_env)
     obs, state = big.reset(jax.random.key(3), p)
     pstate = policy.init(jax.random.key(0))

@@ -43,7 +43,8 @@ def test_summary_matches_hand_computation():
     assert (s.length_min, s.length_max) == (10, 1000)
     assert s.return_mean == pytest.approx((-50 + 300 + 20.5 - 80) / 4)
     assert (s.return_min, s.return_max) == (pytest.approx(-80.0), pytest.approx(300.0))
-    assert s.length_std == pytest.approx(np.std([10, 1000, 500, 21]))
+    assert s.length_std == pytest.approx(np.std([10, 1000, 500, 21], ddof=1))  # sample, not population
+    assert s.return_ci_low < s.return_mean < s.return_ci_high and np.isnan(s.error_mean)  # no tracking sums given
     # lost = ended by termination; truncated = reached max_steps; the 500-step one (run cut short) is neither
     assert s.lost_fraction == pytest.approx(0.5)
     assert s.truncated_fraction == pytest.approx(0.25)
@@ -71,6 +72,33 @@ def test_early_exit_runner_matches_recorded_scan():
     np.testing.assert_allclose((np.asarray(rec.reward) * np.asarray(rec.alive)).sum(0), fast.episode_return,
                                rtol=1e-5, atol=1e-4)
     assert bool(jnp.all(fast.terminated ^ fast.truncated))  # every episode ended exactly one way
+    # the tracking sums against the recorded positions (a catalogue target: stand-off scale 1, so metres)
+    alive = np.asarray(rec.alive)
+    distance = np.linalg.norm(np.asarray(rec.rel_pos) - np.asarray(params.desired_pos), axis=-1)
+    np.testing.assert_allclose(fast.tracking.error, (distance * alive).sum(0), rtol=1e-4)
+    np.testing.assert_array_equal(fast.tracking.within_half, ((distance <= 0.5) & alive).sum(0))
+    np.testing.assert_array_equal(fast.tracking.within_quarter, ((distance <= 0.25) & alive).sum(0))
+    s = rollouts.summarise(fast)
+    assert s.error_mean == pytest.approx(np.mean((distance * alive).sum(0) / alive.sum(0)), rel=1e-4)
+    assert s.error_ci_low <= s.error_mean <= s.error_ci_high
+
+
+def test_a_settings_episodes_do_not_depend_on_the_other_settings_requested():
+    """The 'none' setting's episodes (hence every summary number) are the same evaluated alone (Table I) and among
+    the five perturbation settings (Tables I + II), and the same target's episodes alone and beside another target.
+    The depth tracker reads its images, so a frame history that changed with the request would show too."""
+    camera = render.CameraConfig(resolution=8)
+    entry = tables_lib.Entry("depth", "baseline", baselines.make_policy("depth", camera), env_lib.EnvConfig(camera))
+    run = lambda tables, targets: tables_lib.run_suite([entry], targets, 2, 15, seed=0, tables=tables,
+                                                       speed_steps=0, log=lambda _: None)["rows"][0]["settings"]
+    alone = run((1,), ("Satellite-v2", "Asteroid-v4"))
+    together = run((1, 2), ("Satellite-v2", "Asteroid-v4"))
+    other_targets = run((1,), ("Asteroid-v4",))
+    assert set(together) == set(rollouts.PERTURBATIONS)
+    assert alone["none"]["overall"] == together["none"]["overall"]
+    assert alone["none"]["per_target"]["Asteroid-v4"] == other_targets["none"]["per_target"]["Asteroid-v4"]
+    # and the settings do differ from each other (the check above is not vacuous)
+    assert together["all"]["overall"]["return_mean"] != together["none"]["overall"]["return_mean"]
 
 
 def test_perturbation_settings():
@@ -120,20 +148,25 @@ def test_eval_random_writes_tables(tmp_path):
     assert result["rows"][0]["name"] == "random"
 
 
-def test_eval_oracle_perturbations_custom_target_and_figures(tmp_path):
+def test_eval_mpc_perturbations_custom_target_and_figures(tmp_path):
     path = tmp_path / "probe.xml"
     path.write_text(PROBE_XML)
     out = tmp_path / "eval"
-    cli_eval.eval_cmd(policy="oracle", baselines=False, targets=f"Satellite-v2,{path}", episodes=2, max_steps=12,
+    cli_eval.eval_cmd(policy="mpc", baselines=False, targets=f"Satellite-v2,{path}", episodes=2, max_steps=12,
                       tables=(1, 2), out=out, figures=True, resolution=16, speed_steps=0)
     js = json.loads((out / "results.json").read_text())
     (row,) = js["rows"]
     assert set(row["settings"]) == set(rollouts.PERTURBATIONS)
     assert set(row["settings"]["none"]["per_target"]) == {"Satellite-v2", str(path)}
-    # the oracle never loses a target within 12 steps
-    assert row["settings"]["none"]["overall"]["length_min"] == 12
+    # the ceiling never loses a target within 12 steps, and is its own ceiling
+    overall = row["settings"]["none"]["overall"]
+    assert overall["length_min"] == 12 and overall["ceiling_fraction"] == pytest.approx(1.0)
+    assert 0.0 <= overall["within_quarter_fraction"] <= overall["within_half_fraction"] <= 1.0
+    assert overall["error_mean"] > 0 and row["info"] == {"variant": "mpc", "horizon": baselines.MPC_HORIZON}
+    assert overall["return_ci_low"] <= overall["return_mean"] <= overall["return_ci_high"]
     md = (out / "tables.md").read_text()
-    assert "## Table II" in md and md.count("| oracle (true state) |") >= 6
+    assert "## Table II" in md and md.count("| mpc ceiling (true state) |") >= 6
+    assert "| error (m) | <= 0.25 m % | <= 0.5 m % | lost % | of ceiling % |" in md
     assert js["figures"]
     for p in js["figures"].values():
         assert os.path.getsize(p) > 0
@@ -283,19 +316,48 @@ def test_final_evaluation_draws_only_each_splits_targets_with_one_rollout_progra
     calls = []
 
     def record(tracking_env, policy, params, key, num_episodes, num_steps):
-        calls.append((tracking_env, policy, num_steps, np.asarray(params.target_probs), tuple(np.asarray(key))))
-        return _stats([2] * num_episodes, [0.0] * num_episodes, [False] * num_episodes), None
+        calls.append((tracking_env, policy, num_steps, np.asarray(params.target_probs), jax.random.key_data(key)))
+        ret = {"greedy": 3.0, "mpc": 4.0}.get(policy.name, 0.0)
+        return _stats([2] * num_episodes, [ret] * num_episodes, [False] * num_episodes), None
 
     monkeypatch.setattr(final.rollouts, "run_episodes", record)
     results = final.final_evaluation(cfg, {}, jax.random.PRNGKey(1), log=lambda _: None)
-    assert len({(id(env), id(policy), steps) for env, policy, steps, _, _ in calls}) == 2  # greedy, random
+    assert len({(id(env), id(policy), steps) for env, policy, steps, _, _ in calls}) == 3  # greedy, random, mpc
     names = calls[0][0].config.targets
-    splits = [cfg.env.targets] * 2 + [targets_lib.VAL_TARGETS] * 2 + [targets_lib.TEST_TARGETS] * 2
+    splits = [cfg.env.targets] * 3 + [targets_lib.VAL_TARGETS] * 3 + [targets_lib.TEST_TARGETS] * 3
     for (_, _, _, probs, _), members in zip(calls, splits, strict=True):
         np.testing.assert_allclose(probs, [1 / len(members) if n in members else 0.0 for n in names], rtol=1e-6)
-    assert {s: sorted(r) for s, r in results.items()} == {s: ["greedy", "random"] for s in ("train", "val", "test")}
-    keys = [k for *_, k in calls]
-    assert len(set(keys)) == len(keys)  # no two (split, policy) pairs share episodes' key
+    assert {s: sorted(r) for s, r in results.items()} == {s: ["greedy", "mpc", "random"]
+                                                         for s in ("train", "val", "test")}
+    for split, first in (("train", 0), ("val", 3), ("test", 6)):  # the ceiling flies the greedy policy's episodes
+        np.testing.assert_array_equal(calls[first][4], calls[first + 2][4])
+        assert results[split]["greedy"]["ceiling_fraction"] == pytest.approx(0.75)
+    keys = [tuple(np.asarray(k).ravel()) for *_, k in calls]
+    assert len({k for i, k in enumerate(keys) if i % 3 != 2}) == 6  # greedy and random: no two splits share a key
     root = jax.random.PRNGKey(1)
-    assert keys[4] == tuple(np.asarray(jax.random.fold_in(final.split_key(root, "test"), 0)))
+    assert keys[6] == tuple(np.asarray(jax.random.key_data(jax.random.fold_in(final.split_key(root, "test"), 0))).ravel())
     assert final.split_key(root, "val").tolist() != final.split_key(root, "test").tolist()
+
+
+def test_statistics_intervals_iqm_and_probability_of_improvement():
+    from ramavt_jax.evaluation import statistics
+
+    rng = np.random.default_rng(0)
+    values = rng.normal(10.0, 2.0, size=400)
+    low, high = statistics.bootstrap_ci(values)
+    # the mean's 95 % interval is about +-1.96 sigma / sqrt(n) = +-0.196 around the sample mean
+    assert low < values.mean() < high and 0.3 < high - low < 0.5
+    # stratified by a label that explains most of the spread: a narrower interval than the pooled one
+    strata = np.repeat([0, 1], 200)
+    split = np.concatenate([rng.normal(0.0, 0.1, 200), rng.normal(10.0, 0.1, 200)])
+    pooled, stratified = statistics.bootstrap_ci(split), statistics.bootstrap_ci(split, strata)
+    assert stratified[1] - stratified[0] < 0.2 * (pooled[1] - pooled[0])
+    assert np.isnan(statistics.bootstrap_ci([1.0])[0]) and np.isnan(statistics.sample_std([1.0]))
+    scores = np.arange(12.0).reshape(4, 3)  # 4 seeds x 3 targets
+    assert statistics.iqm(scores) == pytest.approx(np.mean(np.sort(scores.ravel())[3:9]))
+    better = scores + 100.0
+    assert statistics.probability_of_improvement(better, scores) == pytest.approx(1.0)
+    assert statistics.probability_of_improvement(scores, better) == pytest.approx(0.0)
+    cmp = statistics.compare_arms({"a": better, "b": scores})
+    assert cmp["probability_of_improvement"] == {"a>b": pytest.approx(1.0), "b>a": pytest.approx(0.0)}
+    assert cmp["iqm"]["a"]["ci_low"] <= cmp["iqm"]["a"]["iqm"] <= cmp["iqm"]["a"]["ci_high"]

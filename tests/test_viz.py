@@ -83,7 +83,7 @@ def test_a_run_figure_keeps_the_title_it_is_given(tmp_path, monkeypatch):
 
 def test_plot_cmd_baseline(tmp_path):
     _write_run(tmp_path / "runs" / "a_s0", [1, 2], [3.0, 4.0])
-    paths = cli_eval.plot_cmd(runs=(tmp_path / "runs" / "a_s0",), policy="oracle", target="Satellite-v2", steps=12,
+    paths = cli_eval.plot_cmd(runs=(tmp_path / "runs" / "a_s0",), policy="proportional", target="Satellite-v2", steps=12,
                          resolution=16, frames=4, out=tmp_path / "fig")
     assert set(paths) == {"training_curves", "tracking_error", "trajectory_3d", "frames"}
     for p in paths.values():

@@ -31,7 +31,7 @@ def targets_cmd(split: Literal["all", "train", "val", "test"] = "all") -> None:
 
 def render_cmd(
     target: str = "Satellite-v1",
-    policy: Literal["oracle", "random", "depth", "pretrained"] = "oracle",
+    policy: Literal["proportional", "mpc", "random", "depth", "pretrained"] = "proportional",
     steps: int = 200,
     out: Path = Path("episode.gif"),
     agent: str = "ramavt_depth",
@@ -71,7 +71,7 @@ def render_cmd(
         config = dataclasses.replace(config, camera=loaded.config.env.camera, obs_mode=loaded.config.env.obs_mode)
         pol = loaded.policy
     else:
-        pol = baselines.make_policy(policy, config.camera)
+        pol = baselines.make_policy(policy, config.camera, dynamics)
     tracking_env = env.TrackingEnv(config)
     t = time.time()
     print(f"flying {steps} steps of {policy} on {target} (compiling the episode first) ...", flush=True)

@@ -21,7 +21,8 @@ from ramavt_jax.evaluation.runs import LoadedRun, load_policy, row_name
 from ramavt_jax.figures import episode, training
 from ramavt_jax.training import run_folder
 
-LABELS = {"oracle": "oracle (true state)", "depth": "depth tracker", "random": "random"}
+LABELS = {"mpc": "mpc ceiling (true state)", "proportional": "proportional (true state)", "depth": "depth tracker",
+          "random": "random"}
 
 
 def _run_entries(runs: tuple[Path, ...], policy_params: str | None = None
@@ -48,16 +49,18 @@ def _pretrained_entry(name: str) -> tables_lib.Entry:
 
 
 def _baseline_entries(names: list[str], obs: tuple[str, ...], resolution: int, dynamics: str,
-                      targets: tuple[str, ...]) -> list[tables_lib.Entry]:
+                      targets: tuple[str, ...], horizon: int = baselines_lib.MPC_HORIZON) -> list[tables_lib.Entry]:
     camera = render.CameraConfig(resolution=resolution)
     entries = []
     for name in names:
-        pol = baselines_lib.make_policy(name, camera)  # one object per baseline: one compile for all its runs
+        # one object per baseline: one compile for all its runs
+        pol = baselines_lib.make_policy(name, camera, dynamics, horizon)
         modes = [m for m in obs if m != "color"] if name == "depth" else list(obs[:1])
         for mode in modes:
             config = env_lib.EnvConfig(camera=camera, obs_mode=mode, targets=targets, dynamics=dynamics)
             label = mode if name == "depth" else f"any ({mode})"
-            entries.append(tables_lib.Entry(LABELS[name], "baseline", pol, config, {}, label, {"variant": name}))
+            info = {"variant": name, **({"horizon": horizon} if name == "mpc" else {})}
+            entries.append(tables_lib.Entry(LABELS[name], "baseline", pol, config, {}, label, info))
     return entries
 
 
@@ -82,13 +85,13 @@ def _check_eval_args(policy, agent, run, targets, episodes, max_steps, tables, b
 
 
 def eval_cmd(
-    policy: Literal["checkpoint", "pretrained", "oracle", "depth", "random"] = "checkpoint",
+    policy: Literal["checkpoint", "pretrained", "mpc", "proportional", "depth", "random"] = "checkpoint",
     run: tuple[Path, ...] = (),
     policy_params: Literal["online", "target"] | None = None,
     agent: str = pretrained.DEFAULT_AGENT,
     baselines: bool = True,
     targets: str = "test",
-    episodes: int = 20,
+    episodes: int = 100,
     max_steps: int = 1000,
     tables: tuple[int, ...] = (1, 2, 3),
     obs: tuple[Literal["depth", "rgbd", "color"], ...] = ("depth",),
@@ -99,6 +102,7 @@ def eval_cmd(
     blur_frames: int = 3,
     speed_steps: int = 200,
     seed: int = 0,
+    horizon: int = baselines_lib.MPC_HORIZON,
     out: Path = Path("eval"),
     figures: bool = False,
 ) -> dict:
@@ -106,32 +110,38 @@ def eval_cmd(
 
     Args:
         policy: 'checkpoint' (trained runs given by --run), 'pretrained' (an agent shipped with the package, see
-            --agent; --run folders may be added) or a baseline: 'oracle' (true state, an upper bound),
-            'depth' (classical depth-image tracker) or 'random'.
+            --agent; --run folders may be added) or a baseline: 'mpc' (the ceiling: receding-horizon search over
+            the 11 commands on the env's own noise-free model of the true state; the fraction-of-ceiling column
+            divides by its AER), 'proportional' (a proportional controller on the true state, quantised; not an
+            upper bound), 'depth' (classical depth-image tracker) or 'random'.
         run: training run folders (written by `ramavt train`); each is one row of Tables I-III.
         policy_params: the runs' parameter set: 'online' or 'target' (the Polyak-averaged target net's); default:
             each run's own `run.policy_params`.
         agent: the shipped agent evaluated by --policy pretrained.
-        baselines: with --policy checkpoint, also evaluate oracle, depth tracker and random in every table (a
+        baselines: with --policy checkpoint, also evaluate mpc, proportional, depth tracker and random in every table (a
             baseline given as --policy is evaluated alone).
         targets: 'test' (held-out split), 'val' (validation split), 'train', 'all', or comma-separated catalogue
             names / MJCF files.
-        episodes: episodes per target (run side by side).
+        episodes: episodes per target (run side by side; the paper's protocol: 100).
         max_steps: episode length cap (the paper: 1000).
         tables: which tables to produce (2 runs the five perturbation settings, 5x the episodes).
-        obs: input modes of the baselines (the depth tracker skips 'color'; oracle and random run once).
+        obs: input modes of the baselines (the depth tracker skips 'color'; the others run once).
         resolution: camera resolution of the baselines (trained runs use their own).
         dynamics: target motion model of the baselines (trained runs use their own).
         actuator_noise: Table II actuator noise (command x (1 + a N(0, 1))).
         delay_max: Table II time delay: each step lasts dt + U(0, delay_max) s.
         blur_frames: Table II image blur: observation = mean of the last n frames.
         speed_steps: single-env steps timed for the speed column (0 = skip).
-        seed: evaluation seed (the same episodes for every policy).
+        seed: evaluation seed (the same episodes for every policy; a setting's episodes depend only on the seed,
+            the setting's name and the target).
+        horizon: look-ahead steps of the mpc ceiling: every pair of the next two commands, the second then held
+            for horizon - 2 steps scoring only whether the target stays in view (2: the pairs alone).
         out: output folder (tables.md, results.json, figures/).
         figures: also plot one episode per policy (tracking error, 3-D trajectory, frame strip), attention maps and
             training curves of the runs.
     """
     t0 = time.time()
+    positive("--horizon", horizon)
     names = _check_eval_args(policy, agent, run, targets, episodes, max_steps, tables, blur_frames, out)
     entries, loaded = _run_entries(run, policy_params)
     if policy == "pretrained":
@@ -139,8 +149,8 @@ def eval_cmd(
     trained = policy in ("checkpoint", "pretrained")
     wanted = [] if trained else [policy]
     if baselines and trained:
-        wanted += [p for p in ("oracle", "depth", "random") if p not in wanted]
-    entries += _baseline_entries(wanted, obs, resolution, dynamics, names)
+        wanted += [p for p in ("mpc", "proportional", "depth", "random") if p not in wanted]
+    entries += _baseline_entries(wanted, obs, resolution, dynamics, names, horizon)
     settings = tables_lib.settings_for(tuple(tables))
     print(f"evaluating {len(entries)} policies x {len(settings)} setting(s) x {len(names)} targets x {episodes} "
           f"episodes (each policy compiles first) ...", flush=True)
@@ -160,7 +170,7 @@ def eval_cmd(
 def plot_cmd(
     runs: tuple[Path, ...] = (),
     run: Path | None = None,
-    policy: Literal["oracle", "depth", "random"] = "oracle",
+    policy: Literal["mpc", "proportional", "depth", "random"] = "proportional",
     target: str = "Satellite-v2",
     steps: int = 1000,
     resolution: int = 64,
@@ -203,7 +213,8 @@ def plot_cmd(
         pol, network, prefix = lr.policy, (lr.config.network, lr.params), episode.slug(Path(run).name)
     else:
         config = env_lib.EnvConfig(camera=render.CameraConfig(resolution=resolution), obs_mode=obs, targets=names[:1])
-        overrides, pol, network, prefix = {}, baselines_lib.make_policy(policy, config.camera), None, policy
+        pol = baselines_lib.make_policy(policy, config.camera, config.dynamics)
+        overrides, network, prefix = {}, None, policy
     tracking_env = env_lib.TrackingEnv(config)
     params = tracking_env.eval_params(**overrides, max_steps=steps)
     print(f"recording one episode of {pol.name} on {names[0]} ...", flush=True)

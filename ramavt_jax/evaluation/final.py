@@ -1,6 +1,8 @@
-"""The end-of-training evaluation of a run folder: the greedy policy and a random agent on the training, the
-validation and the held-out (test) targets, with the evaluation settings (``env.eval_params``), written to
-``eval.json``. Choose among runs by the validation split; the test split is for the final numbers."""
+"""The end-of-training evaluation of a run folder: the greedy policy, a random agent and the mpc ceiling (true-state
+receding-horizon control, baselines.mpc_policy) on the training, the validation and the held-out (test) targets, with
+the evaluation settings (``env.eval_params``), written to ``eval.json``. Choose among runs by the validation split;
+the test split is for the final numbers. The ceiling flies the greedy policy's episodes, so the greedy entry's
+'ceiling_fraction' (its AER / the ceiling's) compares like with like."""
 
 from __future__ import annotations
 
@@ -44,22 +46,25 @@ def split_envs(config: TrainConfig, splits: dict[str, tuple[str, ...]],
 
 
 def final_evaluation(config: TrainConfig, params: Any, key: jax.Array, log: Callable[[str], None] = print) -> dict:
-    """{split: {'greedy' | 'random': Summary dict}} on the run's training targets, the validation and the held-out
-    (test) split; one compiled rollout per policy serves every split."""
-    policies = {"greedy": greedy_policy(config.network, params, tuple(config.env.obs_shape)),
-                "random": baselines.random_policy()}
+    """{split: {'greedy' | 'random' | 'mpc': Summary dict}} on the run's training targets, the validation and the
+    held-out (test) split; one compiled rollout per policy serves every split."""
     splits = {"train": tuple(config.env.targets), "val": targets_lib.VAL_TARGETS, "test": targets_lib.TEST_TARGETS}
     tracking_env, split_params = split_envs(config, splits, config.run.eval_max_steps)
+    policies = {"greedy": greedy_policy(config.network, params, tuple(config.env.obs_shape)),
+                "random": baselines.random_policy(), "mpc": baselines.mpc_policy(tracking_env.config)}
+    key_index = {"greedy": 0, "random": 1, "mpc": 0}  # the ceiling flies the greedy policy's episodes
     out = {}
     for split, names in splits.items():
-        for j, (name, policy) in enumerate(policies.items()):
+        for name, policy in policies.items():
             t = time.time()
-            k = jax.random.fold_in(split_key(key, split), j)
+            k = jax.random.fold_in(split_key(key, split), key_index[name])
             stats, _ = rollouts.run_episodes(tracking_env, policy, split_params[split], k, config.run.eval_episodes,
                                              num_steps=config.run.eval_max_steps)
             out.setdefault(split, {})[name] = res = rollouts.summarise(stats).as_dict()
             log(f"final evaluation: {name:<6} on {split:<5} targets ({len(names)}): mean episode length "
                 f"{res['length_mean']:.0f}, return {res['return_mean']:.1f} ({time.time() - t:.0f} s)")
+        ceiling = out[split]["mpc"]["return_mean"]
+        out[split]["greedy"]["ceiling_fraction"] = out[split]["greedy"]["return_mean"] / ceiling if ceiling else None
     return out
 
 

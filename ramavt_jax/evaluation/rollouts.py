@@ -16,6 +16,7 @@ from flax import struct
 from ramavt_jax import env as env_lib
 from ramavt_jax import targets as targets_lib
 from ramavt_jax.baselines import Policy
+from ramavt_jax.evaluation import statistics
 
 # EnvParams fields whose evaluation values (env.eval_params) replace a run's training values
 EVAL_FIELDS = ("dist_weight", "lost_patience")
@@ -51,6 +52,28 @@ class EpisodeStats:
     terminated: jax.Array  # ended by losing the target
     target_index: jax.Array
     truncated: jax.Array | None = None  # ended by reaching max_steps (None: unknown, taken as ~terminated)
+    tracking: TrackingSums | None = None  # per-episode sums of the tracking error (None: not recorded)
+
+
+@struct.dataclass
+class TrackingSums:
+    """Per-episode sums over the episode's steps, [N]. Distances are in stand-off units: metres for every catalogue
+    target, metres / k for a target held at the scaled stand-off k (env.standoff_scale)."""
+
+    error: jax.Array  # sum of |target centre - desired point| / k
+    within_quarter: jax.Array  # steps with that distance <= 0.25
+    within_half: jax.Array  # steps with that distance <= 0.5
+
+    @staticmethod
+    def zeros(n: int) -> "TrackingSums":
+        return TrackingSums(jnp.zeros(n), jnp.zeros(n, jnp.int32), jnp.zeros(n, jnp.int32))
+
+    def add(self, tracking_error: jax.Array, scale: jax.Array, alive: jax.Array) -> "TrackingSums":
+        """Add one step: tracking_error [N, 3] (m, camera frame), scale [N], alive [N] bool (ended: nothing)."""
+        distance = jnp.linalg.norm(tracking_error, axis=-1) / scale
+        return TrackingSums(error=self.error + jnp.where(alive, distance, 0.0),
+                            within_quarter=self.within_quarter + (alive & (distance <= 0.25)),
+                            within_half=self.within_half + (alive & (distance <= 0.5)))
 
 
 def run_episodes(
@@ -86,7 +109,7 @@ def _episode_runner(tracking_env, policy, steps, record):
         step_keys = jax.random.split(k_loop, steps)
 
         def body(carry, step_key):
-            obs, state, pstate, alive, length, ret, term, trunc = carry
+            obs, state, pstate, alive, length, ret, term, trunc, track = carry
             k_act, k_env = jax.random.split(step_key)
             act_keys = jax.random.split(k_act, num_episodes)
             action, pstate = jax.vmap(policy.act, in_axes=(0, 0, 0, 0, None))(act_keys, pstate, obs, state, params)
@@ -98,6 +121,7 @@ def _episode_runner(tracking_env, policy, steps, record):
             ret = ret + jnp.where(alive, reward, 0.0)
             term = term | (alive & terminated)
             trunc = trunc | (alive & truncated)
+            track = track.add(info["tracking_error"], state.scale, alive)
             out = None
             if record:
                 out = EpisodeRecord(
@@ -106,10 +130,10 @@ def _episode_runner(tracking_env, policy, steps, record):
                     in_view=info["in_view"],
                 )
             alive = alive & ~(terminated | truncated)
-            return (obs, state, pstate, alive, length, ret, term, trunc), out
+            return (obs, state, pstate, alive, length, ret, term, trunc, track), out
 
         none = jnp.zeros(num_episodes, bool)
-        init = (obs, state, pstate, alive, zeros.astype(jnp.int32), zeros, none, none)
+        init = (obs, state, pstate, alive, zeros.astype(jnp.int32), zeros, none, none, TrackingSums.zeros(num_episodes))
         if record:
             carry, rec = jax.lax.scan(body, init, step_keys)
         else:
@@ -123,9 +147,9 @@ def _episode_runner(tracking_env, policy, steps, record):
 
             _, carry = jax.lax.while_loop(cond, loop, (jnp.zeros((), jnp.int32), init))
             rec = None
-        _, state, _, _, length, ret, term, trunc = carry
+        _, state, _, _, length, ret, term, trunc, track = carry
         stats = EpisodeStats(length=length, episode_return=ret, terminated=term, target_index=state.target_index,
-                             truncated=trunc)
+                             truncated=trunc, tracking=track)
         return stats, rec
 
     return jax.jit(run, static_argnums=2)
@@ -144,8 +168,20 @@ class Summary:
     return_max: float
     lost_fraction: float  # ended by losing the target
     truncated_fraction: float = float("nan")  # tracked until max_steps
-    length_std: float = float("nan")
+    length_std: float = float("nan")  # sample standard deviation (ddof 1)
     return_std: float = float("nan")
+    # 95 % bootstrap intervals of the means, episodes resampled within each target (statistics.bootstrap_ci)
+    length_ci_low: float = float("nan")
+    length_ci_high: float = float("nan")
+    return_ci_low: float = float("nan")
+    return_ci_high: float = float("nan")
+    # Tracking error in stand-off units (metres for catalogue targets), each episode's mean over its steps, then
+    # the mean over episodes (NaN: not recorded); the within fractions likewise, of each episode's steps.
+    error_mean: float = float("nan")
+    error_ci_low: float = float("nan")
+    error_ci_high: float = float("nan")
+    within_quarter_fraction: float = float("nan")  # steps within 0.25 of the desired point
+    within_half_fraction: float = float("nan")  # steps within 0.5
 
     def as_dict(self) -> dict:
         return dataclasses.asdict(self)
@@ -162,6 +198,7 @@ def summarise(stats: EpisodeStats) -> Summary:
     trunc = ~lost if stats.truncated is None else np.asarray(stats.truncated, bool).reshape(-1)
     if length.size == 0:
         raise ValueError("summarise: no episodes")
+    strata = np.asarray(stats.target_index).reshape(-1)
     return Summary(
         episodes=int(length.size),
         length_mean=float(length.mean()),
@@ -172,9 +209,30 @@ def summarise(stats: EpisodeStats) -> Summary:
         return_max=float(ret.max()),
         lost_fraction=float(lost.mean()),
         truncated_fraction=float(trunc.mean()),
-        length_std=float(length.std()),
-        return_std=float(ret.std()),
+        length_std=statistics.sample_std(length),
+        return_std=statistics.sample_std(ret),
+        **_intervals("length", length, strata),
+        **_intervals("return", ret, strata),
+        **_tracking_columns(stats.tracking, length, strata),
     )
+
+
+def _intervals(name: str, values: np.ndarray, strata: np.ndarray) -> dict:
+    """{name_ci_low, name_ci_high}: the 95 % stratified bootstrap interval of the mean of `values` [N]."""
+    low, high = statistics.bootstrap_ci(values, strata)
+    return {f"{name}_ci_low": low, f"{name}_ci_high": high}
+
+
+def _tracking_columns(tracking: TrackingSums | None, length: np.ndarray, strata: np.ndarray) -> dict:
+    """Summary's tracking-error fields from the per-episode sums (empty without them: the fields stay NaN)."""
+    if tracking is None:
+        return {}
+    steps = np.maximum(length, 1)  # an episode has at least one step; guards a zero-step run
+    error = np.asarray(tracking.error, np.float64).reshape(-1) / steps
+    quarter = np.asarray(tracking.within_quarter, np.float64).reshape(-1) / steps
+    half = np.asarray(tracking.within_half, np.float64).reshape(-1) / steps
+    return {"error_mean": float(error.mean()), **_intervals("error", error, strata),
+            "within_quarter_fraction": float(quarter.mean()), "within_half_fraction": float(half.mean())}
 
 
 def concat_stats(stats: Sequence[EpisodeStats]) -> EpisodeStats:
@@ -182,6 +240,8 @@ def concat_stats(stats: Sequence[EpisodeStats]) -> EpisodeStats:
     stats = list(stats)
     if any(s.truncated is None for s in stats):
         stats = [s.replace(truncated=None) for s in stats]
+    if any(s.tracking is None for s in stats):
+        stats = [s.replace(tracking=None) for s in stats]
     return jax.tree.map(lambda *xs: np.concatenate([np.asarray(x).reshape(-1) for x in xs]), *stats)
 
 

@@ -5,7 +5,12 @@ Table II  the perturbation suite per policy: actuator noise, time delay, image b
 Table III the ablation: one row per trained run folder (AEL, AER, speed), baselines for reference.
 
 Every policy sees the same episodes: the key of (setting, target) does not depend on the policy (common random
-numbers), so differences between rows are not reset luck.
+numbers), so differences between rows are not reset luck. It depends only on the seed, the setting's name and the
+target's name (episode_key), never on which other settings, targets or policies were requested.
+
+Beside AEL / AER every table reports the tracking error (distance of the target centre from the desired point, in
+stand-off units: metres for catalogue targets), the fractions of steps within 0.25 and 0.5 of it, the lost
+fraction and each row's AER as a fraction of the mpc ceiling's on the same episodes (when an mpc row is present).
 """
 
 from __future__ import annotations
@@ -14,6 +19,7 @@ import dataclasses
 import os
 import platform
 import time
+import zlib
 from pathlib import Path
 from typing import Callable
 
@@ -65,6 +71,16 @@ class Entry:
     info: dict = dataclasses.field(default_factory=dict)
 
 
+def stable_hash(name: str) -> int:
+    """A hash of `name` that is the same in every process and release (Python's hash() is salted per process)."""
+    return zlib.crc32(name.encode("utf-8"))
+
+
+def episode_key(root: jax.Array, setting: str, target: str) -> jax.Array:
+    """The key of a (setting, target)'s episodes: a function of the seed's key and the two names only."""
+    return jax.random.fold_in(jax.random.fold_in(root, stable_hash(setting)), stable_hash(target))
+
+
 def settings_for(tables: tuple[int, ...]) -> list[str]:
     return list(rollouts.PERTURBATIONS) if 2 in tables else ["none"]
 
@@ -87,13 +103,13 @@ def run_suite(entries: list[Entry], targets: tuple[str, ...], episodes: int, max
                "info": entry.info, "settings": {}}
         log(f"{entry.name} ({row['input']}): {len(settings)} setting(s) x {len(targets)} target(s) x {episodes} "
             f"episodes, up to {max_steps} steps ...")
-        for s_index, setting in enumerate(settings):
+        for setting in settings:
             t0 = time.time()
             params = tracking_env.eval_params(**{**entry.env_overrides, "max_steps": max_steps,
                                                  **rollouts.perturbation_overrides(setting, values)})
             per_target, all_stats = {}, []
             for i, target in enumerate(targets):
-                key = jax.random.fold_in(jax.random.fold_in(root, s_index), i)  # same episodes for every policy
+                key = episode_key(root, setting, target)  # same episodes for every policy and request
                 stats, _ = rollouts.run_episodes(tracking_env, entry.policy, tracking_env.pinned(params, i), key,
                                                  episodes)
                 stats = jax.device_get(stats)
@@ -111,11 +127,31 @@ def run_suite(entries: list[Entry], targets: tuple[str, ...], episodes: int, max
             log(f"{entry.name:<22} {row['input']:<6} speed {row['speed_hz']:.1f} Hz (single env, {speed_steps} steps)")
         row["wall_s"] = time.time() - t_entry
         results.append(row)
+    add_ceiling_fractions(results)
     return {"settings": {"seed": seed, "episodes_per_target": episodes, "targets": list(targets),
                          "max_steps": max_steps, "eval_params": {"dist_weight": 1.0, "lost_patience": 20},
                          "perturbation_values": values, "perturbation_settings": settings, "tables": list(tables),
                          "speed_steps": speed_steps},
             "machine": machine_info(), "rows": results}
+
+
+def add_ceiling_fractions(rows: list[dict]) -> None:
+    """Add 'ceiling_fraction' (AER / the mpc ceiling's AER on the same episodes) to every summary of every row, in
+    place, overall and per target; None where no mpc row ran that setting. The first mpc row is the ceiling."""
+    ceiling = next((r for r in rows if r.get("info", {}).get("variant") == "mpc"), None)
+    for row in rows:
+        for setting, res in row["settings"].items():
+            ref = ceiling["settings"].get(setting) if ceiling is not None else None
+            pairs = [(res["overall"], ref and ref["overall"])]
+            pairs += [(o, ref and ref["per_target"].get(t)) for t, o in res["per_target"].items()]
+            for summary, top in pairs:
+                summary["ceiling_fraction"] = _fraction(summary["return_mean"], top)
+
+
+def _fraction(value: float, ceiling: dict | None) -> float | None:
+    if ceiling is None or not ceiling["return_mean"]:
+        return None
+    return float(value / ceiling["return_mean"])
 
 
 def machine_info() -> dict:
@@ -143,15 +179,36 @@ def _rows_in(result: dict, setting: str = "none"):
             yield r, r["settings"][setting]
 
 
+# The readable columns of every table (see _quality_cells).
+QUALITY_HEADER = ["error (m)", "<= 0.25 m %", "<= 0.5 m %", "lost %", "of ceiling %"]
+
+
+def _pct(x) -> str:
+    return "-" if x is None else _f(100 * x, 0)
+
+
+def _ci(o: dict, name: str = "return") -> str:
+    """'[low, high]': the 95 % bootstrap interval of the mean (results written before it existed: '-')."""
+    low, high = o.get(f"{name}_ci_low"), o.get(f"{name}_ci_high")
+    return "-" if low is None or not np.isfinite(low) else f"[{low:.1f}, {high:.1f}]"
+
+
+def _quality_cells(o: dict) -> list[str]:
+    """Tracking error (stand-off units: m for catalogue targets), steps within 0.25 / 0.5 of the desired point,
+    lost episodes and the AER as a fraction of the mpc ceiling's, as table cells."""
+    return [_f(o.get("error_mean"), 2), _pct(o.get("within_quarter_fraction")), _pct(o.get("within_half_fraction")),
+            _pct(o["lost_fraction"]), _pct(o.get("ceiling_fraction"))]
+
+
 def table1_md(result: dict) -> str:
     rows = []
     for r, s in _rows_in(result):
         o = s["overall"]
         rows.append([r["name"], r["input"], _f(o["length_mean"]), _f(o["length_min"], 0), _f(o["length_max"], 0),
-                     _f(o["return_mean"]), _f(o["return_min"]), _f(o["return_max"]), _f(100 * o["lost_fraction"], 0),
+                     _f(o["return_mean"]), _ci(o), _f(o["return_min"]), _f(o["return_max"]), *_quality_cells(o),
                      _f(r.get("speed_hz"))])
-    return _table(["Policy", "Input", "AEL", "EL min", "EL max", "AER", "ER min", "ER max", "lost %", "Speed (Hz)"],
-                  rows)
+    return _table(["Policy", "Input", "AEL", "EL min", "EL max", "AER", "AER 95 % CI", "ER min", "ER max",
+                   *QUALITY_HEADER, "Speed (Hz)"], rows)
 
 
 def table2_md(result: dict) -> str:
@@ -163,9 +220,10 @@ def table2_md(result: dict) -> str:
                 continue
             marks = ["✓" if m else "-" for m in SETTING_MARKS[setting]]
             o = s["overall"]
-            rows.append([r["name"], r["input"], *marks, _f(o["length_mean"]), _f(o["return_mean"]),
-                         _f(100 * o["lost_fraction"], 0)])
-    return _table(["Policy", "Input", "Actuator noise", "Time delay", "Image blur", "AEL", "AER", "lost %"], rows)
+            rows.append([r["name"], r["input"], *marks, _f(o["length_mean"]), _f(o["return_mean"]), _ci(o),
+                         *_quality_cells(o)])
+    return _table(["Policy", "Input", "Actuator noise", "Time delay", "Image blur", "AEL", "AER", "AER 95 % CI",
+                   *QUALITY_HEADER], rows)
 
 
 def table3_md(result: dict) -> str:
@@ -174,8 +232,9 @@ def table3_md(result: dict) -> str:
         info = r.get("info", {})
         o = s["overall"]
         rows.append([r["name"], info.get("variant", r["kind"]), str(info.get("augment", "-")), r["input"],
-                     _f(o["length_mean"]), _f(o["return_mean"]), _f(r.get("speed_hz"))])
-    return _table(["Run", "Variant", "Augment", "Input", "AEL", "AER", "Speed (Hz)"], rows)
+                     _f(o["length_mean"]), _f(o["return_mean"]), _ci(o), *_quality_cells(o), _f(r.get("speed_hz"))])
+    return _table(["Run", "Variant", "Augment", "Input", "AEL", "AER", "AER 95 % CI", *QUALITY_HEADER, "Speed (Hz)"],
+                  rows)
 
 
 def per_target_md(result: dict) -> str:
@@ -183,8 +242,8 @@ def per_target_md(result: dict) -> str:
     for r, s in _rows_in(result):
         for target, o in s["per_target"].items():
             rows.append([r["name"], r["input"], target, _f(o["length_mean"]), _f(o["length_min"], 0),
-                         _f(o["return_mean"]), _f(100 * o["lost_fraction"], 0)])
-    return _table(["Policy", "Input", "Target", "AEL", "EL min", "AER", "lost %"], rows)
+                         _f(o["return_mean"]), _ci(o), *_quality_cells(o)])
+    return _table(["Policy", "Input", "Target", "AEL", "EL min", "AER", "AER 95 % CI", *QUALITY_HEADER], rows)
 
 
 def paper_md() -> str:
@@ -210,6 +269,10 @@ def to_markdown(result: dict, command: str = "") -> str:
         f"- perturbations: actuator noise {pv['actuator_noise']} (command x (1 + a N(0,1))), time delay "
         f"U(0, {pv['delay_max']}) s added to each 0.1 s step, blur = mean of the last {pv['blur_frames']} frames",
         f"- speed: policy + env step of ONE env as one jitted call per step, {s['speed_steps']} steps (Hz)",
+        "- error: distance of the target centre from the desired point, each episode's mean over its steps, in "
+        "stand-off units (m; a target held at a scaled stand-off k counts metres / k); <= 0.25 / 0.5 m: share of "
+        "steps that close; of ceiling: AER / the mpc row's AER on the same episodes; CI: 95 % bootstrap interval of "
+        "the mean (episodes resampled within each target)",
         f"- machine: {m['cpu_count']} CPUs ({m['processor']}), {m['backend']} backend, jax {m['jax']}, load average "
         f"{', '.join(f'{x:.1f}' for x in m['load_average'] or [])} at the end",
         f"- wall time: {result.get('wall_s', float('nan')):.0f} s",
