@@ -35,10 +35,29 @@ def _host_available() -> int | None:
         return None
 
 
+def _limit() -> int | None:
+    """``RAMAVT_MEMORY_GB``: a cap on the memory a plan may count on (a machine shared with other jobs)."""
+    text = os.environ.get("RAMAVT_MEMORY_GB", "").strip()
+    if not text:
+        return None
+    try:
+        gib = float(text)
+    except ValueError:
+        raise MemoryPlanError(f"RAMAVT_MEMORY_GB must be a number of GiB, got {text!r}") from None
+    if not gib > 0 or gib == float("inf"):
+        raise MemoryPlanError(f"RAMAVT_MEMORY_GB must be a finite number of GiB > 0, got {text!r}")
+    return int(gib * 2**30)
+
+
 def available_bytes(device=None) -> int | None:
     """Bytes ``device`` (default: the first local one) can still allocate, or None when unknown. An accelerator
-    reports its own limit (``device.memory_stats()``); a CPU device uses the host's RAM."""
-    device = device or jax.local_devices()[0]
+    reports its own limit (``device.memory_stats()``); a CPU device uses the host's RAM. ``RAMAVT_MEMORY_GB``
+    caps either."""
+    found, limit = _device_available(device or jax.local_devices()[0]), _limit()
+    return found if limit is None else limit if found is None else min(found, limit)
+
+
+def _device_available(device) -> int | None:
     if device.platform != "cpu":
         try:
             stats = device.memory_stats() or {}

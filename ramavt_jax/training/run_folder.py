@@ -202,7 +202,7 @@ class RunLock:
     """An exclusive ``fcntl.flock`` on ``folder/.lock`` naming the holder (pid, host); released on close or when
     the process dies."""
 
-    def __init__(self, folder: Path):
+    def __init__(self, folder: Path, advice: str = "wait for that run to finish, stop it, or train into another --out"):
         import fcntl
 
         self.path = Path(folder) / LOCK_FILE
@@ -213,8 +213,7 @@ class RunLock:
             self._file.seek(0)
             holder = self._file.read().strip() or "another process"
             self._file.close()
-            raise RunFolderError(f"{folder} is in use by {holder} (lock file {self.path}); wait for that run to "
-                                 f"finish, stop it, or train into another --out") from None
+            raise RunFolderError(f"{folder} is in use by {holder} (lock file {self.path}); {advice}") from None
         self._file.seek(0)
         self._file.truncate()
         self._file.write(f"process {os.getpid()} on {socket.gethostname()}\n")
