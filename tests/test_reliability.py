@@ -91,9 +91,11 @@ def _damage(step_dir: Path) -> None:
             p.write_bytes(p.read_bytes()[: p.stat().st_size // 2])
 
 
-def test_eval_falls_back_past_a_damaged_newest_checkpoint_quietly(tmp_path, capfd):
+def test_eval_falls_back_past_a_damaged_newest_checkpoint_quietly(tmp_path, capfd, monkeypatch):
     from ramavt_jax.evaluation.runs import load_policy
 
+    reported = []  # what Python would print as tracebacks (pytest's own hook turns them into warnings)
+    monkeypatch.setattr(sys, "unraisablehook", lambda u: reported.append(str(u.exc_value)))
     _fake_run_folder(tmp_path / "run")
     _damage(tmp_path / "run" / "checkpoints" / "4")
     said = []
@@ -111,6 +113,7 @@ def test_eval_falls_back_past_a_damaged_newest_checkpoint_quietly(tmp_path, capf
     gc.collect()
     err = capfd.readouterr().err
     assert "Traceback" not in err and "Event loop is closed" not in err, err[:2000]
+    assert reported == [], reported[:3]
 
 
 # ============================================================================================ 4. incomplete config
