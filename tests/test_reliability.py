@@ -240,3 +240,16 @@ def test_sigterm_while_compiling_exits_at_once(tmp_path):
     assert code == 143 and waited < 5, (code, waited, err)
     assert len(err.splitlines()) == 1 and "SIGTERM" in err and "nothing was trained" in err
     assert not (tmp_path / "run" / "config.json").exists()
+
+
+def test_the_video_trajectory_view_holds_a_far_target():
+    from ramavt_jax.figures.episode import EpisodeFrames, view_limits
+
+    def frames(rel_pos):
+        t = len(rel_pos)
+        return EpisodeFrames(obs=None, rgb=None, rel_pos=np.asarray(rel_pos, float), chaser_pos=None, target_pos=None,
+                             reward=np.zeros(t), action=np.zeros(t, int), alive=np.ones(t, bool))
+
+    assert view_limits(frames([[0.5, 0, 5], [-1, 0, 7]])) == (6.0, 15.0, 6.0)  # the usual view
+    half, far, err = view_limits(frames([[0, 0, 5], [30, 0, 100]]))
+    assert half >= 30 and far >= 100 and err >= 95
