@@ -197,6 +197,13 @@ def test_float_flags_must_be_finite(flag, tmp_path, capsys):
     assert f"{flag.split('.')[-1].replace('-', '_')} must be" in err
 
 
+@pytest.mark.parametrize("flag", ["--actuator-noise", "--delay-max"])
+def test_eval_perturbation_flags_must_be_finite(flag, tmp_path, capsys):
+    for value in ("nan", "inf", "-0.5"):
+        err = _refused(["eval", "--policy", "random", flag, value, "--out", str(tmp_path / "eval")], capsys)
+        assert f"{flag} must be a finite number >= 0" in err
+
+
 def test_env_overrides_name_the_field():
     from ramavt_jax import env as env_lib
 

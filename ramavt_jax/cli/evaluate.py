@@ -14,7 +14,7 @@ import jax
 from ramavt_jax import baselines as baselines_lib
 from ramavt_jax import env as env_lib
 from ramavt_jax import render
-from ramavt_jax.cli.checks import UsageError, output_folder, positive
+from ramavt_jax.cli.checks import UsageError, finite, output_folder, positive
 from ramavt_jax.evaluation import pretrained, rollouts
 from ramavt_jax.evaluation import tables as tables_lib
 from ramavt_jax.evaluation.runs import LoadedRun, load_policy, row_name
@@ -132,6 +132,7 @@ def eval_cmd(
             training curves of the runs.
     """
     t0 = time.time()
+    finite("--actuator-noise", actuator_noise), finite("--delay-max", delay_max)
     names = _check_eval_args(policy, agent, run, targets, episodes, max_steps, tables, blur_frames, out)
     with run_folder.RunLock(Path(out), OTHER_WRITER):  # a second command writing into --out is refused
         entries, loaded = _run_entries(run, policy_params)
