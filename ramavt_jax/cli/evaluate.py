@@ -132,7 +132,8 @@ def eval_cmd(
             training curves of the runs.
     """
     t0 = time.time()
-    finite("--actuator-noise", actuator_noise), finite("--delay-max", delay_max)
+    finite("--actuator-noise", actuator_noise)
+    finite("--delay-max", delay_max)
     names = _check_eval_args(policy, agent, run, targets, episodes, max_steps, tables, blur_frames, out)
     with run_folder.RunLock(Path(out), OTHER_WRITER):  # a second command writing into --out is refused
         entries, loaded = _run_entries(run, policy_params)
