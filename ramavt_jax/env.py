@@ -25,6 +25,7 @@ from typing import Any
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 from flax import struct
 
 from ramavt_jax import dynamics, render
@@ -120,6 +121,16 @@ def reward_fn(position: jax.Array, visible: jax.Array, params: EnvParams, scale:
     return jnp.where(visible, 1.0, -5.0) - params.dist_weight * jnp.linalg.norm(params.desired_pos - position / scale)
 
 
+def _param_array(name: str, value) -> jax.Array:
+    """An EnvParams override as an array; ValueError naming the field for a value that is not numeric."""
+    if isinstance(value, jax.Array):
+        return value
+    arr = np.asarray(value)
+    if arr.dtype.kind not in "biuf":
+        raise ValueError(f"EnvParams.{name} must be a number (or an array of numbers), got {value!r}")
+    return jnp.asarray(arr)
+
+
 class TrackingEnv:
     """Static env object; all methods are pure functions of their arguments (jit/vmap them freely)."""
 
@@ -140,7 +151,7 @@ class TrackingEnv:
         catalogue, _ = targets_lib.load_many(self.config.targets)
         num = len(self.config.targets)
         params = EnvParams(catalogue=catalogue, target_probs=jnp.full((num,), 1.0 / num))
-        params = params.replace(**{k: jnp.asarray(v) for k, v in overrides.items()}) if overrides else params
+        params = params.replace(**{k: _param_array(k, v) for k, v in overrides.items()}) if overrides else params
         return validate_params(params, self.config)
 
     def pinned(self, params: EnvParams, target: int | str) -> EnvParams:

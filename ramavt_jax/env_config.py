@@ -127,6 +127,9 @@ def validate_params(params: EnvParams, config: EnvConfig) -> EnvParams:
         if not np.all(ok(arr)):
             raise ValueError(f"EnvParams.{name} must be {what}, got {arr}")
 
+    for field in dataclasses.fields(params):
+        if field.name != "catalogue":
+            check(field.name, lambda v: v.dtype.kind in "biuf" and np.isfinite(v).all(), "finite numbers")
     check("dt", lambda v: v > 0, "> 0")
     check("speed", lambda v: v > 0, "> 0")
     check("actuator_tau", lambda v: v >= 0, ">= 0")

@@ -68,6 +68,7 @@ class TrackingGymEnv(gymnasium.Env):
         self._step = jax.jit(self.tracking_env.step_env)
         self._key = jax.random.key(0)
         self._state = None
+        self._ended = False  # the episode terminated or was truncated: only reset() may follow
 
     def _next_key(self) -> jax.Array:
         self._key, key = jax.random.split(self._key)
@@ -80,17 +81,21 @@ class TrackingGymEnv(gymnasium.Env):
         elif self._state is None:
             self._key = jax.random.key(int(self.np_random.integers(2**31)))
         obs, self._state = self._reset(self._next_key(), self.params)
+        self._ended = False
         position = env_lib.relative_position(self._state)
         return np.asarray(obs, np.float32), {"rel_pos": np.asarray(position)}
 
     def step(self, action):
         if self._state is None:
             raise RuntimeError("call reset() before step()")
+        if self._ended:  # no auto-reset here: a further step would act in an episode that is over
+            raise RuntimeError("the episode has ended (terminated or truncated); call reset() before step()")
         if not _is_integer(action) or not 0 <= int(action) < env_lib.NUM_ACTIONS:
             raise ValueError(f"action must be an integer in [0, {env_lib.NUM_ACTIONS - 1}], got {action!r}")
         obs, self._state, reward, terminated, truncated, info = self._step(
             self._next_key(), self._state, jnp.asarray(int(action)), self.params
         )
+        self._ended = bool(terminated) or bool(truncated)
         return np.asarray(obs, np.float32), float(reward), bool(terminated), bool(truncated), _info_to_numpy(info)
 
     def render(self):

@@ -167,6 +167,18 @@ def test_damaged_newest_checkpoint_falls_back_to_the_older_one(tmp_path, full_ru
     _assert_trees_equal(rest.state, full_run.state)
 
 
+def test_a_torn_last_metrics_line_does_not_block_the_resume(tmp_path, full_run, capsys):
+    out = tmp_path / "run"
+    driver.run(SMOKE, out, seed=3, progress=False, max_chunks=2)
+    path = out / "metrics.jsonl"
+    path.write_text(path.read_text() + '{"chunk": 3, "loss": 0.')  # a crash while the next row was written
+    rest = driver.run(SMOKE, out, seed=3, progress=False)
+    said = [line for line in capsys.readouterr().out.splitlines() if "metrics.jsonl" in line]
+    assert len(said) == 1 and "skipped its last line" in said[0]
+    assert json.dumps(_rows(path)) == json.dumps(_rows(Path(full_run["out_dir"]) / "metrics.jsonl"))
+    _assert_trees_equal(rest.state, full_run.state)
+
+
 def test_second_process_on_a_locked_folder_gets_a_clear_error(tmp_path):
     import subprocess
     import sys

@@ -32,6 +32,16 @@ def test_episode_loop_and_render():
     gym_env.step(np.array(3))
 
 
+def test_a_step_after_the_episode_ended_needs_a_reset():
+    gym_env = TrackingGymEnv(CONFIG, params=env.TrackingEnv(CONFIG).default_params(max_steps=1))
+    gym_env.reset(seed=0)
+    assert gym_env.step(0)[3]  # truncated at max_steps
+    with pytest.raises(RuntimeError, match="episode has ended.*reset"):
+        gym_env.step(0)
+    gym_env.reset()
+    gym_env.step(0)  # a new episode
+
+
 @pytest.mark.parametrize("action", [11, -1, 2.7, "3", True, np.float32(1.0), np.array([1])])
 def test_non_integer_or_out_of_range_actions_are_rejected(action):
     gym_env = TrackingGymEnv(CONFIG)

@@ -2,11 +2,12 @@
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 from ramavt_jax.training import run_folder
 
-__all__ = ["UsageError", "positive", "output_file", "output_folder"]
+__all__ = ["UsageError", "positive", "finite", "output_file", "output_folder"]
 
 
 class UsageError(ValueError):
@@ -16,6 +17,13 @@ class UsageError(ValueError):
 def positive(name: str, value: int, minimum: int = 1) -> int:
     if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
         raise UsageError(f"{name} must be an integer >= {minimum}, got {value!r}")
+    return value
+
+
+def finite(name: str, value: float, minimum: float = 0.0) -> float:
+    """A float flag: a finite number >= ``minimum`` (a NaN passes every comparison-free path to the simulator)."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value < minimum:
+        raise UsageError(f"{name} must be a finite number >= {minimum:g}, got {value!r}")
     return value
 
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import os
 import subprocess
 import sys
 import time
@@ -78,8 +79,21 @@ def render_cmd(
     frames = episode.record_episode(tracking_env, pol, tracking_env.eval_params(), jax.random.key(seed), steps)
     length = int(frames.alive.sum())
     print(f"recorded in {time.time() - t:.0f} s; writing {out} ...", flush=True)
-    path = episode.episode_video(frames, out, size=size, every=every)
+    path = _write_atomic(out, lambda tmp: episode.episode_video(frames, tmp, size=size, every=every))
     print(f"{pol.name} on {target}: {length} steps tracked, return {float(frames.reward[:length].sum()):.1f}; wrote {path}")
+
+
+def _write_atomic(out: Path, write) -> Path:
+    """``write(tmp)`` a file under a name unique to this process beside ``out`` (same suffix: the format), then
+    rename it to ``out``: two commands writing the same --out each leave a whole file, never a mix."""
+    out = Path(out)
+    tmp = out.with_name(f".{out.stem}.{os.getpid()}.tmp{out.suffix}")
+    try:
+        write(tmp)
+        os.replace(tmp, out)
+    finally:
+        tmp.unlink(missing_ok=True)
+    return out
 
 
 def bench_main(argv: list[str]) -> None:

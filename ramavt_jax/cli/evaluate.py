@@ -14,13 +14,14 @@ import jax
 from ramavt_jax import baselines as baselines_lib
 from ramavt_jax import env as env_lib
 from ramavt_jax import render
-from ramavt_jax.cli.checks import UsageError, output_folder, positive
+from ramavt_jax.cli.checks import UsageError, finite, output_folder, positive
 from ramavt_jax.evaluation import pretrained, rollouts
 from ramavt_jax.evaluation import tables as tables_lib
 from ramavt_jax.evaluation.runs import LoadedRun, load_policy, row_name
 from ramavt_jax.figures import episode, training
 from ramavt_jax.training import run_folder
 
+OTHER_WRITER = "wait for that command to finish, stop it, or write into another --out"
 LABELS = {"mpc": "mpc ceiling (true state)", "proportional": "proportional (true state)", "depth": "depth tracker",
           "random": "random"}
 
@@ -142,27 +143,30 @@ def eval_cmd(
     """
     t0 = time.time()
     positive("--horizon", horizon)
+    finite("--actuator-noise", actuator_noise)
+    finite("--delay-max", delay_max)
     names = _check_eval_args(policy, agent, run, targets, episodes, max_steps, tables, blur_frames, out)
-    entries, loaded = _run_entries(run, policy_params)
-    if policy == "pretrained":
-        entries.insert(0, _pretrained_entry(agent))
-    trained = policy in ("checkpoint", "pretrained")
-    wanted = [] if trained else [policy]
-    if baselines and trained:
-        wanted += [p for p in ("mpc", "proportional", "depth", "random") if p not in wanted]
-    entries += _baseline_entries(wanted, obs, resolution, dynamics, names, horizon)
-    settings = tables_lib.settings_for(tuple(tables))
-    print(f"evaluating {len(entries)} policies x {len(settings)} setting(s) x {len(names)} targets x {episodes} "
-          f"episodes (each policy compiles first) ...", flush=True)
-    values = {"actuator_noise": actuator_noise, "delay_max": delay_max, "blur_frames": blur_frames}
-    result = tables_lib.run_suite(entries, names, episodes, max_steps, seed, tuple(tables), values, speed_steps)
-    if figures:
-        print("plotting one episode per policy ...", flush=True)
-        result["figures"] = episode.eval_figures(entries, loaded, names[0], Path(out) / "figures", seed=seed,
-                                                 steps=max_steps)
-    result["wall_s"] = time.time() - t0
-    command = "ramavt " + " ".join(shlex.quote(a) for a in sys.argv[1:]) if sys.argv[1:2] == ["eval"] else ""
-    md, js = tables_lib.write(result, out, command)
+    with run_folder.RunLock(Path(out), OTHER_WRITER):  # a second command writing into --out is refused
+        entries, loaded = _run_entries(run, policy_params)
+        if policy == "pretrained":
+            entries.insert(0, _pretrained_entry(agent))
+        trained = policy in ("checkpoint", "pretrained")
+        wanted = [] if trained else [policy]
+        if baselines and trained:
+            wanted += [p for p in ("mpc", "proportional", "depth", "random") if p not in wanted]
+        entries += _baseline_entries(wanted, obs, resolution, dynamics, names, horizon)
+        settings = tables_lib.settings_for(tuple(tables))
+        print(f"evaluating {len(entries)} policies x {len(settings)} setting(s) x {len(names)} targets x {episodes} "
+              f"episodes (each policy compiles first) ...", flush=True)
+        values = {"actuator_noise": actuator_noise, "delay_max": delay_max, "blur_frames": blur_frames}
+        result = tables_lib.run_suite(entries, names, episodes, max_steps, seed, tuple(tables), values, speed_steps)
+        if figures:
+            print("plotting one episode per policy ...", flush=True)
+            result["figures"] = episode.eval_figures(entries, loaded, names[0], Path(out) / "figures", seed=seed,
+                                                     steps=max_steps)
+        result["wall_s"] = time.time() - t0
+        command = "ramavt " + " ".join(shlex.quote(a) for a in sys.argv[1:]) if sys.argv[1:2] == ["eval"] else ""
+        md, js = tables_lib.write(result, out, command)
     print(f"wrote {md} and {js} ({result['wall_s']:.0f} s)")
     return result
 
@@ -199,6 +203,11 @@ def plot_cmd(
     positive("--frames", frames)
     names = rollouts.resolve_targets(target)
     output_folder(out)
+    with run_folder.RunLock(Path(out), OTHER_WRITER):  # a second command writing into --out is refused
+        return _plot(runs, run, policy, names, steps, resolution, obs, seed, frames, Path(out))
+
+
+def _plot(runs, run, policy, names, steps, resolution, obs, seed, frames, out: Path) -> dict:
     out_paths = {}
     if runs:
         labels = {training.group_name(r): training.run_label(r) for r in runs}

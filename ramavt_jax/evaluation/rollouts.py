@@ -17,6 +17,7 @@ from ramavt_jax import env as env_lib
 from ramavt_jax import targets as targets_lib
 from ramavt_jax.baselines import Policy
 from ramavt_jax.evaluation import statistics
+from ramavt_jax.training import memory as memplan
 
 # EnvParams fields whose evaluation values (env.eval_params) replace a run's training values
 EVAL_FIELDS = ("dist_weight", "lost_patience")
@@ -88,10 +89,55 @@ def run_episodes(
     """Run `num_episodes` episodes in parallel (one per env, no auto-reset) for `num_steps` (default max_steps).
 
     Returns EpisodeStats [N] and, if `record`, the per-step EpisodeRecord [T, N]. Jit-compiled as one lax.scan.
+    Episodes that do not fit in memory side by side run in batches (each batch's key: ``fold_in(key, batch)``).
     """
     steps = int(num_steps if num_steps is not None else np.asarray(params.max_steps))
     fn = _episode_runner(tracking_env, policy, steps, record)
-    return fn(params, key, num_episodes)
+    compiled = _compiled_runner(fn, params, key, num_episodes)
+    batch = episodes_that_fit(compiled, num_episodes)
+    if batch >= num_episodes:
+        return compiled(params, key)
+    # too many episodes side by side for the memory: batches of equal size (one compile), the last one cut short
+    compiled = _compiled_runner(fn, params, key, batch)
+    parts = [jax.device_get(compiled(params, jax.random.fold_in(key, b))) for b in range(-(-num_episodes // batch))]
+    stats = jax.tree.map(lambda *xs: np.concatenate(xs)[:num_episodes], *(p[0] for p in parts))
+    rec = None if not record else jax.tree.map(lambda *xs: np.concatenate(xs, axis=1)[:, :num_episodes],
+                                               *(p[1] for p in parts))
+    return stats, rec
+
+
+_COMPILED_RUNS: dict = {}  # (runner, episodes, argument types) -> the compiled runner
+
+
+def _compiled_runner(fn, params, key, num_episodes: int):
+    """``fn`` (an :func:`_episode_runner`) compiled for ``num_episodes`` and the types of ``params`` and ``key``;
+    called as ``compiled(params, key)``. Compiled ahead of time so its memory is known before anything is
+    allocated (:func:`episodes_that_fit`); cached, so repeated calls (targets, settings) do not trace again."""
+    types = (jax.tree.structure((params, key)), tuple(jax.typeof(x) for x in jax.tree.leaves((params, key))))
+    cache_key = (fn, num_episodes, types)
+    if cache_key not in _COMPILED_RUNS:
+        if len(_COMPILED_RUNS) >= 64:
+            _COMPILED_RUNS.pop(next(iter(_COMPILED_RUNS)))
+        _COMPILED_RUNS[cache_key] = fn.lower(params, key, num_episodes).compile()
+    return _COMPILED_RUNS[cache_key]
+
+
+def episodes_that_fit(compiled, num_episodes: int) -> int:
+    """How many of ``num_episodes`` episodes can run side by side: all of them when ``compiled`` (their runner)
+    fits in the memory available (or either is unknown), else as many as fit at the same bytes per episode.
+    Raises MemoryPlanError when not even one fits."""
+    try:
+        stats = compiled.memory_analysis()
+        need = int(stats.temp_size_in_bytes + stats.output_size_in_bytes + stats.argument_size_in_bytes)
+    except Exception:  # noqa: BLE001 (not every backend reports it)
+        return num_episodes
+    avail = memplan.available_bytes()
+    if avail is None or need <= memplan.FRACTION * avail:
+        return num_episodes
+    batch = int(memplan.FRACTION * avail * num_episodes // need)
+    if batch < 1:
+        memplan.check_fits(need // num_episodes, "one evaluation episode", "lower the camera resolution")
+    return max(batch, 1)
 
 
 @functools.lru_cache(maxsize=32)

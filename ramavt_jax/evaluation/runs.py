@@ -4,7 +4,6 @@ greedy policy from the latest (or a given) checkpoint, reading only the online n
 from __future__ import annotations
 
 import dataclasses
-import json
 from pathlib import Path
 
 import jax
@@ -36,30 +35,37 @@ class LoadedRun:
 
 
 def load_policy(run_dir, step: int | None = None, name: str | None = None,
-                policy_params: str | None = None) -> LoadedRun:
+                policy_params: str | None = None, log=print) -> LoadedRun:
     """The greedy policy of a training run folder written by ``ramavt train`` (config.json + checkpoints/).
 
     One network parameter set is read from the checkpoint (not the replay buffer): the online or the target net's,
     as ``policy_params`` says, by default as the run's config (RunConfig.policy_params) says. The returned config
-    records the set that was read."""
+    records the set that was read. Without ``step``, a damaged newest checkpoint is skipped (reported through
+    ``log`` in one line, left on disk) for the newest that loads. An incomplete config.json is refused
+    (RunFolderError naming the missing field)."""
     run_dir = Path(run_dir)
     cfg_file = run_dir / folders.CONFIG_FILE
     if not cfg_file.is_file():
         raise FileNotFoundError(f"{cfg_file} not found: --run must name a folder written by `ramavt train` "
                                 f"(config.json, checkpoints/)")
-    saved = json.loads(cfg_file.read_text())
+    saved = folders.read_config(run_dir)
     config = TrainConfig.from_dict(saved["config"])
     if policy_params is not None:
         config = config.override(policy_params=policy_params)
     store = CheckpointStore(run_dir / folders.CHECKPOINTS, create=False)
-    step = store.latest_step() if step is None else int(step)
     like = jax.eval_shape(Trainer(config).init, jax.ShapeDtypeStruct((2,), jnp.uint32))
     if not config.run.checkpoint_replay:
         like = like.replace(replay=None)
-    params = jax.tree.map(jnp.asarray, store.restore_subtree(
-        like, lambda s: s.learner.policy_params(config.run.policy_params), step))
-    meta = store.read_meta(step)
-    store.close()
+    pick = lambda s: s.learner.policy_params(config.run.policy_params)  # noqa: E731
+    try:
+        if step is None:  # the newest step that loads, as a resumed training run uses (a damaged one is skipped)
+            params, meta, step = store.restore_subtree_newest_loadable(like, pick, log)
+        else:
+            step = int(step)
+            params, meta = store.restore_subtree(like, pick, step), store.read_meta(step)
+    finally:
+        store.close()
+    params = jax.tree.map(jnp.asarray, params)
     policy = greedy_policy(config.network, params, tuple(config.env.obs_shape), name=name or run_dir.name)
     meta = {k: v for k, v in meta.items() if k not in ("_num_leaves", "config")}
     return LoadedRun(policy=policy, config=config, params=params, run_dir=str(run_dir),

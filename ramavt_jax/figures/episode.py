@@ -71,6 +71,19 @@ def _to_uint8(image: np.ndarray, size: int) -> np.ndarray:
     return (np.clip(image, 0, 1) * 255).astype(np.uint8)
 
 
+def view_limits(frames: EpisodeFrames, desired_z: float = 5.0) -> tuple[float, float, float]:
+    """(half width of x, far end of z, half range of the error) of the trajectory panel: at least the usual
+    +-6 m x 15 m view, widened to hold the whole episode's track (a large target is held tens of metres away).
+    Fixed over the episode, so the video's axes do not jump."""
+    rel = np.asarray(frames.rel_pos, np.float64)[np.asarray(frames.alive, bool)].reshape(-1, 3)
+    rel = rel[np.isfinite(rel).all(axis=1)]
+    if rel.size == 0:
+        return 6.0, 15.0, 6.0
+    err = np.abs(rel - np.array([0.0, 0.0, desired_z])).max()
+    return (max(6.0, 1.1 * np.abs(rel[:, 0]).max()), max(15.0, 1.1 * rel[:, 2].max(), 1.5 * desired_z),
+            max(6.0, 1.1 * err))
+
+
 def _trajectory_panel(frames: EpisodeFrames, t: int, size: int, desired_z: float = 5.0) -> np.ndarray:
     """Top view (x-z in the camera frame) of the target track and tracking error up to step t, as uint8 RGB."""
     plt = pyplot()
@@ -80,14 +93,15 @@ def _trajectory_panel(frames: EpisodeFrames, t: int, size: int, desired_z: float
     ax_top.scatter([rel[-1, 0]], [rel[-1, 2]], color="tab:red", s=12, zorder=3)
     ax_top.scatter([0], [desired_z], marker="+", color="k", s=40)
     ax_top.scatter([0], [0], marker="^", color="tab:green", s=30)
-    ax_top.set_xlim(-6, 6), ax_top.set_ylim(-1, 15)
+    half, far, err_range = view_limits(frames, desired_z)
+    ax_top.set_xlim(-half, half), ax_top.set_ylim(-1, far)
     ax_top.set_title("target in camera frame (top view)", fontsize=7)
     ax_top.tick_params(labelsize=6)
     err = rel - np.array([0.0, 0.0, desired_z])
     steps = np.arange(err.shape[0])
     for axis, name in enumerate("xyz"):
         ax_err.plot(steps, err[:, axis], lw=1, label=name)
-    ax_err.set_xlim(0, max(len(frames.reward), 1)), ax_err.set_ylim(-6, 6)
+    ax_err.set_xlim(0, max(len(frames.reward), 1)), ax_err.set_ylim(-err_range, err_range)
     ax_err.legend(fontsize=6, loc="upper right"), ax_err.tick_params(labelsize=6)
     ax_err.set_title("tracking error (m)", fontsize=7)
     fig.tight_layout()

@@ -9,6 +9,7 @@ bit-for-bit, so a resumed run continues exactly like an uninterrupted one.
 from __future__ import annotations
 
 import os
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -51,6 +52,27 @@ def _first_line(e: BaseException) -> str:
     text = str(e).strip().splitlines()
     first = text[0].split(" See full TensorStore details")[0] if text else ""
     return f"{type(e).__name__}: {first[:160]}"
+
+
+def _drop_closed_loop_noise(previous):
+    """An unraisable-exception hook that drops asyncio's 'Event loop is closed' and passes the rest to ``previous``."""
+
+    def hook(unraisable) -> None:
+        e = unraisable.exc_value
+        if isinstance(e, RuntimeError) and str(e) == "Event loop is closed":
+            return
+        previous(unraisable)
+
+    hook.drops_closed_loop_noise = True
+    return hook
+
+
+def _quiet_after_failed_restore() -> None:
+    """After a failed restore, tensorstore's reads still in flight complete into orbax's closed event loop and
+    Python reports each as an unraisable 'Event loop is closed' traceback (about 100 per damaged step, some at
+    exit). They carry no information: drop them, process-wide, from the first failure on."""
+    if not getattr(sys.unraisablehook, "drops_closed_loop_noise", False):
+        sys.unraisablehook = _drop_closed_loop_noise(sys.unraisablehook)
 
 
 class CheckpointStore:
@@ -105,26 +127,44 @@ class CheckpointStore:
         meta.pop("_num_leaves", None)
         return jax.tree.unflatten(treedef, out), meta
 
-    def restore_newest_loadable(self, like: Any, log=print) -> tuple[Any, dict, int]:
-        """Restore the newest step that loads, newest first. A step that fails (a truncated or missing file) is
-        reported in one line and deleted, so the run continues from the older one. Returns (state, meta, step)."""
+    def _newest_loadable(self, load, log, delete: bool):
+        """``(load(step), step)`` for the newest step that loads. A step that fails (a truncated or missing file) is
+        reported in one line and, with ``delete``, deleted with every newer one."""
         failures = []
         for step in sorted(self.all_steps(), reverse=True):
             try:
-                state, meta = self.restore(like, step)
+                result = load(step)
             except CheckpointError:
                 raise
             except Exception as e:  # noqa: BLE001 (orbax / tensorstore raise many types for damaged files)
+                _quiet_after_failed_restore()
                 failures.append(f"step {step}: {_first_line(e)}")
                 continue
-            for bad in [s for s in self.all_steps() if s > step]:
-                self.manager.delete(bad)
+            if delete:
+                for bad in [s for s in self.all_steps() if s > step]:
+                    self.manager.delete(bad)
             if failures:
-                log(f"checkpoint(s) in {self.directory} did not load ({'; '.join(failures)}); resuming from step "
-                    f"{step} (the damaged ones were deleted)")
-            return state, meta, step
+                what = "resuming from" if delete else "using"
+                kept = "the damaged ones were deleted" if delete else "the damaged ones were left as they are"
+                log(f"checkpoint(s) in {self.directory} did not load ({'; '.join(failures)}); {what} step {step} "
+                    f"({kept})")
+            return result, step
+        advice = "start afresh with --no-resume" if delete else "the run has no usable checkpoint"
         raise CheckpointError(f"no checkpoint in {self.directory} loads ({'; '.join(failures) or 'none found'}); "
-                              f"start afresh with --no-resume")
+                              f"{advice}")
+
+    def restore_newest_loadable(self, like: Any, log=print) -> tuple[Any, dict, int]:
+        """Restore the newest step that loads, newest first. A step that fails (a truncated or missing file) is
+        reported in one line and deleted, so the run continues from the older one. Returns (state, meta, step)."""
+        (state, meta), step = self._newest_loadable(lambda s: self.restore(like, s), log, delete=True)
+        return state, meta, step
+
+    def restore_subtree_newest_loadable(self, like: Any, pick, log=print) -> tuple[Any, dict, int]:
+        """:meth:`restore_subtree` and :meth:`read_meta` of the newest step that loads (a reader's fallback: the
+        damaged steps are reported in one line and left on disk). Returns (sub-tree, meta, step)."""
+        (sub, meta), step = self._newest_loadable(lambda s: (self.restore_subtree(like, pick, s), self.read_meta(s)),
+                                                  log, delete=False)
+        return sub, meta, step
 
     def restore_subtree(self, like: Any, pick, step: int | None = None) -> Any:
         """Restore only ``pick(like)`` (a sub-tree of the saved state, e.g. the network params) from ``step``

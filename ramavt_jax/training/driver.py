@@ -267,20 +267,24 @@ def run(config: TrainConfig, out_dir, seed: int = 0, resume=True, progress: bool
 
 def _run_locked(config, f: _Folders, config_json, resume, max_chunks, tracking_env, num_devices, progress, primary,
                 stop: StopSignals, say, debug_nan_at_update: int) -> RunSummary:
+    stop.hard_exit = "while compiling or allocating"
     prog, state, mesh = _start(config, f, num_devices, tracking_env, say, debug_nan_at_update)
+    jax.block_until_ready(state)  # the allocation is done before a signal is deferred
     distributed.barrier("ramavt_compiled")  # processes compile at different speeds; the next step is collective
+    if f.resuming:
+        stop.hard_exit = "while restoring the checkpoint"  # reads (a damaged step cut off mid-delete is skipped again)
+        state = _restore(prog, state, config, config_json, f, print if primary else (lambda msg: None))
+    stop.hard_exit = None  # from here on files are written: a signal is deferred to the next safe point
     if stop.signum is not None:
         raise TrainingInterrupted(f"{stop.name} while compiling: nothing was trained or written", stop.signum)
-    if f.resuming:
-        state = _restore(prog, state, config, config_json, f, print if primary else (lambda msg: None))
-    elif resume is False and primary:
+    if resume is False and not f.resuming and primary:
         for d in f.dirs:
             if (d / folders.CHECKPOINTS).is_dir():
                 shutil.rmtree(d / folders.CHECKPOINTS)
     if primary:
         for s, d in zip(f.seeds, f.dirs):
             d.mkdir(parents=True, exist_ok=True)
-            (d / folders.CONFIG_FILE).write_text(json.dumps({"seed": s, "config": config_json}, indent=1))
+            folders.write_atomic(d / folders.CONFIG_FILE, json.dumps({"seed": s, "config": config_json}, indent=1))
     start = _host_int(state.chunk)
     log = Log(config, f.dirs, start if f.resuming else None, primary, progress)
     stores = [CheckpointStore(d / folders.CHECKPOINTS, keep=config.run.keep_checkpoints) for d in f.dirs]

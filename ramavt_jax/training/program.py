@@ -13,6 +13,7 @@ import numpy as np
 from ramavt_jax import distributed
 from ramavt_jax.train import TrainConfig, Trainer
 from ramavt_jax.train_config import RunConfig
+from ramavt_jax.training import memory as memplan
 
 __all__ = ["compiled_program"]
 
@@ -50,6 +51,18 @@ def _jit_pair(trainer: Trainer, num_seeds: int, mesh):
     return init, chunk, abstract, shardings
 
 
+def check_state_fits(config: TrainConfig, abstract, num_seeds: int, mesh) -> None:
+    """Refuse (MemoryPlanError, one line) a RunnerState larger than the memory available, before it is compiled or
+    allocated. ``abstract``: the state's shapes (jax.eval_shape of init), [seeds]-stacked when ``num_seeds`` > 1; with
+    a mesh each device holds its share (on CPU all devices share the host's RAM)."""
+    total, replay = memplan.tree_bytes(abstract), memplan.tree_bytes(abstract.replay)
+    device = jax.local_devices()[0]
+    shares = 1 if mesh is None or device.platform == "cpu" else int(mesh.devices.size)
+    memplan.check_fits(total // shares, f"the training state ({num_seeds} seed(s); replay {memplan.human(replay)} for "
+                      f"replay.capacity_steps={config.replay.capacity_steps})",
+                      "lower --replay.capacity-steps (or --acting.num-envs, --seeds)", device)
+
+
 def _cache_key(config: TrainConfig) -> TrainConfig:
     """The config with what does not change the compiled chunk set to constants: the run group but its
     iterations_per_chunk. learning_starts does change it; it is zeroed here (and kept in the cache key beside)
@@ -70,6 +83,7 @@ def _compiled(config: TrainConfig, tracking_env, num_seeds: int = 1, mesh=None,
         trainer = Trainer(config, tracking_env, mesh if num_seeds == 1 else None, debug_nan_at_update)
         t0 = time.time()
         init, chunk, abstract, shardings = _jit_pair(trainer, num_seeds, mesh)
+        check_state_fits(config, abstract, num_seeds, mesh)
         compiled = chunk.lower(abstract).compile()
         try:
             temp = int(compiled.memory_analysis().temp_size_in_bytes)

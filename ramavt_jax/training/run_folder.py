@@ -23,10 +23,12 @@ from typing import Any
 
 import numpy as np
 
+from ramavt_jax.train_config import TrainConfig
 
 __all__ = ["CONFIG_FILE", "METRICS_FILE", "CHECKPOINTS", "EVAL_FILE", "CURVES_FILE", "RESUMABLE_FIELDS",
            "seed_dir", "seed_folders", "is_seed_dir", "to_strict_json", "dumps", "read_metrics", "append_metrics",
-           "write_metrics", "config_differences", "check_config", "RunFolderError", "RunLock", "check_writable"]
+           "write_metrics", "write_atomic", "config_differences", "missing_fields", "read_config", "check_config",
+           "RunFolderError", "RunLock", "check_writable"]
 
 CONFIG_FILE, METRICS_FILE, CHECKPOINTS, EVAL_FILE = "config.json", "metrics.jsonl", "checkpoints", "eval.json"
 CURVES_FILE = "training_curves.png"
@@ -75,17 +77,38 @@ def dumps(x: Any, **kwargs) -> str:
     return json.dumps(to_strict_json(x), allow_nan=False, **kwargs)
 
 
-def read_metrics(path: str | os.PathLike) -> list[dict]:
-    """The records of a metrics.jsonl ([] when missing); null numbers come back as NaN."""
+def read_metrics(path: str | os.PathLike, log=print) -> list[dict]:
+    """The records of a metrics.jsonl ([] when missing); null numbers come back as NaN. A torn last line (a crash
+    while it was written) is skipped and reported through ``log`` in one line; a damaged line before it is a
+    RunFolderError naming the file and line."""
     path = Path(path)
     if not path.exists():
         return []
-    records = [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
+    lines = [(i, line) for i, line in enumerate(path.read_text().splitlines(), 1) if line.strip()]
+    records = []
+    for i, line in lines:
+        try:
+            records.append(json.loads(line))
+        except ValueError as e:
+            if i != lines[-1][0]:
+                raise RunFolderError(f"{path} line {i} is not a JSON record ({e}); fix or delete that line") from None
+            log(f"{path}: skipped its last line, written only in part (a crash while writing it)")
     return [{k: float("nan") if v is None else v for k, v in r.items()} for r in records]
 
 
+def write_atomic(path: Path, text: str) -> None:
+    """Write ``path`` whole or not at all: a unique temporary file beside it, renamed over it (a crash at any byte
+    leaves the old file or the new one)."""
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    try:
+        tmp.write_text(text)
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
+
+
 def write_metrics(path: Path, records: list[dict]) -> None:
-    path.write_text("".join(dumps(r) + "\n" for r in records))
+    write_atomic(path, "".join(dumps(r) + "\n" for r in records))
 
 
 def append_metrics(path: Path, record: dict) -> None:
@@ -113,14 +136,39 @@ def config_differences(saved: dict, current: dict, defaults: dict | None = None)
     return {k: (a.get(k), b.get(k)) for k in sorted(set(a) | set(b)) if a.get(k) != b.get(k)}
 
 
-def check_config(run_dir: Path, config_json: dict, seed: int, defaults: dict | None = None) -> None:
-    """Refuse (one line, nothing written) to resume ``run_dir`` with a config that differs from its config.json in
-    more than the resumable fields; call before anything is written."""
-    path = run_dir / CONFIG_FILE
+def missing_fields(saved: dict, defaults: dict) -> list[str]:
+    """Dotted names of the fields of ``defaults`` (a config dict) that ``saved`` lacks. Only a config in the grouped
+    form is checked: the flat form written before the groups predates fields that take their defaults."""
+    if not all(isinstance(saved.get(group), dict) for group in ("acting", "replay", "learner", "run")):
+        return []
+    have = _flatten(saved)
+    return [k for k in _flatten(defaults) if k not in have and not any(h.startswith(k + ".") for h in have)]
+
+
+def read_config(run_dir: str | os.PathLike, defaults: dict | None = None) -> dict:
+    """A run folder's config.json ({"seed", "config"}), complete: RunFolderError (one line, naming the file and the
+    first missing field) when it cannot be read or lacks a field of ``defaults`` (default: TrainConfig's)."""
+    path = Path(run_dir) / CONFIG_FILE
     try:
         saved = json.loads(path.read_text())
-    except (OSError, ValueError) as e:
-        raise RunFolderError(f"cannot read {path} ({e}); resume with --no-resume or train into a new --out") from None
+        config = saved["config"]
+    except (OSError, ValueError, KeyError, TypeError) as e:
+        raise RunFolderError(f"cannot read {path} ({type(e).__name__}: {e}); the checkpoints' metadata hold the "
+                             f"config too (pass --no-resume to train the folder afresh)") from None
+    if defaults is None:
+        defaults = json.loads(json.dumps(TrainConfig().to_dict(), default=str))
+    missing = missing_fields(config, defaults)
+    if missing:
+        more = f" (and {len(missing) - 1} more)" if len(missing) > 1 else ""
+        raise RunFolderError(f"{path} is incomplete: it lacks {missing[0]}{more}; it was cut short or edited (the "
+                             f"checkpoints' metadata hold the full config); a default is not filled in silently")
+    return saved
+
+
+def check_config(run_dir: Path, config_json: dict, seed: int, defaults: dict | None = None) -> None:
+    """Refuse (one line, nothing written) to resume ``run_dir`` with a config that differs from its config.json in
+    more than the resumable fields, or with an incomplete config.json; call before anything is written."""
+    saved = read_config(run_dir, defaults)
     diff = config_differences(saved.get("config", {}), config_json, defaults)
     fixed = {k: v for k, v in diff.items() if k not in RESUMABLE_FIELDS}
     if saved.get("seed") != seed:
@@ -153,7 +201,7 @@ class RunLock:
     """An exclusive ``fcntl.flock`` on ``folder/.lock`` naming the holder (pid, host); released on close or when
     the process dies."""
 
-    def __init__(self, folder: Path):
+    def __init__(self, folder: Path, advice: str = "wait for that run to finish, stop it, or train into another --out"):
         import fcntl
 
         self.path = Path(folder) / LOCK_FILE
@@ -164,8 +212,7 @@ class RunLock:
             self._file.seek(0)
             holder = self._file.read().strip() or "another process"
             self._file.close()
-            raise RunFolderError(f"{folder} is in use by {holder} (lock file {self.path}); wait for that run to "
-                                 f"finish, stop it, or train into another --out") from None
+            raise RunFolderError(f"{folder} is in use by {holder} (lock file {self.path}); {advice}") from None
         self._file.seek(0)
         self._file.truncate()
         self._file.write(f"process {os.getpid()} on {socket.gethostname()}\n")
