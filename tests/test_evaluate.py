@@ -266,6 +266,20 @@ def test_markdown_handles_skipped_tables():
     assert "Table I" in md and "959.1" in md  # the paper's numbers are always shown for comparison
 
 
+def test_the_shipped_agents_row_names_how_it_was_trained():
+    """The shipped agent is described by its own record (command, seed, parameter set), not as a run folder."""
+    from ramavt_jax.cli import evaluate as cli_eval
+
+    entry = cli_eval._pretrained_entry(pretrained.DEFAULT_AGENT)
+    row = {"name": entry.name, "kind": entry.kind, "info": entry.info, "resolution": 32, "obs_mode": "depth",
+           "settings": {}}
+    result = {"settings": {"seed": 1, "episodes_per_target": 1, "targets": ["X"], "max_steps": 5,
+                           "perturbation_values": rollouts.PERTURBATION_VALUES, "speed_steps": 0, "tables": []},
+              "machine": tables_lib.machine_info(), "rows": [row], "wall_s": 1.0}
+    line = next(x for x in tables_lib.to_markdown(result).splitlines() if x.startswith(f"- {entry.name}"))
+    assert "None" not in line and "ramavt train --preset long" in line and "target params" in line
+
+
 @pytest.mark.parametrize("name", ["quick", "paper", "smoke"])
 def test_config_json_round_trips_to_the_same_train_config(name):
     from ramavt_jax.augment import AugmentConfig

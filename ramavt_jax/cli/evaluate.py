@@ -44,7 +44,8 @@ def _run_entries(runs: tuple[Path, ...], policy_params: str | None = None
 def _pretrained_entry(name: str) -> tables_lib.Entry:
     agent = pretrained.load(name)
     cfg = agent.config
-    info = {"variant": cfg.network.variant, "augment": bool(cfg.learner.augment), "pretrained": name, **agent.info}
+    info = {"variant": cfg.network.variant, "augment": bool(cfg.learner.augment), "pretrained": name, **agent.info,
+            "policy_params": cfg.run.policy_params}
     return tables_lib.Entry(f"pretrained:{name}", "checkpoint", agent.policy, cfg.env,
                             rollouts.run_env_overrides(cfg.env_params), cfg.env.obs_mode, info)
 

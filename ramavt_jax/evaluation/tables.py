@@ -279,8 +279,12 @@ def to_markdown(result: dict, command: str = "") -> str:
     ]
     rows = result["rows"]
     for r in rows:
-        if r["kind"] == "checkpoint":
-            i = r["info"]
+        i = r["info"]
+        if r["kind"] == "checkpoint" and i.get("pretrained"):  # a shipped agent: its own record of how it was made
+            head.append(f"- {r['name']}: the agent shipped with the package, variant {i.get('variant')}, trained by "
+                        f"`{i.get('command')}` (training seed {i.get('seed')}, {i.get('chunks')} chunks), "
+                        f"{i.get('policy_params')} params, {r['resolution']}x{r['resolution']} {r['obs_mode']}")
+        elif r["kind"] == "checkpoint":
             head.append(f"- {r['name']}: run `{i.get('run_dir')}`, variant {i.get('variant')}, training seed "
                         f"{i.get('seed')}, checkpoint step {i.get('step')} ({i.get('env_steps')} env steps), "
                         f"{i.get('policy_params', 'online')} params, "
