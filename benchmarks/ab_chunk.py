@@ -30,6 +30,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_train import merge_json  # noqa: E402
 
 from ramavt_jax import train as T  # noqa: E402
+from ramavt_jax import train_config  # noqa: E402
 from ramavt_jax.training.checkpoint import CheckpointStore  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
@@ -70,7 +71,7 @@ def main(argv=None) -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("run", type=Path, help="a run folder of --preset with checkpoints")
     p.add_argument("--baseline", required=True, help="git revision to compare with (e.g. a commit or a tag)")
-    p.add_argument("--preset", default="quick", choices=sorted(T.PRESETS))
+    p.add_argument("--preset", default="quick", choices=sorted(train_config.PRESETS))
     p.add_argument("--seeds", type=int, default=1)
     p.add_argument("--rounds", type=int, default=3)
     p.add_argument("--act-only", action="store_true")
@@ -81,12 +82,12 @@ def main(argv=None) -> None:
     key = jax.random.PRNGKey(0)
     with tempfile.TemporaryDirectory() as tmp:
         base_train = import_baseline(a.baseline, Path(tmp))
-        trainers = {a.baseline: base_train.Trainer(base_train.preset(a.preset)), "this": T.Trainer(T.preset(a.preset))}
+        trainers = {a.baseline: base_train.Trainer(base_train.preset(a.preset)), "this": T.Trainer(train_config.preset(a.preset))}
         like = jax.tree.map(lambda x: jnp.zeros(x.shape, x.dtype), jax.eval_shape(trainers["this"].init, key))
         state = _restore(a.run, like)
         states = {name: _recast(state, jax.eval_shape(tr.init, key)) for name, tr in trainers.items()}
         if a.act_only:  # learning_starts above the restored step count: the chunk only collects
-            trainers["this, acting only"] = T.Trainer(T.preset(a.preset, learning_starts=T.preset(
+            trainers["this, acting only"] = T.Trainer(train_config.preset(a.preset, learning_starts=train_config.preset(
                 a.preset).replay.capacity_steps))
             states["this, acting only"] = state.replace(env_steps=jnp.zeros_like(state.env_steps))
         if a.seeds > 1:

@@ -31,12 +31,13 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_train import _filled_replay, machine_info, merge_json  # noqa: E402
 
 from ramavt_jax import train as T  # noqa: E402
+from ramavt_jax import train_config  # noqa: E402
 from ramavt_jax.layers import CONV_FUNCTIONS, conv_out_size  # noqa: E402
 
 IMPLS = ("im2col", "lax", "hybrid")  # the first is the baseline
 
 
-def _encoder_layers(cfg: T.TrainConfig) -> list[dict]:
+def _encoder_layers(cfg: train_config.TrainConfig) -> list[dict]:
     """(input shape, kernel shape, stride) of each conv of the preset's encoder, as one frame reaches it."""
     net, (h, w, c) = cfg.network, cfg.env.obs_shape
     c = c + 1 if net.coord_channels else c  # the hit mask joins the frame; the coordinate planes are added apart
@@ -79,7 +80,7 @@ def _interleaved(calls: dict, rounds: int, repeats: int = 3) -> dict:
     return {name: statistics.median(ts) for name, ts in times.items()}
 
 
-def bench_layers(cfg: T.TrainConfig, seeds: int, rounds: int) -> list[dict]:
+def bench_layers(cfg: train_config.TrainConfig, seeds: int, rounds: int) -> list[dict]:
     r = cfg.replay
     no_grad_frames = r.batch_size * (2 * r.burn_in + r.train_len + 1)
     grad_frames = r.batch_size * (r.train_len + 1)
@@ -105,7 +106,7 @@ def bench_layers(cfg: T.TrainConfig, seeds: int, rounds: int) -> list[dict]:
     return rows
 
 
-def bench_update(cfg: T.TrainConfig, rounds: int) -> dict:
+def bench_update(cfg: train_config.TrainConfig, rounds: int) -> dict:
     key = jax.random.PRNGKey(0)
     trainers = {impl: T.Trainer(cfg.override(network=dataclasses.replace(cfg.network, conv_impl=impl)))
                 for impl in IMPLS}
@@ -124,7 +125,7 @@ def bench_update(cfg: T.TrainConfig, rounds: int) -> dict:
 
 def main(argv=None) -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--preset", default="quick", choices=sorted(T.PRESETS))
+    p.add_argument("--preset", default="quick", choices=sorted(train_config.PRESETS))
     p.add_argument("--seeds", type=int, default=1, help="vmap the layers over this many seeds' kernels")
     p.add_argument("--rounds", type=int, default=15)
     p.add_argument("--skip-update", action="store_true", help="only the layers")
@@ -132,7 +133,7 @@ def main(argv=None) -> None:
     a = p.parse_args(argv)
     if a.seeds < 1 or a.rounds < 1:
         p.error("--seeds and --rounds must be >= 1")
-    cfg = T.preset(a.preset, eval_episodes=0, learning_starts=0)
+    cfg = train_config.preset(a.preset, eval_episodes=0, learning_starts=0)
     load0, t0 = os.getloadavg(), time.time()
     print(f"conv implementations at the {a.preset} preset's sizes, {a.seeds} seed(s), load {load0[0]:.2f}")
     res = {"preset": a.preset, "seeds": a.seeds, "rounds": a.rounds, "layers": bench_layers(cfg, a.seeds, a.rounds)}

@@ -25,6 +25,8 @@ import jax.numpy as jnp
 from ramavt_jax import env as env_lib
 from ramavt_jax import replay as replay_lib
 from ramavt_jax import train as T
+from ramavt_jax import greedy
+from ramavt_jax import train_config
 from ramavt_jax.network import NetworkConfig, count_params
 from ramavt_jax.render import CameraConfig
 from ramavt_jax.train_config import ActingConfig, LearnerConfig, ReplayConfig, RunConfig
@@ -83,7 +85,7 @@ def bench_variant(variant: str, resolution: int, num_envs: int, batch_size: int,
     env_steps = num_envs * rollout_steps
     # replay ratio 1 when the numbers allow it, else one update per iteration
     ratio = batch_size * train_len / env_steps
-    cfg = T.TrainConfig(
+    cfg = train_config.TrainConfig(
         env=env_lib.EnvConfig(camera=CameraConfig(resolution=resolution), autoreset="next_step"), network=net,
         acting=ActingConfig(num_envs=num_envs, rollout_steps=rollout_steps),
         replay=ReplayConfig(capacity_steps=num_envs * max(burn_in + train_len + 1, rollout_steps) * 2,
@@ -121,7 +123,7 @@ def bench_variant(variant: str, resolution: int, num_envs: int, batch_size: int,
     t_iter = _median_time(lambda: iteration(full), max(2, repeats // 2))
 
     # single-env greedy inference (batch 1, T=1), acting Hz of a deployed tracker
-    policy = T.greedy_policy(net, params, tr.obs_shape)
+    policy = greedy.greedy_policy(net, params, tr.obs_shape)
     ps = policy.init(key)
     obs1 = actor.obs[0]
     act1 = jax.jit(policy.act)
@@ -156,7 +158,7 @@ def run(variants=VARIANTS, resolution: int = 64, num_envs: int = 64, batch_size:
     rows = []
     network = None
     if preset is not None:
-        cfg = T.preset(preset)
+        cfg = train_config.preset(preset)
         network, variants = cfg.network, (cfg.network.variant,)
         resolution, num_envs, batch_size = cfg.env.camera.resolution, cfg.acting.num_envs, cfg.replay.batch_size
         burn_in, train_len, rollout_steps = cfg.replay.burn_in, cfg.replay.train_len, cfg.acting.rollout_steps
@@ -208,7 +210,7 @@ def main(argv=None):
     p.add_argument("--rollout-steps", type=int, default=20)
     p.add_argument("--repeats", type=int, default=5)
     p.add_argument("--out", default="benchmarks/results_train.json")
-    p.add_argument("--preset", default=None, choices=sorted(T.PRESETS), help="benchmark a training preset's network")
+    p.add_argument("--preset", default=None, choices=sorted(train_config.PRESETS), help="benchmark a training preset's network")
     a = p.parse_args(argv)
     run(a.variants, a.resolution, a.num_envs, a.batch_size, a.burn_in, a.train_len, a.rollout_steps, a.repeats, a.out,
         preset=a.preset)

@@ -28,6 +28,7 @@ import jax.numpy as jnp
 import optax
 
 from ramavt_jax import train as T
+from ramavt_jax import train_config
 from ramavt_jax.network import Encoder
 
 from bench_train import _filled_replay, _median_time, machine_info, merge_json  # noqa: E402 (the script's directory)
@@ -46,7 +47,7 @@ def _label(stack, op_name, thunk):
 
 
 def profile(preset: str, repeats: int, batch_size: int | None = None, trace: bool = False) -> dict:
-    cfg = T.preset(preset, eval_episodes=0, learning_starts=0)
+    cfg = train_config.preset(preset, eval_episodes=0, learning_starts=0)
     if batch_size:
         cfg = cfg.override(batch_size=batch_size)
     tr = T.Trainer(cfg)
@@ -98,7 +99,7 @@ def profile(preset: str, repeats: int, batch_size: int | None = None, trace: boo
 
 def main(argv=None) -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--preset", default="quick", choices=sorted(T.PRESETS))
+    p.add_argument("--preset", default="quick", choices=sorted(train_config.PRESETS))
     p.add_argument("--batch-size", type=int, default=None)
     p.add_argument("--repeats", type=int, default=20)
     p.add_argument("--trace", action="store_true", help="also attribute the update's time to source lines")

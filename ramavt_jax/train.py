@@ -33,14 +33,13 @@ from ramavt_jax import distributed
 from ramavt_jax import env as env_lib
 from ramavt_jax import replay as replay_lib
 from ramavt_jax.augment import augment_batch
-from ramavt_jax.greedy import GreedyState, greedy_policy, unbatch_state  # noqa: F401 (re-exported)
 from ramavt_jax.losses import TDBatch, td_loss
 from ramavt_jax.network import RecurrentState, init_params, initial_state, make_network, record_action
-from ramavt_jax.train_config import PRESETS, TrainConfig, preset  # noqa: F401 (re-exported: config lives there)
+from ramavt_jax.train_config import TrainConfig
 
 __all__ = [
-    "TrainConfig", "preset", "PRESETS", "TrainingDivergedError", "LearnerState", "ActorState", "RunnerState",
-    "ChunkMetrics", "EpisodeStats", "LearnStats", "PreparedBatch", "Trainer", "make_train", "greedy_policy",
+    "TrainingDivergedError", "LearnerState", "ActorState", "RunnerState",
+    "ChunkMetrics", "EpisodeStats", "LearnStats", "PreparedBatch", "Trainer", "make_train",
 ]
 
 

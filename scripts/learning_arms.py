@@ -22,7 +22,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ramavt_jax import baselines, train
+from ramavt_jax import baselines, greedy, train_config
 from ramavt_jax import env as env_lib
 from ramavt_jax import targets as targets_lib
 from ramavt_jax.evaluation import runs, statistics
@@ -124,10 +124,10 @@ ARMS["q-mha"] = lambda c: _net(ARMS["aux-lr2"](c), variant="mha")
 
 
 def arm_config(name: str, preset: str = "quick", **overrides):
-    base = train.preset(preset, eval_episodes=0, **overrides)
+    base = train_config.preset(preset, eval_episodes=0, **overrides)
     if preset == "quick" and ARMS["aux-lr2"](base) != base:
         raise SystemExit("the quick preset is no longer 'aux-lr2' of these arms: update ARMS")
-    if preset == "quick" and not overrides and ARMS["long-lr2"](base) != train.preset("long", eval_episodes=0):
+    if preset == "quick" and not overrides and ARMS["long-lr2"](base) != train_config.preset("long", eval_episodes=0):
         raise SystemExit("the long preset is no longer 'long-lr2' of these arms: update ARMS")
     return ARMS[name](base)
 
@@ -196,7 +196,7 @@ def evaluate_arm(out: Path, arm: str, episodes: int, key: jax.Array, max_steps: 
     @jax.jit
     def run_all(net_params):
         def one(p):
-            policy = train.greedy_policy(config.network, p, tuple(config.env.obs_shape))
+            policy = greedy.greedy_policy(config.network, p, tuple(config.env.obs_shape))
             return batched_rollout(tracking_env, params_b, policy, key, max_steps)
         return jax.lax.map(one, net_params)
 

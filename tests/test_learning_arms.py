@@ -45,7 +45,7 @@ def test_each_table_arm_is_one_change(arm, reference, change):
 
 
 def test_quick_preset_is_the_depth_row():
-    assert learning_arms.arm_config("aux-lr2") == learning_arms.train.preset("quick", eval_episodes=0)
+    assert learning_arms.arm_config("aux-lr2") == learning_arms.train_config.preset("quick", eval_episodes=0)
 
 
 def test_report_prints_the_seeds(tmp_path, capsys):

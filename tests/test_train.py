@@ -11,12 +11,14 @@ from ramavt_jax.evaluation import rollouts as evaluate
 from ramavt_jax import env as env_lib
 from ramavt_jax import replay as replay_lib
 from ramavt_jax import train as T
+from ramavt_jax import greedy
+from ramavt_jax import train_config
 from ramavt_jax.losses import sequence_td_loss
 from ramavt_jax.network import NetworkConfig, RecurrentState, init_params, initial_state
 from ramavt_jax.render import CameraConfig
 from ramavt_jax.train_config import ActingConfig, LearnerConfig, RunConfig
 
-SMOKE = T.preset("smoke")
+SMOKE = train_config.preset("smoke")
 
 
 @pytest.fixture(scope="module")
@@ -39,7 +41,7 @@ def loss_fn(trainer):
 
 # ------------------------------------------------------------------------------------------ config
 def test_presets():
-    quick, paper = T.preset("quick"), T.preset("paper")
+    quick, paper = train_config.preset("quick"), train_config.preset("paper")
     assert quick.env.camera.resolution <= 48 and quick.env.obs_mode == "depth"
     assert quick.env_params == ()  # the original task, not an easier one
     assert paper.env.camera.resolution == 256 and paper.replay.batch_size == 64 and paper.learner.lr == 1e-4
@@ -47,9 +49,9 @@ def test_presets():
     assert paper.network == NetworkConfig(variant="ramavt")
     for cfg in (quick, paper, SMOKE):
         assert cfg.updates_per_iteration >= 1 and cfg.num_chunks >= 1
-    assert T.preset("quick", lr=3e-4).learner.lr == 3e-4  # a group field by its own name (not the preset's value)
+    assert train_config.preset("quick", lr=3e-4).learner.lr == 3e-4  # a group field by its own name (not the preset's value)
     with pytest.raises(ValueError, match="unknown preset"):
-        T.preset("huge")
+        train_config.preset("huge")
 
 
 @pytest.mark.parametrize(
@@ -91,7 +93,7 @@ def test_invalid_configs_raise_clear_errors(overrides, message):
     (lambda: RunConfig(keep_checkpoints=0), r"^RunConfig: keep_checkpoints must be >= 1, got 0$"),
     (lambda: RunConfig(policy_params="ema"), r"^RunConfig: policy_params must be 'online' or 'target', got 'ema'$"),
     (lambda: replay_lib.ReplayConfig(train_len=0), r"^ReplayConfig.train_len must be >= 1, got 0$"),
-    (lambda: T.TrainConfig(replay=replay_lib.ReplayConfig(capacity_steps=64_010)),
+    (lambda: train_config.TrainConfig(replay=replay_lib.ReplayConfig(capacity_steps=64_010)),
      r"^TrainConfig: replay.capacity_steps=64010 must be divisible by acting.num_envs=64$"),
 ])
 def test_each_group_checks_its_own_values_in_one_line(build, message):
@@ -312,7 +314,7 @@ def test_prev_action_is_stored_with_the_state_and_fed_back_by_the_greedy_policy(
     _, chunk, _, _ = jax.jit(tr.rollout)(params, state.actor, jnp.int32(0), jax.random.PRNGKey(5))
     stored = np.asarray(chunk.recurrent_state.prev_action)[..., 0]  # [N, T]
     np.testing.assert_array_equal(stored[:, 1:], np.asarray(chunk.action)[:, :-1])
-    policy = T.greedy_policy(cfg.network, params, cfg.env.obs_shape)
+    policy = greedy.greedy_policy(cfg.network, params, cfg.env.obs_shape)
     obs = jax.random.uniform(jax.random.PRNGKey(8), (6, *cfg.env.obs_shape))
     ps, actions = policy.init(jax.random.PRNGKey(0)), []
     for t in range(6):
@@ -346,7 +348,7 @@ def test_vmapped_seeds_equal_single_seed_runs():
 # ------------------------------------------------------------------------------------------ greedy policy
 def test_greedy_policy_matches_the_network_over_a_sequence(trainer, learner):
     params, _ = learner
-    policy = T.greedy_policy(SMOKE.network, params, SMOKE.env.obs_shape)
+    policy = greedy.greedy_policy(SMOKE.network, params, SMOKE.env.obs_shape)
     obs = jax.random.uniform(jax.random.PRNGKey(8), (5, *SMOKE.env.obs_shape))
     ps = policy.init(jax.random.PRNGKey(0))
     actions = []
@@ -381,7 +383,7 @@ def test_learns_an_easy_task():
     env_params = tracking_env.default_params(**dict(EASY.env_params))
     key = jax.random.PRNGKey(123)
     greedy = evaluate.summarise(evaluate.run_episodes(
-        tracking_env, T.greedy_policy(EASY.network, params, EASY.env.obs_shape), env_params, key, 64)[0])
+        tracking_env, greedy.greedy_policy(EASY.network, params, EASY.env.obs_shape), env_params, key, 64)[0])
     rand = evaluate.summarise(evaluate.run_episodes(tracking_env, baselines.random_policy(), env_params, key, 64)[0])
     m = out["metrics"]
     print(f"random {rand.length_mean:.1f}, greedy {greedy.length_mean:.1f}, training episodes per chunk "

@@ -19,7 +19,8 @@ from ramavt_jax import baselines
 from ramavt_jax import env as env_lib
 from ramavt_jax import targets as targets_lib
 from ramavt_jax.evaluation import rollouts
-from ramavt_jax.train import TrainConfig, greedy_policy
+from ramavt_jax.greedy import greedy_policy
+from ramavt_jax.train_config import TrainConfig
 from ramavt_jax.training import run_folder as folders
 
 __all__ = ["split_envs", "split_key", "final_evaluation", "evaluate_run"]

@@ -21,7 +21,8 @@ import numpy as np
 from ramavt_jax.baselines import Policy
 from ramavt_jax.evaluation.runs import load_policy
 from ramavt_jax.network import init_params
-from ramavt_jax.train import TrainConfig, greedy_policy
+from ramavt_jax.greedy import greedy_policy
+from ramavt_jax.train_config import TrainConfig
 
 __all__ = ["AGENTS_DIR", "DEFAULT_AGENT", "PretrainedAgent", "PretrainedError", "available", "load", "export",
            "load_policy"]

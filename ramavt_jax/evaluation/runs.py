@@ -10,7 +10,9 @@ import jax
 import jax.numpy as jnp
 
 from ramavt_jax.baselines import Policy
-from ramavt_jax.train import TrainConfig, Trainer, greedy_policy
+from ramavt_jax.greedy import greedy_policy
+from ramavt_jax.train import Trainer
+from ramavt_jax.train_config import TrainConfig
 from ramavt_jax.training import run_folder as folders
 from ramavt_jax.training.checkpoint import CheckpointStore
 

@@ -19,7 +19,8 @@ import jax
 import numpy as np
 
 from ramavt_jax import distributed
-from ramavt_jax.train import TrainConfig, TrainingDivergedError
+from ramavt_jax.train import TrainingDivergedError
+from ramavt_jax.train_config import TrainConfig
 from ramavt_jax.training import run_folder as folders
 from ramavt_jax.training.program import _compiled, _Program
 from ramavt_jax.training.checkpoint import CheckpointError, CheckpointNotFoundError, CheckpointStore, has_checkpoint

@@ -11,7 +11,8 @@ import jax
 import numpy as np
 
 from ramavt_jax import distributed
-from ramavt_jax.train import TrainConfig, Trainer
+from ramavt_jax.train import Trainer
+from ramavt_jax.train_config import TrainConfig
 from ramavt_jax.train_config import RunConfig
 from ramavt_jax.training import memory as memplan
 
