@@ -1,7 +1,8 @@
 """Reference policies: random, two true-state controllers and a classical depth-image tracker (PBVS-style).
 
 - 'mpc': receding-horizon search over the 11 commands on the env's own noise-free model (`TrackingEnv.transition`
-  + `score`); the measured ceiling of the tables (no policy of this package has scored above it).
+  + `score`); the ceiling of the tables: every other policy measured so far scores below it on the same episodes
+  (a measured reference, not a proven optimum).
 - 'proportional': feed-forward of the true target velocity + proportional correction, quantised (cheap, but far
   below the ceiling: it is not an upper bound).
 - 'depth': classical depth-image tracker; 'random'.

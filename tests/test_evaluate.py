@@ -85,18 +85,17 @@ def test_early_exit_runner_matches_recorded_scan():
 
 def test_a_settings_episodes_do_not_depend_on_the_other_settings_requested():
     """The 'none' setting's episodes (hence every summary number) are the same evaluated alone (Table I) and among
-    the five perturbation settings (Tables I + II), and the same target's episodes alone and beside another target.
-    The depth tracker reads its images, so a frame history that changed with the request would show too."""
+    the five perturbation settings (Tables I + II). The depth tracker reads its images, so a frame history that
+    changed with the request would show too. Both calls build equal envs, so the rollout compiles once."""
     camera = render.CameraConfig(resolution=8)
     entry = tables_lib.Entry("depth", "baseline", baselines.make_policy("depth", camera), env_lib.EnvConfig(camera))
     run = lambda tables, targets: tables_lib.run_suite([entry], targets, 2, 15, seed=0, tables=tables,
                                                        speed_steps=0, log=lambda _: None)["rows"][0]["settings"]
     alone = run((1,), ("Satellite-v2", "Asteroid-v4"))
     together = run((1, 2), ("Satellite-v2", "Asteroid-v4"))
-    other_targets = run((1,), ("Asteroid-v4",))
     assert set(together) == set(rollouts.PERTURBATIONS)
     assert alone["none"]["overall"] == together["none"]["overall"]
-    assert alone["none"]["per_target"]["Asteroid-v4"] == other_targets["none"]["per_target"]["Asteroid-v4"]
+    assert alone["none"]["per_target"] == together["none"]["per_target"]
     # and the settings do differ from each other (the check above is not vacuous)
     assert together["all"]["overall"]["return_mean"] != together["none"]["overall"]["return_mean"]
 
