@@ -374,3 +374,34 @@ def test_statistics_intervals_iqm_and_probability_of_improvement():
     cmp = statistics.compare_arms({"a": better, "b": scores})
     assert cmp["probability_of_improvement"] == {"a>b": pytest.approx(1.0), "b>a": pytest.approx(0.0)}
     assert cmp["iqm"]["a"]["ci_low"] <= cmp["iqm"]["a"]["iqm"] <= cmp["iqm"]["a"]["ci_high"]
+
+
+def _suite_row(name, returns_per_target, kind="checkpoint", run_dir=None, variant="ramavt"):
+    per_target = {t: {"return_mean": r, "length_mean": 1000.0, "error_mean": 0.5, "lost_fraction": 0.0,
+                      "within_half_fraction": 0.5} for t, r in returns_per_target.items()}
+    overall = {k: float(np.mean([o[k] for o in per_target.values()])) for k in next(iter(per_target.values()))}
+    return {"name": name, "kind": kind, "info": {"run_dir": run_dir, "variant": variant},
+            "settings": {"none": {"overall": overall, "per_target": per_target}}}
+
+
+def test_seed_folders_of_a_sweep_are_one_arm_compared_with_every_other():
+    from ramavt_jax.evaluation import seeds
+
+    targets = ["A", "B"]
+    rows = [_suite_row(f"sweep/seed_{k}", {"A": 100.0 + k, "B": 200.0 + k}, run_dir=f"runs/sweep/seed_{k}")
+            for k in range(3)]
+    rows += [_suite_row("other/seed_0", {"A": 0.0, "B": 0.0}, run_dir="runs/other/seed_0"),
+             _suite_row("solo", {"A": 50.0, "B": 50.0}, run_dir="runs/solo"),
+             _suite_row("mpc ceiling", {"A": 400.0, "B": 400.0}, kind="baseline", variant="mpc")]
+    result = {"settings": {"targets": targets}, "rows": rows}
+    assert list(seeds.arms(result)) == ["sweep (seeds)", "other (seeds)", "solo", "mpc ceiling"]
+    summary = seeds.summarise_arms(result)
+    sweep = summary["arms"]["sweep (seeds)"]
+    assert sweep["runs"] == 3 and sweep["return_mean"] == pytest.approx(151.0)
+    assert sweep["return_ci_low"] <= 151.0 <= sweep["return_ci_high"]
+    assert sweep["ceiling_fraction"] == pytest.approx(151.0 / 400.0)
+    assert sweep["return_sample_std_over_runs"] == pytest.approx(1.0)
+    assert summary["probability_of_improvement"]["sweep (seeds)>solo"] == pytest.approx(1.0)
+    assert summary["probability_of_improvement"]["solo>sweep (seeds)"] == pytest.approx(0.0)
+    md = seeds.arms_md(result)
+    assert "| sweep (seeds) | 3 | 151.0 |" in md and "P(sweep (seeds) > solo) = 1.00" in md

@@ -27,7 +27,7 @@ import jax
 import numpy as np
 
 from ramavt_jax import env as env_lib
-from ramavt_jax.evaluation import rollouts
+from ramavt_jax.evaluation import rollouts, seeds
 from ramavt_jax.training.run_folder import dumps
 from ramavt_jax.baselines import Policy
 
@@ -297,6 +297,8 @@ def to_markdown(result: dict, command: str = "") -> str:
         parts.append("## Table II: perturbations\n\n" + table2_md(result))
     if 3 in tables and any(r["kind"] == "checkpoint" for r in rows):
         parts.append("## Table III: ablation\n\n" + table3_md(result))
+    if any(len(runs) > 1 for runs in seeds.arms(result).values()):
+        parts.append("## Arms over training seeds (no perturbation)\n\n" + seeds.arms_md(result))
     parts.append("## Per target (no perturbation)\n\n" + per_target_md(result))
     parts.append("## The paper's numbers (for comparison; 256x256, their simulator)\n\n" + paper_md())
     return "\n\n".join(parts) + "\n"
@@ -307,5 +309,6 @@ def write(result: dict, out: Path, command: str = "") -> tuple[Path, Path]:
     out.mkdir(parents=True, exist_ok=True)
     md, js = out / "tables.md", out / "results.json"
     md.write_text(to_markdown(result, command))
-    js.write_text(dumps({**result, "command": command}, indent=1, default=float))
+    arms = {setting: seeds.summarise_arms(result, setting) for setting in result["settings"]["perturbation_settings"]}
+    js.write_text(dumps({**result, "arms": arms, "command": command}, indent=1, default=float))
     return md, js
