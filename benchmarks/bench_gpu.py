@@ -33,7 +33,6 @@ from pathlib import Path
 
 import jax
 
-from ramavt_jax import train as T
 from ramavt_jax import train_config
 from ramavt_jax.training import program
 

@@ -33,6 +33,7 @@ from ramavt_jax import distributed
 from ramavt_jax import env as env_lib
 from ramavt_jax import replay as replay_lib
 from ramavt_jax.augment import augment_batch
+from ramavt_jax.greedy import unbatch_state
 from ramavt_jax.losses import TDBatch, td_loss
 from ramavt_jax.network import RecurrentState, init_params, initial_state, make_network, record_action
 from ramavt_jax.train_config import TrainConfig

@@ -382,13 +382,13 @@ def test_learns_an_easy_task():
     tracking_env = env_lib.TrackingEnv(EASY.env)
     env_params = tracking_env.default_params(**dict(EASY.env_params))
     key = jax.random.PRNGKey(123)
-    greedy = evaluate.summarise(evaluate.run_episodes(
+    learned = evaluate.summarise(evaluate.run_episodes(
         tracking_env, greedy.greedy_policy(EASY.network, params, EASY.env.obs_shape), env_params, key, 64)[0])
     rand = evaluate.summarise(evaluate.run_episodes(tracking_env, baselines.random_policy(), env_params, key, 64)[0])
     m = out["metrics"]
-    print(f"random {rand.length_mean:.1f}, greedy {greedy.length_mean:.1f}, training episodes per chunk "
+    print(f"random {rand.length_mean:.1f}, greedy {learned.length_mean:.1f}, training episodes per chunk "
           f"{np.round(np.asarray(m.episode_length_sum.sum(1) / np.maximum(m.episodes.sum(1), 1)), 1)}")
-    assert greedy.length_mean > 1.5 * rand.length_mean, (greedy, rand)
+    assert learned.length_mean > 1.5 * rand.length_mean, (learned, rand)
     assert int(out["runner_state"].learner.updates) == EASY.total_updates  # what an lr schedule decays over
 
 
