@@ -1,5 +1,6 @@
 #!/usr/bin/env bash
-# Reproduction runs behind RESULTS.md (Tables I and III), scaled to a 2-core CPU: the 'quick' preset (32x32, small
+# Training runs for the paper's Tables I and III, scaled to a 2-core CPU (one seed each; evaluate them with
+# scripts/reproduce_eval.sh): the 'quick' preset (32x32, small
 # networks, 384k env steps) for every agent / input / ablation, seed 0; plus one longer RAMAVT-depth run.
 # Each run folder gets metrics.jsonl, checkpoints/, training_curves.png, eval.json; `time` lines go to stdout.
 # Usage: bash scripts/reproduce.sh [runs/repro]   (re-running resumes finished/unfinished runs from checkpoints)

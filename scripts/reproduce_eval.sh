@@ -1,12 +1,13 @@
 #!/usr/bin/env bash
-# Evaluation behind RESULTS.md: Tables I-III on the held-out targets from the run folders of scripts/reproduce.sh,
+# The paper's Tables I-III at CPU scale (agents x inputs, perturbations, ablation) on the held-out targets, from
+# the run folders of scripts/reproduce.sh (one seed each: a table to look at, not a claim; see docs/reproduce.md),
 # with the mpc ceiling, proportional, depth-tracker and random baselines at the runs' resolution (32x32).
 # Writes results/table{1,2,3}/.
-# Usage: bash scripts/reproduce_eval.sh [runs/repro] [results] [tables, default "1 2 3 seeds"]
+# Usage: bash scripts/reproduce_eval.sh [runs/repro] [results] [tables, default "1 2 3"]
 set -euo pipefail
 RUNS=${1:-runs/repro}
 OUT=${2:-results}
-TABLES=${3:-1 2 3 seeds}
+TABLES=${3:-1 2 3}
 want() { [[ " $TABLES " == *" $1 "* ]]; }
 COMMON=(--targets test --episodes 20 --max-steps 1000 --resolution 32 --seed 0)
 have() { for r in "$@"; do [ -f "$RUNS/$r/eval.json" ] && echo "$RUNS/$r"; done; }
@@ -23,7 +24,4 @@ want 2 && timed ramavt eval --policy checkpoint --tables 2 --obs depth --no-base
 # baselines are those of table1/ (same settings and evaluation seed, so the same episodes).
 want 3 && timed ramavt eval --policy checkpoint --tables 3 --obs depth --no-baselines "${COMMON[@]}" \
   --out "$OUT/table3" --run $(have origin origin_aug se_aug mha_aug)
-# Seeds 1 and 2 of the Table-I RAMAVT-depth agent (seed 0 and the baselines are in table1/)
-want seeds && timed ramavt eval --policy checkpoint --tables 1 --obs depth --no-baselines "${COMMON[@]}" \
-  --out "$OUT/seeds" --run $(have ramavt_depth_seeds/seed_1 ramavt_depth_seeds/seed_2)
 true
