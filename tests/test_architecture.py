@@ -1,5 +1,7 @@
-"""The package's import layers (pyproject.toml [tool.importlinter]) hold, and no module grows past 400 lines."""
+"""The package's import layers (pyproject.toml [tool.importlinter]) hold, no module grows past 400 lines, and the
+repository speaks of the project, not of who worked when."""
 
+import re
 import shutil
 import subprocess
 import sys
@@ -50,3 +52,38 @@ def test_every_module_has_a_layer():
     present = {p.stem for p in package.glob("*.py") if p.stem not in ("__init__", "__main__")}
     present |= {p.name for p in package.iterdir() if (p / "__init__.py").is_file()}
     assert present == placed, f"not in a layer: {sorted(present - placed)}; gone: {sorted(placed - present)}"
+
+
+# the two words, spelt in pieces so that this file does not match itself
+_WORDS = ("sess" + "ion", "engin" + "eer")
+_WHO_WORKED_WHEN = re.compile(r"\b(" + "|".join(w + "s?" for w in _WORDS) + r")\b", re.IGNORECASE)
+
+
+def _text_files(root: Path) -> list[Path]:
+    """The files of the repository (git's list when it is a checkout, else every file outside hidden folders)."""
+    try:
+        names = subprocess.run(["git", "ls-files"], cwd=root, capture_output=True, text=True, check=True).stdout
+        return [root / n for n in names.splitlines() if (root / n).is_file()]
+    except (OSError, subprocess.CalledProcessError):
+        return [p for p in root.rglob("*") if p.is_file() and not any(x.startswith(".") for x in p.parts)]
+
+
+def words_about_who_worked_when(root: Path) -> list[str]:
+    """'path:line: text' for every line that names who worked when (the repository speaks of the
+    project, its versions and commits)."""
+    hits = []
+    for path in _text_files(root):
+        try:
+            text = path.read_text(encoding="utf-8")
+        except (UnicodeDecodeError, OSError):
+            continue  # binary files (parameters, figures)
+        hits += [f"{path.relative_to(root)}:{i}: {line.strip()[:100]}" for i, line in enumerate(text.splitlines(), 1)
+                 if _WHO_WORKED_WHEN.search(line)]
+    return hits
+
+
+def test_the_repository_speaks_of_the_project_not_of_who_worked_when(tmp_path):
+    assert words_about_who_worked_when(ROOT) == []
+    line = f"measured in the fifth {_WORDS[0]}"
+    (tmp_path / "notes.md").write_text(line + "\n")  # the check can fail
+    assert words_about_who_worked_when(tmp_path) == [f"notes.md:1: {line}"]
