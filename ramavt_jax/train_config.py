@@ -20,42 +20,9 @@ from ramavt_jax.losses import TDConfig
 from ramavt_jax.network import NetworkConfig
 from ramavt_jax.render import CameraConfig
 from ramavt_jax.replay import ReplayConfig
+from ramavt_jax.value_checks import check_finite, check_floats, check_ints
 
 __all__ = ["ActingConfig", "ReplayConfig", "LearnerConfig", "RunConfig", "TrainConfig", "PRESETS", "preset"]
-
-
-def _check_ints(owner: str, config, lows: dict[str, int]) -> None:
-    """``{field: lowest value}``: each must be an int (not a bool) and at least that; one-line ValueError."""
-    for name, lo in lows.items():
-        v = getattr(config, name)
-        if isinstance(v, bool) or not isinstance(v, (int, np.integer)):
-            raise ValueError(f"{owner}: {name} must be an int, got {v!r}")
-        if v < lo:
-            raise ValueError(f"{owner}: {name} must be >= {lo}, got {v}")
-
-
-def _check_floats(owner: str, config) -> None:
-    """Every float field (``float`` or ``float | None``) holds a finite number (or None where allowed): a NaN or an
-    infinity slips past range checks (``inf > 0``) and a string past the type hints (config.json, scripts)."""
-    for f in dataclasses.fields(config):
-        if f.type not in ("float", "float | None"):
-            continue
-        v = getattr(config, f.name)
-        if v is None and f.type == "float | None":
-            continue
-        if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)) or not np.isfinite(v):
-            raise ValueError(f"{owner}: {f.name} must be a finite number, got {v!r}")
-
-
-def _check_env_value(name: str, value) -> None:
-    """One TrainConfig.env_params override: a finite number or a list of them (desired_pos, sun_dir)."""
-    try:
-        arr = np.asarray(value)
-        ok = arr.dtype.kind in "iuf" and bool(np.isfinite(arr).all())
-    except (ValueError, TypeError):
-        ok = False
-    if not ok:
-        _fail(f"env_params: {name} must be a finite number (or a list of them), got {value!r}")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -69,8 +36,8 @@ class ActingConfig:
     eps_decay_steps: int = 800_000  # linear over this many env steps (all envs together)
 
     def __post_init__(self):
-        _check_ints("ActingConfig", self, dict(num_envs=1, rollout_steps=1, eps_decay_steps=0))
-        _check_floats("ActingConfig", self)
+        check_ints("ActingConfig", self, dict(num_envs=1, rollout_steps=1, eps_decay_steps=0))
+        check_floats("ActingConfig", self)
         for name in ("eps_start", "eps_end"):
             if not 0.0 <= getattr(self, name) <= 1.0:
                 raise ValueError(f"ActingConfig: {name} must be in [0, 1], got {getattr(self, name)}")
@@ -109,8 +76,8 @@ class LearnerConfig:
     augment_config: AugmentConfig = AugmentConfig(crop=False, flip=False, rot90=False)
 
     def __post_init__(self):
-        _check_ints("LearnerConfig", self, dict(learning_starts=0, n_step=1, target_period=1))
-        _check_floats("LearnerConfig", self)
+        check_ints("LearnerConfig", self, dict(learning_starts=0, n_step=1, target_period=1))
+        check_floats("LearnerConfig", self)
         fail = lambda msg: ValueError(f"LearnerConfig: {msg}")  # noqa: E731
         if not self.lr > 0 or not self.adam_eps > 0:
             raise fail(f"lr and adam_eps must be > 0, got lr={self.lr}, adam_eps={self.adam_eps}")
@@ -158,7 +125,7 @@ class RunConfig:
     policy_params: typing.Literal["online", "target"] = "online"
 
     def __post_init__(self):
-        _check_ints("RunConfig", self, dict(total_env_steps=1, iterations_per_chunk=1, eval_episodes=0,
+        check_ints("RunConfig", self, dict(total_env_steps=1, iterations_per_chunk=1, eval_episodes=0,
                                             eval_max_steps=1, checkpoint_every_chunks=0, keep_checkpoints=1))
         if self.policy_params not in ("online", "target"):
             raise ValueError(f"RunConfig: policy_params must be 'online' or 'target', got {self.policy_params!r}")
@@ -234,7 +201,10 @@ class TrainConfig:
         for item in self.env_params:
             if not (isinstance(item, tuple) and len(item) == 2 and item[0] in known):
                 _fail(f"env_params must be (name, value) pairs naming EnvParams fields {sorted(known)}, got {item!r}")
-            _check_env_value(*item)
+            try:
+                check_finite(f"env_params: {item[0]}", item[1])
+            except ValueError as e:
+                _fail(str(e))
 
     def _check_sizes(self) -> None:
         """How the groups' sizes fit together: chunks, replay rows, windows, gradient steps per iteration."""
