@@ -1,8 +1,9 @@
-"""Recurrent DQN training (R2D2-style) for the tracking task: config, presets and the jitted trainer.
+"""Recurrent DQN training (R2D2-style) for the tracking task: the jitted trainer. Its config and presets live in
+:mod:`ramavt_jax.train_config`, its state containers in :mod:`ramavt_jax.train_state`.
 
 API (purejaxrl shape)::
 
-    cfg = preset("quick")                               # or TrainConfig(...), frozen and validated
+    cfg = train_config.preset("quick")                  # or TrainConfig(...), frozen and validated
     train = make_train(cfg)                             # pure function of a key
     out = jax.jit(train)(jax.random.PRNGKey(0))         # {'runner_state': RunnerState, 'metrics': ChunkMetrics}
     outs = jax.jit(jax.vmap(make_train(cfg)))(keys)     # several seeds at once (small configs)
@@ -22,7 +23,6 @@ window from the same stored state, also without gradient), then the masked doubl
 from __future__ import annotations
 
 import functools
-from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -35,100 +35,12 @@ from ramavt_jax import replay as replay_lib
 from ramavt_jax.augment import augment_batch
 from ramavt_jax.greedy import unbatch_state
 from ramavt_jax.losses import TDBatch, td_loss
-from ramavt_jax.network import RecurrentState, init_params, initial_state, make_network, record_action
+from ramavt_jax.network import init_params, initial_state, make_network, record_action
 from ramavt_jax.train_config import TrainConfig
+from ramavt_jax.train_state import (ActorState, ChunkMetrics, EpisodeStats, LearnerState, LearnStats, PreparedBatch,
+                                    RunnerState)
 
-__all__ = [
-    "TrainingDivergedError", "LearnerState", "ActorState", "RunnerState",
-    "ChunkMetrics", "EpisodeStats", "LearnStats", "PreparedBatch", "Trainer", "make_train",
-]
-
-
-class TrainingDivergedError(RuntimeError):
-    """The loss (or mean Q) became NaN/inf; the state that produced it is not checkpointed."""
-
-
-@struct.dataclass
-class LearnerState:
-    params: Any
-    target_params: Any
-    opt_state: Any
-    updates: jax.Array  # [] int32 gradient steps taken
-
-    def policy_params(self, which: str):
-        """The parameter set a trained policy acts with (RunConfig.policy_params): 'online' or 'target'."""
-        return {"online": self.params, "target": self.target_params}[which]
-
-
-@struct.dataclass
-class ActorState:
-    """The acting envs ([N] leading axis everywhere except ``net_state``'s LSTM leaves, [layers, N, units])."""
-
-    env_state: env_lib.EnvState
-    obs: jax.Array  # [N, H, W, C] current observation (not yet consumed by the network)
-    is_first: jax.Array  # [N] bool, obs is an episode's first observation
-    net_state: RecurrentState  # state BEFORE consuming obs
-
-
-@struct.dataclass
-class RunnerState:
-    learner: LearnerState
-    actor: ActorState
-    replay: Any  # flashbax TrajectoryBufferState
-    key: jax.Array  # raw uint32[2] PRNG key (checkpoint friendly)
-    env_steps: jax.Array  # [] int32, all envs together
-    chunk: jax.Array  # [] int32 chunks completed
-
-
-@struct.dataclass
-class ChunkMetrics:
-    """Per-iteration sums ([iterations] per chunk; the host aggregates)."""
-
-    episodes: jax.Array  # episodes completed
-    episode_length_sum: jax.Array
-    episode_return_sum: jax.Array  # unscaled env reward
-    loss_sum: jax.Array
-    q_sum: jax.Array  # mean taken Q per update, summed
-    grad_norm_sum: jax.Array
-    updates: jax.Array  # gradient steps done this iteration
-    epsilon: jax.Array
-    env_steps: jax.Array  # at the end of the iteration
-
-
-@struct.dataclass
-class EpisodeStats:
-    """Episodes that ended in one acting step, or (summed) in a rollout: all ``[]``."""
-
-    episodes: jax.Array
-    length_sum: jax.Array
-    return_sum: jax.Array  # unscaled env reward
-
-
-@struct.dataclass
-class LearnStats:
-    """One gradient step (``update``), or the sums over an iteration's steps (``learn``): all ``[]``."""
-
-    loss: jax.Array
-    q_mean: jax.Array  # mean taken Q over the trained transitions
-    grad_norm: jax.Array
-    updates: jax.Array  # int32 gradient steps
-
-
-@struct.dataclass
-class PreparedBatch:
-    """Everything the loss of ``B`` sampled windows needs that takes no gradient (``T = train_len``).
-
-    obs: ``[B, T+1, H, W, C]`` (augmented) observations after burn-in; reset: ``[B, T+1]`` bool; state: the online
-    net's ``RecurrentState`` after burn-in (h, c ``[layers, B, units]``); td: the :class:`TDBatch` of the ``T``
-    trained transitions (``q_target [B, T+1, A]``, the rest ``[B, T]``); privileged: ``[B, T+1, 3]`` the true
-    tracking error per obs (None without the auxiliary loss).
-    """
-
-    obs: jax.Array
-    reset: jax.Array
-    state: RecurrentState
-    td: TDBatch
-    privileged: jax.Array | None = None
+__all__ = ["Trainer", "make_train"]
 
 
 @struct.dataclass

@@ -11,6 +11,7 @@ import pytest
 from flax import struct
 
 from ramavt_jax import train as T
+from ramavt_jax import train_state
 from ramavt_jax import train_config
 from ramavt_jax.experiment import train_and_evaluate
 from ramavt_jax.training import driver, run_folder
@@ -83,7 +84,7 @@ def test_resume_is_bit_identical(tmp_path):
 
 def test_nan_stops_training_and_keeps_the_last_good_checkpoint(tmp_path):
     cfg = SMOKE
-    with pytest.raises(T.TrainingDivergedError, match=r"diverged at chunk 3 .*NOT saved.*chunk 2"):
+    with pytest.raises(train_state.TrainingDivergedError, match=r"diverged at chunk 3 .*NOT saved.*chunk 2"):
         driver.run(cfg, tmp_path / "nan", progress=False, debug_nan_at_update=16)  # updates 0-5, then 8 per chunk
     store = CheckpointStore(tmp_path / "nan" / "checkpoints", create=False)
     assert store.latest_step() == 2
@@ -100,7 +101,7 @@ def test_keyboard_interrupt_saves_a_checkpoint(tmp_path, monkeypatch):
     calls = {"n": 0}
 
     def interrupt_on_second_chunk(x):
-        if isinstance(x, T.ChunkMetrics):
+        if isinstance(x, train_state.ChunkMetrics):
             calls["n"] += 1
             if calls["n"] == 2:
                 raise KeyboardInterrupt
@@ -208,7 +209,7 @@ def test_sigterm_saves_the_chunk_in_flight_and_resume_is_bit_identical(tmp_path,
     calls = {"n": 0}
 
     def sigterm_during_second_chunk(x):
-        if isinstance(x, T.ChunkMetrics):
+        if isinstance(x, train_state.ChunkMetrics):
             calls["n"] += 1
             if calls["n"] == 2:
                 os.kill(os.getpid(), signal.SIGTERM)  # what a scheduler sends; handled between chunks

@@ -273,7 +273,7 @@ def test_final_evaluation_acts_with_the_configured_params(tmp_path, monkeypatch,
     import numpy as np
 
     from ramavt_jax import experiment
-    from ramavt_jax.train import LearnerState
+    from ramavt_jax.train_state import LearnerState
     from ramavt_jax.train_config import preset
     from ramavt_jax.training import driver
 

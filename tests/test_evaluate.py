@@ -305,7 +305,7 @@ def test_the_shipped_config_json_loads_as_the_long_preset():
 def test_seed_params_picks_one_seed_of_the_named_set():
     from types import SimpleNamespace
 
-    from ramavt_jax.train import LearnerState
+    from ramavt_jax.train_state import LearnerState
     from ramavt_jax.training import driver
 
     w = np.arange(6.0).reshape(2, 3)  # [seeds, ...]

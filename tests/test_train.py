@@ -11,6 +11,7 @@ from ramavt_jax.evaluation import rollouts as evaluate
 from ramavt_jax import env as env_lib
 from ramavt_jax import replay as replay_lib
 from ramavt_jax import train as T
+from ramavt_jax import train_state
 from ramavt_jax import greedy
 from ramavt_jax import train_config
 from ramavt_jax.losses import sequence_td_loss
@@ -401,7 +402,7 @@ def test_bootstrap_lost_turns_terminations_into_bootstrapped_ends(trainer, learn
     boot = T.Trainer(SMOKE.override(bootstrap_lost=True))
     plain_prep = trainer.prepare(params, target, batch, jax.random.PRNGKey(0))
     boot_prep = boot.prepare(params, target, batch, jax.random.PRNGKey(0))
-    assert isinstance(plain_prep, T.PreparedBatch)
+    assert isinstance(plain_prep, train_state.PreparedBatch)
     plain, booted = plain_prep.td, boot_prep.td
     assert bool(plain.terminated.any()) and not bool(booted.terminated.any())
     np.testing.assert_array_equal(np.asarray(booted.truncated), np.asarray(plain.truncated | plain.terminated))

@@ -17,7 +17,7 @@ from pathlib import Path
 import tyro
 
 from ramavt_jax.cli import commands, evaluate, train
-from ramavt_jax.train import TrainingDivergedError
+from ramavt_jax.train_state import TrainingDivergedError
 from ramavt_jax.training.interrupts import TrainingInterrupted
 
 USAGE_ERROR = 2  # exit status of a bad input (as argparse / tyro use for bad flags)

@@ -19,7 +19,7 @@ import jax
 import numpy as np
 
 from ramavt_jax import distributed
-from ramavt_jax.train import TrainingDivergedError
+from ramavt_jax.train_state import TrainingDivergedError
 from ramavt_jax.train_config import TrainConfig
 from ramavt_jax.training import run_folder as folders
 from ramavt_jax.training.program import _compiled, _Program

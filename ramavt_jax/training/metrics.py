@@ -9,7 +9,7 @@ from pathlib import Path
 import jax
 import numpy as np
 
-from ramavt_jax.train import ChunkMetrics
+from ramavt_jax.train_state import ChunkMetrics
 from ramavt_jax.train_config import TrainConfig
 from ramavt_jax.training import run_folder as folders
 
