@@ -89,36 +89,39 @@ def run_episodes(
     """Run `num_episodes` episodes in parallel (one per env, no auto-reset) for `num_steps` (default max_steps).
 
     Returns EpisodeStats [N] and, if `record`, the per-step EpisodeRecord [T, N]. Jit-compiled as one lax.scan.
-    Episodes that do not fit in memory side by side run in batches (each batch's key: ``fold_in(key, batch)``).
+    Episodes that do not fit in memory side by side run in batches that fly exactly the episodes of the unbatched
+    run (each episode's keys are its slice of the keys of all ``N``), so results never depend on free memory.
     """
     steps = int(num_steps if num_steps is not None else np.asarray(params.max_steps))
     fn = _episode_runner(tracking_env, policy, steps, record)
-    compiled = _compiled_runner(fn, params, key, num_episodes)
+    compiled = _compiled_runner(fn, params, key, num_episodes, num_episodes)
     batch = episodes_that_fit(compiled, num_episodes)
     if batch >= num_episodes:
-        return compiled(params, key)
-    # too many episodes side by side for the memory: batches of equal size (one compile), the last one cut short
-    compiled = _compiled_runner(fn, params, key, batch)
-    parts = [jax.device_get(compiled(params, jax.random.fold_in(key, b))) for b in range(-(-num_episodes // batch))]
-    stats = jax.tree.map(lambda *xs: np.concatenate(xs)[:num_episodes], *(p[0] for p in parts))
-    rec = None if not record else jax.tree.map(lambda *xs: np.concatenate(xs, axis=1)[:, :num_episodes],
-                                               *(p[1] for p in parts))
+        return compiled(params, key, 0)
+    # too many episodes side by side for the memory: batches of equal size (one compile), and the rest (a second)
+    starts = range(0, num_episodes, batch)
+    parts = [jax.device_get(_compiled_runner(fn, params, key, min(batch, num_episodes - s), num_episodes)(
+        params, key, s)) for s in starts]
+    stats = jax.tree.map(lambda *xs: np.concatenate(xs), *(p[0] for p in parts))
+    rec = None if not record else jax.tree.map(lambda *xs: np.concatenate(xs, axis=1), *(p[1] for p in parts))
     return stats, rec
 
 
-_COMPILED_RUNS: dict = {}  # (runner, episodes, argument types) -> the compiled runner
+_COMPILED_RUNS: dict = {}  # (runner, episodes, total, argument types) -> the compiled runner
 
 
-def _compiled_runner(fn, params, key, num_episodes: int):
-    """``fn`` (an :func:`_episode_runner`) compiled for ``num_episodes`` and the types of ``params`` and ``key``;
-    called as ``compiled(params, key)``. Compiled ahead of time so its memory is known before anything is
-    allocated (:func:`episodes_that_fit`); cached, so repeated calls (targets, settings) do not trace again."""
+def _compiled_runner(fn, params, key, num_episodes: int, total: int | None = None):
+    """``fn`` (an :func:`_episode_runner`) compiled for ``num_episodes`` of ``total`` episodes (default: all) and the
+    types of ``params`` and ``key``; called as ``compiled(params, key, offset)`` for the episodes from ``offset`` on.
+    Compiled ahead of time so its memory is known before anything is allocated (:func:`episodes_that_fit`); cached,
+    so repeated calls (targets, settings) do not trace again."""
+    total = num_episodes if total is None else total
     types = (jax.tree.structure((params, key)), tuple(jax.typeof(x) for x in jax.tree.leaves((params, key))))
-    cache_key = (fn, num_episodes, types)
+    cache_key = (fn, num_episodes, total, types)
     if cache_key not in _COMPILED_RUNS:
         if len(_COMPILED_RUNS) >= 64:
             _COMPILED_RUNS.pop(next(iter(_COMPILED_RUNS)))
-        _COMPILED_RUNS[cache_key] = fn.lower(params, key, num_episodes).compile()
+        _COMPILED_RUNS[cache_key] = fn.lower(params, key, num_episodes, total, 0).compile()
     return _COMPILED_RUNS[cache_key]
 
 
@@ -146,10 +149,13 @@ def _episode_runner(tracking_env, policy, steps, record):
     as every episode has ended (random agents lose the target within ~200 steps). Both draw the same per-step keys,
     so the same key gives the same episodes either way."""
 
-    def run(params, key, num_episodes):
+    def run(params, key, num_episodes, total, offset):
+        def split(k):  # episodes offset .. offset + num_episodes of the keys of all `total` episodes
+            return jax.lax.dynamic_slice_in_dim(jax.random.split(k, total), offset, num_episodes)
+
         k_reset, k_policy, k_loop = jax.random.split(key, 3)
-        obs, state = jax.vmap(tracking_env.reset, in_axes=(0, None))(jax.random.split(k_reset, num_episodes), params)
-        pstate = jax.vmap(policy.init)(jax.random.split(k_policy, num_episodes))
+        obs, state = jax.vmap(tracking_env.reset, in_axes=(0, None))(split(k_reset), params)
+        pstate = jax.vmap(policy.init)(split(k_policy))
         alive = jnp.ones(num_episodes, bool)
         zeros = jnp.zeros(num_episodes)
         step_keys = jax.random.split(k_loop, steps)
@@ -157,9 +163,9 @@ def _episode_runner(tracking_env, policy, steps, record):
         def body(carry, step_key):
             obs, state, pstate, alive, length, ret, term, trunc, track = carry
             k_act, k_env = jax.random.split(step_key)
-            act_keys = jax.random.split(k_act, num_episodes)
+            act_keys = split(k_act)
             action, pstate = jax.vmap(policy.act, in_axes=(0, 0, 0, 0, None))(act_keys, pstate, obs, state, params)
-            env_keys = jax.random.split(k_env, num_episodes)
+            env_keys = split(k_env)
             obs, state, reward, terminated, truncated, info = jax.vmap(tracking_env.step_env, in_axes=(0, 0, 0, None))(
                 env_keys, state, action, params
             )
@@ -198,7 +204,7 @@ def _episode_runner(tracking_env, policy, steps, record):
                              truncated=trunc, tracking=track)
         return stats, rec
 
-    return jax.jit(run, static_argnums=2)
+    return jax.jit(run, static_argnums=(2, 3))
 
 
 @dataclasses.dataclass(frozen=True)
