@@ -136,6 +136,18 @@ def test_an_incomplete_config_json_is_refused_naming_the_field(tmp_path, capsys)
     assert "cannot read" in _refused(TRAIN + ["--out", str(run)], capsys)
 
 
+def test_a_flat_config_json_of_early_versions_is_refused_not_filled_with_defaults(tmp_path, capsys):
+    config_json = json.loads(json.dumps(SMOKE.to_dict()))
+    flat = {k: v for k, v in config_json.items() if k not in ("acting", "replay", "learner", "run")}
+    for group in ("acting", "replay", "learner", "run"):
+        flat.update(config_json[group])
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "config.json").write_text(json.dumps({"seed": 0, "config": flat}))
+    err = _refused(["eval", "--run", str(run), "--no-baselines", "--out", str(tmp_path / "eval")], capsys)
+    assert "without the groups" in err and "config.json" in err, err
+
+
 # ============================================================================================ 5. many episodes
 class _Compiled:
     """What episodes_that_fit reads of a compiled runner: XLA's memory analysis."""

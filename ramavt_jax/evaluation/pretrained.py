@@ -59,7 +59,7 @@ def load(name: str = DEFAULT_AGENT, agents_dir: Path = AGENTS_DIR) -> Pretrained
     if not (folder / "params.npz").is_file():
         raise PretrainedError(f"no pretrained agent {name!r}; available: {', '.join(available(agents_dir)) or 'none'}")
     saved = json.loads((folder / "config.json").read_text())
-    config = TrainConfig.from_dict(saved["config"])  # the current or the flat (older) form
+    config = TrainConfig.from_dict(saved["config"])
     obs_shape = tuple(config.env.obs_shape)
     template = jax.eval_shape(lambda k: init_params(config.network, k, obs_shape)["params"], jax.random.key(0))
     with np.load(folder / "params.npz") as arrays:

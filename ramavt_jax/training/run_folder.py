@@ -137,10 +137,7 @@ def config_differences(saved: dict, current: dict, defaults: dict | None = None)
 
 
 def missing_fields(saved: dict, defaults: dict) -> list[str]:
-    """Dotted names of the fields of ``defaults`` (a config dict) that ``saved`` lacks. Only a config in the grouped
-    form is checked: the flat form written before the groups predates fields that take their defaults."""
-    if not all(isinstance(saved.get(group), dict) for group in ("acting", "replay", "learner", "run")):
-        return []
+    """Dotted names of the fields of ``defaults`` (a config dict) that ``saved`` lacks."""
     have = _flatten(saved)
     return [k for k in _flatten(defaults) if k not in have and not any(h.startswith(k + ".") for h in have)]
 
@@ -155,6 +152,10 @@ def read_config(run_dir: str | os.PathLike, defaults: dict | None = None) -> dic
     except (OSError, ValueError, KeyError, TypeError) as e:
         raise RunFolderError(f"cannot read {path} ({type(e).__name__}: {e}); the checkpoints' metadata hold the "
                              f"config too (pass --no-resume to train the folder afresh)") from None
+    groups = ("acting", "replay", "learner", "run")
+    if not (isinstance(config, dict) and all(isinstance(config.get(g), dict) for g in groups)):
+        raise RunFolderError(f"{path} holds a config without the groups {', '.join(groups)} (the flat form of early "
+                             f"versions, which this version does not read); train the run again")
     if defaults is None:
         defaults = json.loads(json.dumps(TrainConfig().to_dict(), default=str))
     missing = missing_fields(config, defaults)
