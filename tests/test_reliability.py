@@ -56,6 +56,30 @@ def test_available_memory_honours_the_cap(monkeypatch):
         memory.available_bytes()
 
 
+def test_a_container_limit_caps_the_memory_counted_on(tmp_path):
+    """A cgroup's limit minus its usage, not the host's RAM (v2 'max' and v1's huge number mean no limit)."""
+    v2, v1 = tmp_path / "memory.max", tmp_path / "memory.limit_in_bytes"
+    v2.write_text("1073741824\n")
+    (tmp_path / "memory.current").write_text(str(2**28))
+    assert memory._cgroup_available((str(v2),)) == 2**30 - 2**28
+    v2.write_text("max\n")
+    assert memory._cgroup_available((str(v2),)) is None
+    v1.write_text(str(2**63 - 4096))
+    assert memory._cgroup_available((str(tmp_path / "missing"), str(v1))) is None
+
+
+def test_the_chunks_working_memory_counts_in_the_training_plan(monkeypatch):
+    """A state that fits alone is refused once the compiled chunk's working memory is added to it."""
+    from ramavt_jax.training import program
+
+    abstract = jax.eval_shape(Trainer(SMOKE).init, jax.ShapeDtypeStruct((2,), np.uint32))
+    state = memory.tree_bytes(abstract)
+    monkeypatch.setattr(memory, "available_bytes", lambda device=None: int(2 * state / memory.FRACTION))
+    program.check_state_fits(SMOKE, abstract, 1, None)  # the state alone fits
+    with pytest.raises(memory.MemoryPlanError, match="working memory"):
+        program.check_state_fits(SMOKE, abstract, 1, None, chunk_temp=2 * state)
+
+
 # ============================================================================================ 2. torn metrics
 def test_a_torn_last_metrics_line_is_skipped_in_one_line(tmp_path):
     path = tmp_path / "metrics.jsonl"

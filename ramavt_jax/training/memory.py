@@ -35,6 +35,28 @@ def _host_available() -> int | None:
         return None
 
 
+_CGROUP_LIMITS = ("/sys/fs/cgroup/memory.max", "/sys/fs/cgroup/memory/memory.limit_in_bytes")  # v2, v1
+
+
+def _cgroup_available(limits=_CGROUP_LIMITS) -> int | None:
+    """Bytes the process's control group (a container, a batch job) may still use: its limit minus its usage, or
+    None without a limit. A container's /proc/meminfo shows the host's RAM, far more than the container may take."""
+    for path in limits:
+        try:
+            text = open(path).read().strip()
+        except OSError:
+            continue
+        if text == "max" or not text.isdigit() or int(text) >= 2**60:  # v1 writes a huge number for "no limit"
+            return None
+        usage_file = path.replace("memory.max", "memory.current").replace("limit_in_bytes", "usage_in_bytes")
+        try:
+            usage = int(open(usage_file).read().strip())
+        except (OSError, ValueError):
+            usage = 0
+        return max(int(text) - usage, 0)
+    return None
+
+
 def _limit() -> int | None:
     """``RAMAVT_MEMORY_GB``: a cap on the memory a plan may count on (a machine shared with other jobs)."""
     text = os.environ.get("RAMAVT_MEMORY_GB", "").strip()
@@ -66,7 +88,8 @@ def _device_available(device) -> int | None:
         if "bytes_limit" in stats:
             return int(stats["bytes_limit"]) - int(stats.get("bytes_in_use", 0))
         return None
-    return _host_available()
+    host, group = _host_available(), _cgroup_available()
+    return host if group is None else group if host is None else min(host, group)
 
 
 def tree_bytes(tree) -> int:

@@ -33,10 +33,6 @@ class _Program:
 _COMPILED: dict = {}
 
 
-def _tree_bytes(tree) -> int:
-    return int(sum(np.prod(x.shape) * np.dtype(x.dtype).itemsize for x in jax.tree.leaves(tree)))
-
-
 def _jit_pair(trainer: Trainer, num_seeds: int, mesh):
     """(init, chunk, abstract state, shardings) of one program: vmapped over seeds when > 1, split over ``mesh``."""
     init_fn, chunk_fn, key_shape = trainer.init, trainer.chunk, (2,)
@@ -52,16 +48,19 @@ def _jit_pair(trainer: Trainer, num_seeds: int, mesh):
     return init, chunk, abstract, shardings
 
 
-def check_state_fits(config: TrainConfig, abstract, num_seeds: int, mesh) -> None:
-    """Refuse (MemoryPlanError, one line) a RunnerState larger than the memory available, before it is compiled or
-    allocated. ``abstract``: the state's shapes (jax.eval_shape of init), [seeds]-stacked when ``num_seeds`` > 1; with
-    a mesh each device holds its share (on CPU all devices share the host's RAM)."""
+def check_state_fits(config: TrainConfig, abstract, num_seeds: int, mesh, chunk_temp: int = 0) -> None:
+    """Refuse (MemoryPlanError, one line) a RunnerState (plus ``chunk_temp``, the compiled chunk's working memory
+    once known) larger than the memory available, before it is allocated; called before compiling with the state
+    alone and after with both. ``abstract``: the state's shapes (jax.eval_shape of init), [seeds]-stacked when
+    ``num_seeds`` > 1; with a mesh each device holds its share (on CPU all devices share the host's RAM)."""
     total, replay = memplan.tree_bytes(abstract), memplan.tree_bytes(abstract.replay)
     device = jax.local_devices()[0]
     shares = 1 if mesh is None or device.platform == "cpu" else int(mesh.devices.size)
-    memplan.check_fits(total // shares, f"the training state ({num_seeds} seed(s); replay {memplan.human(replay)} for "
-                      f"replay.capacity_steps={config.replay.capacity_steps})",
-                      "lower --replay.capacity-steps (or --acting.num-envs, --seeds)", device)
+    working = f" and {memplan.human(chunk_temp)} of working memory" if chunk_temp else ""
+    memplan.check_fits(total // shares + chunk_temp,
+                       f"the training state ({num_seeds} seed(s); replay {memplan.human(replay)} for "
+                       f"replay.capacity_steps={config.replay.capacity_steps}{working})",
+                       "lower --replay.capacity-steps (or --acting.num-envs, --seeds, --replay.batch-size)", device)
 
 
 def _cache_key(config: TrainConfig) -> TrainConfig:
@@ -90,8 +89,9 @@ def _compiled(config: TrainConfig, tracking_env, num_seeds: int = 1, mesh=None,
             temp = int(compiled.memory_analysis().temp_size_in_bytes)
         except Exception:  # noqa: BLE001 (not every backend reports it)
             temp = -1
-        memory = {"state_bytes_per_seed": _tree_bytes(abstract) // num_seeds,
-                  "replay_bytes_per_seed": _tree_bytes(abstract.replay) // num_seeds,
+        check_state_fits(config, abstract, num_seeds, mesh, max(temp, 0))  # now with the chunk's working memory
+        memory = {"state_bytes_per_seed": memplan.tree_bytes(abstract) // num_seeds,
+                  "replay_bytes_per_seed": memplan.tree_bytes(abstract.replay) // num_seeds,
                   "chunk_temp_bytes": temp}
         if len(_COMPILED) >= 4:
             _COMPILED.pop(next(iter(_COMPILED)))
