@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import dataclasses
-import os
 import subprocess
 import sys
 import time
@@ -17,6 +16,7 @@ from ramavt_jax.cli.checks import UsageError, output_file, positive
 from ramavt_jax.evaluation import pretrained
 from ramavt_jax.evaluation.rollouts import resolve_targets
 from ramavt_jax.figures import episode
+from ramavt_jax.training import run_folder
 
 BENCHMARKS = ("env", "train", "gpu", "conv", "network", "render", "scaling", "mjx_ray")
 
@@ -79,21 +79,8 @@ def render_cmd(
     frames = episode.record_episode(tracking_env, pol, tracking_env.eval_params(), jax.random.key(seed), steps)
     length = int(frames.alive.sum())
     print(f"recorded in {time.time() - t:.0f} s; writing {out} ...", flush=True)
-    path = _write_atomic(out, lambda tmp: episode.episode_video(frames, tmp, size=size, every=every))
+    path = run_folder.replace_atomic(out, lambda tmp: episode.episode_video(frames, tmp, size=size, every=every))
     print(f"{pol.name} on {target}: {length} steps tracked, return {float(frames.reward[:length].sum()):.1f}; wrote {path}")
-
-
-def _write_atomic(out: Path, write) -> Path:
-    """``write(tmp)`` a file under a name unique to this process beside ``out`` (same suffix: the format), then
-    rename it to ``out``: two commands writing the same --out each leave a whole file, never a mix."""
-    out = Path(out)
-    tmp = out.with_name(f".{out.stem}.{os.getpid()}.tmp{out.suffix}")
-    try:
-        write(tmp)
-        os.replace(tmp, out)
-    finally:
-        tmp.unlink(missing_ok=True)
-    return out
 
 
 def bench_main(argv: list[str]) -> None:

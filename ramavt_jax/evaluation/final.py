@@ -65,7 +65,8 @@ def final_evaluation(config: TrainConfig, params: Any, key: jax.Array, log: Call
             log(f"final evaluation: {name:<6} on {split:<5} targets ({len(names)}): mean episode length "
                 f"{res['length_mean']:.0f}, return {res['return_mean']:.1f} ({time.time() - t:.0f} s)")
         ceiling = out[split]["mpc"]["return_mean"]
-        out[split]["greedy"]["ceiling_fraction"] = out[split]["greedy"]["return_mean"] / ceiling if ceiling else None
+        greedy = out[split]["greedy"]
+        greedy["ceiling_fraction"] = greedy["return_mean"] / ceiling if ceiling > 0 else None
     return out
 
 

@@ -60,7 +60,7 @@ def summarise_arms(result: dict, setting: str = "none") -> dict:
             "runs": int(s.shape[0]), "return_mean": mean, "return_ci_low": low, "return_ci_high": high,
             "return_iqm": statistics.iqm(s), "iqm_ci_low": iqm_low, "iqm_ci_high": iqm_high,
             "return_sample_std_over_runs": statistics.sample_std(per_run["return_mean"]),
-            "ceiling_fraction": mean / ceiling if ceiling else None,
+            "ceiling_fraction": mean / ceiling if ceiling and ceiling > 0 else None,
             **{f"{f}_over_runs": float(np.mean(v)) for f, v in per_run.items() if f != "return_mean"},
             "per_run_return_mean": per_run["return_mean"],
             "per_target_return_mean": dict(zip(targets, s.mean(axis=0).tolist())),
@@ -91,7 +91,7 @@ def arms_md(result: dict, setting: str = "none") -> str:
                      f"{_cell(a['ceiling_fraction'], 0, 100)} | {_cell(a['lost_fraction_over_runs'], 1, 100)} | "
                      f"{_cell(a['error_mean_over_runs'], 2)} |")
     multi = [n for n, a in summary["arms"].items() if a["runs"] > 1]
-    pis = [f"P({x} > {y.split(' (')[0]}) = {p:.2f}" for k, p in summary["probability_of_improvement"].items()
+    pis = [f"P({x} > {y}) = {p:.2f}" for k, p in summary["probability_of_improvement"].items()
            for x, y in [k.split(">", 1)] if x in multi]
     if pis:
         lines += ["", "Probability of improvement (rliable; per target, averaged over targets): " + "; ".join(pis)]

@@ -149,7 +149,7 @@ def add_ceiling_fractions(rows: list[dict]) -> None:
 
 
 def _fraction(value: float, ceiling: dict | None) -> float | None:
-    if ceiling is None or not ceiling["return_mean"]:
+    if ceiling is None or not ceiling["return_mean"] > 0:  # a fraction of a non-positive ceiling reads backwards
         return None
     return float(value / ceiling["return_mean"])
 

@@ -27,8 +27,8 @@ from ramavt_jax.train_config import TrainConfig
 
 __all__ = ["CONFIG_FILE", "METRICS_FILE", "CHECKPOINTS", "EVAL_FILE", "CURVES_FILE", "RESUMABLE_FIELDS",
            "seed_dir", "seed_folders", "is_seed_dir", "to_strict_json", "dumps", "read_metrics", "append_metrics",
-           "write_metrics", "write_atomic", "config_differences", "missing_fields", "read_config", "check_config",
-           "RunFolderError", "RunLock", "check_writable"]
+           "write_metrics", "write_atomic", "replace_atomic", "config_differences", "missing_fields", "read_config",
+           "check_config", "RunFolderError", "RunLock", "check_writable"]
 
 CONFIG_FILE, METRICS_FILE, CHECKPOINTS, EVAL_FILE = "config.json", "metrics.jsonl", "checkpoints", "eval.json"
 CURVES_FILE = "training_curves.png"
@@ -96,15 +96,23 @@ def read_metrics(path: str | os.PathLike, log=print) -> list[dict]:
     return [{k: float("nan") if v is None else v for k, v in r.items()} for r in records]
 
 
-def write_atomic(path: Path, text: str) -> None:
-    """Write ``path`` whole or not at all: a unique temporary file beside it, renamed over it (a crash at any byte
-    leaves the old file or the new one)."""
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+def replace_atomic(path: str | os.PathLike, write) -> Path:
+    """``write(tmp)`` a file under a name unique to this process beside ``path`` (same suffix: the format), then
+    rename it over ``path``: a crash at any byte leaves the old file or the new one, and two processes writing the
+    same path each leave a whole file, never a mix."""
+    path = Path(path)
+    tmp = path.with_name(f".{path.stem}.{os.getpid()}.tmp{path.suffix}")
     try:
-        tmp.write_text(text)
+        write(tmp)
         os.replace(tmp, path)
     finally:
         tmp.unlink(missing_ok=True)
+    return path
+
+
+def write_atomic(path: Path, text: str) -> None:
+    """Write the text file ``path`` whole or not at all (:func:`replace_atomic`)."""
+    replace_atomic(path, lambda tmp: tmp.write_text(text))
 
 
 def write_metrics(path: Path, records: list[dict]) -> None:
