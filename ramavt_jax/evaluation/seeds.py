@@ -48,28 +48,25 @@ def summarise_arms(result: dict, setting: str = "none") -> dict:
     scores = {name: _scores(runs, targets) for name, runs in grouped.items()}
     ceiling = next((r["settings"][setting]["overall"]["return_mean"] for r in result["rows"]
                     if r.get("info", {}).get("variant") == "mpc" and setting in r["settings"]), None)
-    out = {"arms": {}, "probability_of_improvement": {}}
+    compared = statistics.compare_arms(scores)  # IQM with its interval, P(x > y) for every ordered pair
+    out = {"arms": {}, "probability_of_improvement": compared["probability_of_improvement"]}
     for name, runs in grouped.items():
-        s = scores[name]
+        s, iqm = scores[name], compared["iqm"][name]
         strata = np.broadcast_to(np.arange(s.shape[1]), s.shape)
         low, high = statistics.bootstrap_ci(s, strata) if s.shape[0] > 1 else (None, None)
-        iqm_low, iqm_high = statistics.iqm_ci(s) if s.shape[0] > 1 else (None, None)
+        several = s.shape[0] > 1
         per_run = {f: [r["overall"][f] for r in runs] for f in _SEED_FIELDS}
         mean = float(s.mean())
         out["arms"][name] = {
             "runs": int(s.shape[0]), "return_mean": mean, "return_ci_low": low, "return_ci_high": high,
-            "return_iqm": statistics.iqm(s), "iqm_ci_low": iqm_low, "iqm_ci_high": iqm_high,
+            "return_iqm": iqm["iqm"], "iqm_ci_low": iqm["ci_low"] if several else None,
+            "iqm_ci_high": iqm["ci_high"] if several else None,
             "return_sample_std_over_runs": statistics.sample_std(per_run["return_mean"]),
             "ceiling_fraction": mean / ceiling if ceiling and ceiling > 0 else None,
             **{f"{f}_over_runs": float(np.mean(v)) for f, v in per_run.items() if f != "return_mean"},
             "per_run_return_mean": per_run["return_mean"],
             "per_target_return_mean": dict(zip(targets, s.mean(axis=0).tolist())),
         }
-    for x in scores:
-        for y in scores:
-            if x != y:
-                out["probability_of_improvement"][f"{x}>{y}"] = statistics.probability_of_improvement(
-                    scores[x], scores[y])
     return out
 
 
