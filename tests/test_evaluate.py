@@ -157,9 +157,11 @@ def test_eval_mpc_perturbations_custom_target_and_figures(tmp_path):
     (row,) = js["rows"]
     assert set(row["settings"]) == set(rollouts.PERTURBATIONS)
     assert set(row["settings"]["none"]["per_target"]) == {"Satellite-v2", str(path)}
-    # the ceiling never loses a target within 12 steps, and is its own ceiling
+    # the ceiling never loses a target within 12 steps; a fraction of a non-positive ceiling (12 steps of approach
+    # cost more than they earn) is left out rather than read backwards
     overall = row["settings"]["none"]["overall"]
-    assert overall["length_min"] == 12 and overall["ceiling_fraction"] == pytest.approx(1.0)
+    assert overall["length_min"] == 12
+    assert overall["ceiling_fraction"] == (pytest.approx(1.0) if overall["return_mean"] > 0 else None)
     assert 0.0 <= overall["within_quarter_fraction"] <= overall["within_half_fraction"] <= 1.0
     assert overall["error_mean"] > 0 and row["info"] == {"variant": "mpc", "horizon": baselines.MPC_HORIZON}
     assert overall["return_ci_low"] <= overall["return_mean"] <= overall["return_ci_high"]
