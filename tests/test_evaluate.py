@@ -407,3 +407,12 @@ def test_seed_folders_of_a_sweep_are_one_arm_compared_with_every_other():
     assert summary["probability_of_improvement"]["solo>sweep (seeds)"] == pytest.approx(0.0)
     md = seeds.arms_md(result)
     assert "| sweep (seeds) | 3 | 151.0 |" in md and "P(sweep (seeds) > solo) = 1.00" in md
+
+
+def test_a_fraction_of_a_non_positive_ceiling_is_left_out():
+    row = _suite_row("agent", {"A": 300.0, "B": 100.0})
+    for ceiling, expected in ((400.0, 0.5), (-50.0, None), (0.0, None)):
+        mpc = _suite_row("mpc ceiling", {"A": ceiling, "B": ceiling}, kind="baseline", variant="mpc")
+        tables_lib.add_ceiling_fractions([mpc, row])
+        got = row["settings"]["none"]["overall"]["ceiling_fraction"]
+        assert got == (pytest.approx(expected) if expected is not None else None), (ceiling, got)
