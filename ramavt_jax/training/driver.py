@@ -276,8 +276,8 @@ def _run_locked(config, f: _Folders, config_json, resume, max_chunks, tracking_e
         stop.hard_exit = "while restoring the checkpoint"  # reads (a damaged step cut off mid-delete is skipped again)
         state = _restore(prog, state, config, config_json, f, print if primary else (lambda msg: None))
     stop.hard_exit = None  # from here on files are written: a signal is deferred to the next safe point
-    if stop.signum is not None:
-        raise TrainingInterrupted(f"{stop.name} while compiling: nothing was trained or written", stop.signum)
+    if stop.signum is not None:  # came while the run folder was checked, before compiling began
+        raise TrainingInterrupted(f"{stop.name} before training began: nothing was trained or written", stop.signum)
     if resume is False and not f.resuming and primary:
         for d in f.dirs:
             if (d / folders.CHECKPOINTS).is_dir():
