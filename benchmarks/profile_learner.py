@@ -20,6 +20,8 @@ innermost line of ramavt_jax that produced it, split into forward and backward (
 from __future__ import annotations
 
 import argparse
+import dataclasses
+import json
 import os
 import time
 
@@ -46,10 +48,14 @@ def _label(stack, op_name, thunk):
     return f"{kind} | {short}:{own[1]}: {_line(own[0], own[2])[:70]}"
 
 
-def profile(preset: str, repeats: int, batch_size: int | None = None, trace: bool = False) -> dict:
+def profile(preset: str, repeats: int, batch_size: int | None = None, trace: bool = False,
+            network: dict | None = None) -> dict:
+    """The pieces' times at ``preset``'s sizes; ``network``: NetworkConfig fields replaced (e.g. the stem)."""
     cfg = train_config.preset(preset, eval_episodes=0, learning_starts=0)
     if batch_size:
         cfg = cfg.override(batch_size=batch_size)
+    if network:
+        cfg = cfg.override(network=dataclasses.replace(cfg.network, **network))
     tr = T.Trainer(cfg)
     key = jax.random.PRNGKey(0)
     state = jax.jit(tr.init)(key)
@@ -104,9 +110,14 @@ def main(argv=None) -> None:
     p.add_argument("--repeats", type=int, default=20)
     p.add_argument("--trace", action="store_true", help="also attribute the update's time to source lines")
     p.add_argument("--out", default="benchmarks/results_learner_profile.json")
+    p.add_argument("--network", type=json.loads, default=None,
+                   help='NetworkConfig fields as JSON, e.g. \'{"kernels": [4, 3, 3], "strides": [4, 1, 1], '
+                        '"pools": [false, true, false]}\' (the patch stem)')
+    p.add_argument("--key", default=None, help="the result's key in --out (default: PRESET_bBATCH)")
     a = p.parse_args(argv)
     t0, load0 = time.time(), os.getloadavg()
-    res = profile(a.preset, a.repeats, a.batch_size, a.trace)
+    res = profile(a.preset, a.repeats, a.batch_size, a.trace, a.network)
+    res["network_overrides"] = a.network
     res["machine"] = machine_info(load0, t0)
     total = res["times_ms"]["update"]
     for name, ms in res["times_ms"].items():
@@ -118,7 +129,7 @@ def main(argv=None) -> None:
         print(f"\nprofiler trace of the update ({traced:.1f} ms of thunks per update), top 30:")
         for name, ms in list(res["trace_ms"].items())[:30]:
             print(f"  {ms:7.2f} ms {100 * ms / traced:5.1f} %  {name}")
-    merge_json(a.out, f"{a.preset}_b{res['batch_size']}", res)
+    merge_json(a.out, a.key or f"{a.preset}_b{res['batch_size']}", res)
 
 
 if __name__ == "__main__":

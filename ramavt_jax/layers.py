@@ -34,9 +34,31 @@ lecun_init = nn.initializers.variance_scaling(1.0, "fan_in", "normal")
 
 
 def conv_out_size(size: int, kernel: int, stride: int) -> int:
-    """Output size of a conv with symmetric padding ``kernel // 2`` (PyTorch ``padding=k//2``)."""
+    """Output size of a block's conv: symmetric padding ``kernel // 2`` (PyTorch ``padding=k//2``), or, for a patch
+    layer (kernel == stride), ``ceil(size / kernel)`` non-overlapping patches."""
+    if kernel == stride:
+        return -(-size // kernel)
     pad = kernel // 2
     return (size + 2 * pad - kernel) // stride + 1
+
+
+def conv2d_patches(x: Array, kernel: Array, stride: int | None = None) -> Array:
+    """A patch layer: a conv whose kernel equals its stride, as space-to-depth + one matmul (no padding, no
+    overlapping patches, so no im2col copy: the input is only transposed).
+
+    x: [N, H, W, C]; kernel: [k, k, C, F] (flax layout). H and W are zero-padded at the end to multiples of k.
+    Returns [N, ceil(H / k), ceil(W / k), F]; equal to ``lax.conv_general_dilated`` with stride k and that padding.
+    """
+    n, h, w, c = x.shape
+    k = kernel.shape[0]
+    if stride is not None and stride != k:
+        raise ValueError(f"conv2d_patches: a patch layer's stride equals its kernel size, got {stride} and {k}")
+    ho, wo = -(-h // k), -(-w // k)
+    if ho * k != h or wo * k != w:
+        x = jnp.pad(x, ((0, 0), (0, ho * k - h), (0, wo * k - w), (0, 0)))
+    patches = x.reshape(n, ho, k, wo, k, c).transpose(0, 1, 3, 2, 4, 5)  # [N, Ho, Wo, k, k, C]: kernel order
+    out = patches.reshape(n * ho * wo, k * k * c) @ kernel.reshape(k * k * c, -1)
+    return out.reshape(n, ho, wo, -1)
 
 
 def conv2d_im2col(x: Array, kernel: Array, stride: int) -> Array:
@@ -140,9 +162,10 @@ CONV_FUNCTIONS = {"im2col": conv2d_im2col, "lax": conv2d_lax, "hybrid": conv2d_h
 
 
 class PaddedConv(nn.Module):
-    """Bias-free conv with padding k//2 (PyTorch ``padding=k//2``). Every ``impl`` of ``CONV_FUNCTIONS`` stores
-    the kernel like ``flax.linen.Conv(use_bias=False)`` (``kernel``, ``[k, k, C_in, C_out]``), so they share
-    parameter trees and checkpoints."""
+    """Bias-free conv with padding k//2 (PyTorch ``padding=k//2``), or a patch layer where the kernel size equals
+    the stride (``conv2d_patches``, whatever ``impl``). Every ``impl`` of ``CONV_FUNCTIONS`` stores the kernel like
+    ``flax.linen.Conv(use_bias=False)`` (``kernel``, ``[k, k, C_in, C_out]``), so they share parameter trees and
+    checkpoints."""
 
     features: int
     kernel_size: int
@@ -159,7 +182,7 @@ class PaddedConv(nn.Module):
         k, c = self.kernel_size, x.shape[-1]
         p = 0 if planes is None else planes.shape[-1]
         kernel = self.param("kernel", he_init, (k, k, c + p, self.features), jnp.float32).astype(self.dtype)
-        conv = CONV_FUNCTIONS[self.impl]
+        conv = conv2d_patches if k == self.stride > 1 else CONV_FUNCTIONS[self.impl]
         out = conv(x.astype(self.dtype), kernel[:, :, :c], self.stride)
         if p:
             out = out + conv(planes[None].astype(self.dtype), kernel[:, :, c:], self.stride)

@@ -77,8 +77,9 @@ class NetworkConfig:
             vals = getattr(self, name)
             if not all(isinstance(v, (int, np.integer)) and not isinstance(v, bool) and v >= 1 for v in vals):
                 fail(f"{name} must be positive integers, got {vals!r}")
-        if not all(k % 2 == 1 for k in self.kernels):
-            fail(f"kernels must be odd (padding k//2 keeps the grid centred), got {self.kernels!r}")
+        if not all(k % 2 == 1 or k == s for k, s in zip(self.kernels, self.strides)):
+            fail(f"kernels must be odd (padding k//2 keeps the grid centred) or equal to their block's stride (a "
+                 f"patch layer), got kernels {self.kernels!r} with strides {self.strides!r}")
         for name in ("num_actions", "se_reduction", "attention_heads", "dense", "lstm", "lstm_layers", "head",
                      "frame_stack"):
             v = getattr(self, name)

@@ -14,9 +14,10 @@ import pytest
 jax.config.update("jax_compilation_cache_dir", "/tmp/ramavt_jax_test_cache")
 jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.5)
 
-from ramavt_jax.layers import CONV_FUNCTIONS, HYBRID_MIN_CHANNELS, PaddedConv
+from ramavt_jax.layers import CONV_FUNCTIONS, HYBRID_MIN_CHANNELS, PaddedConv, conv2d_patches
 from ramavt_jax.network import (
     VARIANTS,
+    Encoder,
     NetworkConfig,
     attention_maps,
     count_params,
@@ -208,6 +209,37 @@ def test_conv_impls_equal_flax_conv(k, s, size, c):
         np.testing.assert_array_equal(a, b)
 
 
+@pytest.mark.parametrize("k,size", [(4, 32), (2, 9), (3, 7)])
+def test_patch_layer_equals_flax_conv(k, size):
+    """A block whose kernel equals its stride is a patch layer: flax's conv with stride k, no padding at the start
+    and zeros at the end up to a multiple of k (outputs and both gradients); every conv_impl gives the same layer."""
+    kx, kk, kg = jax.random.split(jax.random.key(4), 3)
+    x, kernel = jax.random.normal(kx, (2, size, size, 3)), jax.random.normal(kk, (k, k, 3, 5))
+    end = -size % k
+    conv = nn.Conv(5, (k, k), strides=(k, k), padding=((0, end), (0, end)), use_bias=False)
+    flax_conv = lambda x, w: conv.apply({"params": {"kernel": w}}, x)  # noqa: E731
+    g = jax.random.normal(kg, jax.eval_shape(flax_conv, x, kernel).shape)
+    assert g.shape[1] == -(-size // k)
+
+    @jax.jit
+    def outputs_and_grads(x, w):
+        return {name: (f(x, w), jax.grad(lambda x, w, f=f: jnp.sum(f(x, w) * g), argnums=(0, 1))(x, w))
+                for name, f in (("flax", flax_conv), ("patches", conv2d_patches))}
+
+    res = outputs_and_grads(x, kernel)
+    np.testing.assert_allclose(res["patches"][0], res["flax"][0], atol=1e-4, rtol=1e-4)
+    for a, b in zip(res["patches"][1], res["flax"][1]):
+        np.testing.assert_allclose(a, b, atol=1e-3, rtol=1e-4)
+    layers = {impl: PaddedConv(5, k, k, impl=impl) for impl in CONV_FUNCTIONS}
+    for layer in layers.values():
+        np.testing.assert_array_equal(layer.apply({"params": {"kernel": kernel}}, x), res["patches"][0])
+    cfg = small("ramavt", kernels=(k, 3, 3, 1), strides=(k, 1, 1, 1))
+    frames = jax.ShapeDtypeStruct((2, size, size, 1), jnp.float32)
+    encoded = jax.eval_shape(lambda f: Encoder(cfg).init_with_output(jax.random.key(0), f)[0], frames)
+    h, w, c = cfg.feature_map_shape(size, size)
+    assert encoded.shape == (2, h * w * c)
+
+
 @pytest.mark.parametrize("impl", ["hybrid", "im2col"])
 def test_conv_constant_planes_equal_appended_channels(impl):
     """PaddedConv(x, planes) = the same conv over [x, planes broadcast to every frame]: one kernel over C + P
@@ -315,7 +347,7 @@ def test_flops_and_params_positive():
         (dict(conv_impl="cudnn"), "conv_impl"),
         (dict(dtype="float16"), "dtype"),
         (dict(channels=(32, 64), kernels=(3, 3, 3, 1)), "same length"),
-        (dict(kernels=(3, 2, 3, 1)), "odd"),
+        (dict(kernels=(3, 4, 3, 1)), "odd"),  # even and not its block's stride (2): neither padding nor patches
         (dict(channels=(32, 64, 128, 0)), "positive"),
         (dict(attention_heads=3), "attention_heads"),
         (dict(lstm_layers=0), "lstm_layers"),
