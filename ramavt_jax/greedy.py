@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import jax
 import jax.numpy as jnp
 from flax import struct
@@ -9,7 +11,7 @@ from flax import struct
 from ramavt_jax.baselines import Policy
 from ramavt_jax.network import NetworkConfig, RecurrentState, initial_state, make_network, record_action
 
-__all__ = ["GreedyState", "greedy_policy", "unbatch_state", "batch_state"]
+__all__ = ["GreedyState", "greedy_policy", "GreedyPolicyOf", "unbatch_state", "batch_state"]
 
 
 def unbatch_state(s: RecurrentState) -> RecurrentState:
@@ -45,3 +47,18 @@ def greedy_policy(network: NetworkConfig, params, obs_shape: tuple, name: str = 
         return action, GreedyState(net_state=new, first=jnp.zeros((), bool))
 
     return Policy(name, init, act)
+
+
+@dataclasses.dataclass(frozen=True)
+class GreedyPolicyOf:
+    """The greedy policy of one network with its parameters left open: ``GreedyPolicyOf(network, obs_shape)(params)``
+    is ``greedy_policy(network, params, obs_shape)``. Equal networks give equal (and equally hashed) objects, so an
+    episode runner keyed on it (``rollouts.run_episodes(..., policy_params=params)``) compiles once for every
+    parameter set of the network: the checkpoints of a run, or the seeds of a sweep."""
+
+    network: NetworkConfig
+    obs_shape: tuple
+    name: str = "greedy"
+
+    def __call__(self, params) -> Policy:
+        return greedy_policy(self.network, params, tuple(self.obs_shape), self.name)

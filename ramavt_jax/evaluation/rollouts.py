@@ -85,23 +85,28 @@ def run_episodes(
     num_episodes: int,
     num_steps: int | None = None,
     record: bool = False,
+    policy_params=None,
 ) -> tuple[EpisodeStats, EpisodeRecord | None]:
     """Run `num_episodes` episodes in parallel (one per env, no auto-reset) for `num_steps` (default max_steps).
 
     Returns EpisodeStats [N] and, if `record`, the per-step EpisodeRecord [T, N]. Jit-compiled as one lax.scan.
     Episodes that do not fit in memory side by side run in batches that fly exactly the episodes of the unbatched
     run (each episode's keys are its slice of the keys of all ``N``), so results never depend on free memory.
+
+    With ``policy_params`` (a pytree of arrays), ``policy`` is a function ``policy_params -> Policy`` (e.g.
+    ``greedy.GreedyPolicyOf``) applied inside the compiled program: the parameters are an input of the program, not
+    constants in it, so every parameter set of the same shapes (a run's checkpoints) reuses one compile.
     """
     steps = int(num_steps if num_steps is not None else np.asarray(params.max_steps))
     fn = _episode_runner(tracking_env, policy, steps, record)
-    compiled = _compiled_runner(fn, params, key, num_episodes, num_episodes)
+    compiled = _compiled_runner(fn, params, key, num_episodes, num_episodes, policy_params)
     batch = episodes_that_fit(compiled, num_episodes)
     if batch >= num_episodes:
-        return compiled(params, key, 0)
+        return compiled(params, key, policy_params, 0)
     # too many episodes side by side for the memory: batches of equal size (one compile), and the rest (a second)
     starts = range(0, num_episodes, batch)
-    parts = [jax.device_get(_compiled_runner(fn, params, key, min(batch, num_episodes - s), num_episodes)(
-        params, key, s)) for s in starts]
+    parts = [jax.device_get(_compiled_runner(fn, params, key, min(batch, num_episodes - s), num_episodes,
+                                             policy_params)(params, key, policy_params, s)) for s in starts]
     stats = jax.tree.map(lambda *xs: np.concatenate(xs), *(p[0] for p in parts))
     rec = None if not record else jax.tree.map(lambda *xs: np.concatenate(xs, axis=1), *(p[1] for p in parts))
     return stats, rec
@@ -110,18 +115,19 @@ def run_episodes(
 _COMPILED_RUNS: dict = {}  # (runner, episodes, total, argument types) -> the compiled runner
 
 
-def _compiled_runner(fn, params, key, num_episodes: int, total: int | None = None):
+def _compiled_runner(fn, params, key, num_episodes: int, total: int | None = None, policy_params=None):
     """``fn`` (an :func:`_episode_runner`) compiled for ``num_episodes`` of ``total`` episodes (default: all) and the
-    types of ``params`` and ``key``; called as ``compiled(params, key, offset)`` for the episodes from ``offset`` on.
-    Compiled ahead of time so its memory is known before anything is allocated (:func:`episodes_that_fit`); cached,
-    so repeated calls (targets, settings) do not trace again."""
+    types of ``params``, ``key`` and ``policy_params``; called as ``compiled(params, key, policy_params, offset)``
+    for the episodes from ``offset`` on. Compiled ahead of time so its memory is known before anything is allocated
+    (:func:`episodes_that_fit`); cached, so repeated calls (targets, settings, checkpoints) do not trace again."""
     total = num_episodes if total is None else total
-    types = (jax.tree.structure((params, key)), tuple(jax.typeof(x) for x in jax.tree.leaves((params, key))))
+    args = (params, key, policy_params)
+    types = (jax.tree.structure(args), tuple(jax.typeof(x) for x in jax.tree.leaves(args)))
     cache_key = (fn, num_episodes, total, types)
     if cache_key not in _COMPILED_RUNS:
         if len(_COMPILED_RUNS) >= 64:
             _COMPILED_RUNS.pop(next(iter(_COMPILED_RUNS)))
-        _COMPILED_RUNS[cache_key] = fn.lower(params, key, num_episodes, total, 0).compile()
+        _COMPILED_RUNS[cache_key] = fn.lower(*args, num_episodes, total, 0).compile()
     return _COMPILED_RUNS[cache_key]
 
 
@@ -147,15 +153,18 @@ def episodes_that_fit(compiled, num_episodes: int) -> int:
 def _episode_runner(tracking_env, policy, steps, record):
     """Jitted runner. With `record` the whole horizon is one lax.scan; without, a lax.while_loop that stops as soon
     as every episode has ended (random agents lose the target within ~200 steps). Both draw the same per-step keys,
-    so the same key gives the same episodes either way."""
+    so the same key gives the same episodes either way. Without ``policy_params`` (None) ``policy`` is a Policy,
+    with them a function of them that returns one (run_episodes)."""
 
-    def run(params, key, num_episodes, total, offset):
+    def run(params, key, policy_params, num_episodes, total, offset):
+        pol = policy if policy_params is None else policy(policy_params)
+
         def split(k):  # episodes offset .. offset + num_episodes of the keys of all `total` episodes
             return jax.lax.dynamic_slice_in_dim(jax.random.split(k, total), offset, num_episodes)
 
         k_reset, k_policy, k_loop = jax.random.split(key, 3)
         obs, state = jax.vmap(tracking_env.reset, in_axes=(0, None))(split(k_reset), params)
-        pstate = jax.vmap(policy.init)(split(k_policy))
+        pstate = jax.vmap(pol.init)(split(k_policy))
         alive = jnp.ones(num_episodes, bool)
         zeros = jnp.zeros(num_episodes)
         step_keys = jax.random.split(k_loop, steps)
@@ -164,7 +173,7 @@ def _episode_runner(tracking_env, policy, steps, record):
             obs, state, pstate, alive, length, ret, term, trunc, track = carry
             k_act, k_env = jax.random.split(step_key)
             act_keys = split(k_act)
-            action, pstate = jax.vmap(policy.act, in_axes=(0, 0, 0, 0, None))(act_keys, pstate, obs, state, params)
+            action, pstate = jax.vmap(pol.act, in_axes=(0, 0, 0, 0, None))(act_keys, pstate, obs, state, params)
             env_keys = split(k_env)
             obs, state, reward, terminated, truncated, info = jax.vmap(tracking_env.step_env, in_axes=(0, 0, 0, None))(
                 env_keys, state, action, params
@@ -204,7 +213,7 @@ def _episode_runner(tracking_env, policy, steps, record):
                              truncated=trunc, tracking=track)
         return stats, rec
 
-    return jax.jit(run, static_argnums=(2, 3))
+    return jax.jit(run, static_argnums=(3, 4))
 
 
 @dataclasses.dataclass(frozen=True)
