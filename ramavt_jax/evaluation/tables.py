@@ -85,6 +85,31 @@ def settings_for(tables: tuple[int, ...]) -> list[str]:
     return list(rollouts.PERTURBATIONS) if 2 in tables else ["none"]
 
 
+def suite_env(env_config: env_lib.EnvConfig, targets: tuple[str, ...], values: dict) -> env_lib.TrackingEnv:
+    """The env of an entry's episodes: its config on ``targets``, with the frame history of the blur setting in every
+    setting (``values``: the perturbation values), so one env, and one compile, serves every setting."""
+    history = max(env_config.frame_history, int(values["blur_frames"]))
+    return env_lib.TrackingEnv(dataclasses.replace(env_config, targets=tuple(targets), frame_history=history))
+
+
+def evaluate_setting(tracking_env: env_lib.TrackingEnv, policy, env_overrides: dict, episodes: int, max_steps: int,
+                     root: jax.Array, setting: str, values: dict, policy_params=None) -> dict:
+    """{'overall': Summary dict, 'per_target': {target: Summary dict}} of ``policy`` in one setting: ``episodes`` per
+    target of ``tracking_env`` (a :func:`suite_env`), those of ``episode_key(root, setting, target)``. With
+    ``policy_params``, ``policy`` is a function of them (rollouts.run_episodes)."""
+    params = tracking_env.eval_params(**{**env_overrides, "max_steps": max_steps,
+                                         **rollouts.perturbation_overrides(setting, values)})
+    per_target, all_stats = {}, []
+    for i, target in enumerate(tracking_env.config.targets):
+        key = episode_key(root, setting, target)  # same episodes for every policy and request
+        stats, _ = rollouts.run_episodes(tracking_env, policy, tracking_env.pinned(params, i), key, episodes,
+                                         policy_params=policy_params)
+        stats = jax.device_get(stats)
+        all_stats.append(stats)
+        per_target[target] = rollouts.summarise(stats).as_dict()
+    return {"overall": rollouts.summarise(rollouts.concat_stats(all_stats)).as_dict(), "per_target": per_target}
+
+
 def run_suite(entries: list[Entry], targets: tuple[str, ...], episodes: int, max_steps: int, seed: int,
               tables: tuple[int, ...] = (1, 2, 3), perturbation_values: dict | None = None, speed_steps: int = 200,
               log: Callable[[str], None] = print) -> dict:
@@ -95,9 +120,8 @@ def run_suite(entries: list[Entry], targets: tuple[str, ...], episodes: int, max
     results = []
     for entry in entries:
         t_entry = time.time()
-        history = max(entry.env_config.frame_history, int(values["blur_frames"]))
-        config = dataclasses.replace(entry.env_config, targets=tuple(targets), frame_history=history)
-        tracking_env = env_lib.TrackingEnv(config)
+        tracking_env = suite_env(entry.env_config, targets, values)
+        config = tracking_env.config
         row = {"name": entry.name, "kind": entry.kind, "input": entry.input_label or config.obs_mode,
                "obs_mode": config.obs_mode, "resolution": config.camera.resolution, "dynamics": config.dynamics,
                "info": entry.info, "settings": {}}
@@ -105,18 +129,10 @@ def run_suite(entries: list[Entry], targets: tuple[str, ...], episodes: int, max
             f"episodes, up to {max_steps} steps ...")
         for setting in settings:
             t0 = time.time()
-            params = tracking_env.eval_params(**{**entry.env_overrides, "max_steps": max_steps,
-                                                 **rollouts.perturbation_overrides(setting, values)})
-            per_target, all_stats = {}, []
-            for i, target in enumerate(targets):
-                key = episode_key(root, setting, target)  # same episodes for every policy and request
-                stats, _ = rollouts.run_episodes(tracking_env, entry.policy, tracking_env.pinned(params, i), key,
-                                                 episodes)
-                stats = jax.device_get(stats)
-                all_stats.append(stats)
-                per_target[target] = rollouts.summarise(stats).as_dict()
-            overall = rollouts.summarise(rollouts.concat_stats(all_stats)).as_dict()
-            row["settings"][setting] = {"overall": overall, "per_target": per_target, "wall_s": time.time() - t0}
+            res = evaluate_setting(tracking_env, entry.policy, entry.env_overrides, episodes, max_steps, root,
+                                   setting, values)
+            overall = res["overall"]
+            row["settings"][setting] = {**res, "wall_s": time.time() - t0}
             log(f"{entry.name:<22} {row['input']:<6} {setting:<15} AEL {overall['length_mean']:7.1f} "
                 f"AER {overall['return_mean']:9.1f} lost {overall['lost_fraction']:.2f} ({time.time() - t0:.0f} s)")
         row["speed_hz"] = None
