@@ -1,4 +1,5 @@
-"""Figures layer: episode pictures and videos (``episode``) and training curves with seed bands (``training``).
+"""Figures layer: episode pictures and videos (``episode``), training curves with seed bands (``training``) and held-out
+return against wall time (``curve``).
 
 Above the evaluation layer; matplotlib is imported lazily (``pyplot()``), with the file-only Agg backend.
 """
