@@ -1,4 +1,4 @@
-"""`ramavt` command line: targets | render | train | eval | plot | bench.
+"""`ramavt` command line: targets | render | train | eval | curve | plot | bench.
 
 Each subcommand is a typed function; tyro builds the parser from its signature (`ramavt <cmd> --help`). Errors
 in the input (the project's own error types, bad paths, bad values) are printed as one line and exit with status
@@ -16,7 +16,7 @@ from pathlib import Path
 
 import tyro
 
-from ramavt_jax.cli import commands, evaluate, train
+from ramavt_jax.cli import commands, curve, evaluate, train
 from ramavt_jax.train_state import TrainingDivergedError
 from ramavt_jax.training.interrupts import TrainingInterrupted
 
@@ -72,6 +72,7 @@ def _dispatch(argv: list[str]) -> None:
         "render": commands.render_cmd,
         "train": train.make_train_cmd(train.preset_in(argv[1:]) if argv[:1] == ["train"] else train.DEFAULT_PRESET),
         "eval": evaluate.eval_cmd,
+        "curve": curve.curve_cmd,
         "plot": evaluate.plot_cmd,
         "bench": commands.bench_main,  # listed for --help; dispatched above
     }
