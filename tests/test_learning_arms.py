@@ -38,6 +38,9 @@ def _changes(arm: str, reference: str) -> dict:
         ("q-mha", "aux-lr2", {"network.variant": "mha"}),
         ("q-aug", "q-origin", {"learner.augment": True}),
         ("aux-lr2", "prev-aux", {"learner.lr": 2 * learning_arms._LR}),
+        ("patch", "aux-lr2", {"network.kernels": (4, 2, 3), "network.strides": (4, 2, 1),
+                              "network.pools": (False, False, False)}),  # one change: the stem
+        ("patch-768k", "patch", {"run.total_env_steps": 768_000}),
     ],
 )
 def test_each_table_arm_is_one_change(arm, reference, change):
@@ -45,7 +48,7 @@ def test_each_table_arm_is_one_change(arm, reference, change):
 
 
 def test_quick_preset_is_the_depth_row():
-    assert learning_arms.arm_config("aux-lr2") == learning_arms.train_config.preset("quick", eval_episodes=0)
+    assert learning_arms.arm_config("patch-768k") == learning_arms.train_config.preset("quick", eval_episodes=0)
 
 
 def test_report_prints_the_seeds(tmp_path, capsys):
