@@ -142,6 +142,9 @@ def _param_array(name: str, value) -> jax.Array:
     return jnp.asarray(arr)
 
 
+_SIZE_KEY = 0x5126  # fold_in data of the size-randomisation draw (TrackingEnv.size_factor)
+
+
 class TrackingEnv:
     """Static env object; all methods are pure functions of their arguments (jit/vmap them freely)."""
 
@@ -191,12 +194,12 @@ class TrackingEnv:
 
     def initial_state(self, key: jax.Array, params: EnvParams) -> EnvState:
         """Initial distribution (original values): target at x,y ~ N(0, 1), z ~ U[2, 12) m in the camera frame,
-        times the stand-off scale k of the episode's target (standoff_scale),
+        times the stand-off scale k of the episode's target (standoff_scale, after the size factor of size_factor),
         velocity N(0, 0.2) m/s, random orientation, spin N(0, 0.1) rad/s per body axis; chaser at rest at the origin.
         The frame history is zeros (``reset`` fills it with the first observation)."""
         k_tgt, k_xy, k_z, k_vel, k_quat, k_spin, k_acc = jax.random.split(key, 7)
         index = jax.random.categorical(k_tgt, jnp.log(params.target_probs))
-        target = targets_lib.select(params.catalogue, index)
+        target = targets_lib.scaled(targets_lib.select(params.catalogue, index), self.size_factor(key, params))
         scale = standoff_scale(target, params)
         xy = params.init_xy_std * jax.random.normal(k_xy, (2,))
         z = jax.random.uniform(k_z, (), minval=params.init_z_min, maxval=params.init_z_max)
@@ -223,6 +226,15 @@ class TrackingEnv:
             done=jnp.zeros((), bool),
             scale=scale,
         )
+
+    @staticmethod
+    def size_factor(key: jax.Array, params: EnvParams) -> jax.Array:
+        """[] Factor on the episode's target geometry, log-uniform in [size_scale_min, size_scale_max] (exactly 1.0
+        by default). Its key is folded in from initial_state's key, so the other draws of an episode do not depend
+        on whether sizes are randomised. Mass and inertia stay as they are: torque-free rotation is the same for
+        every uniform scale of the inertia (Euler's equations are homogeneous in it), and the env reads no mass."""
+        low, high = jnp.log(params.size_scale_min), jnp.log(params.size_scale_max)
+        return jnp.exp(jax.random.uniform(jax.random.fold_in(key, _SIZE_KEY), (), minval=low, maxval=high))
 
     # ----------------------------------------------------------------------------------------- step
     def transition(self, key: jax.Array, state: EnvState, action: jax.Array, params: EnvParams) -> EnvState:
