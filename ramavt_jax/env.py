@@ -86,12 +86,10 @@ def relative_position(state: EnvState) -> jax.Array:
 
 def standoff_scale(target: targets_lib.TargetModel, params: EnvParams) -> jax.Array:
     """[] Stand-off scale k of a target with bounding radius R (see EnvParams.standoff_per_radius):
-
     - R >= standoff_min_radius: k = max(1, standoff_per_radius * R / desired distance), how much farther than the
       nominal 5 m a target this large must be held so that it fits the view;
     - R < standoff_min_radius: k = max(standoff_min_scale, R / standoff_min_radius) <= 1, how much closer a small
       target is held so that it fills the view like a standoff_min_radius target at 5 m (floored for safety).
-
     k is exactly 1.0 for R from standoff_min_radius to desired distance / standoff_per_radius (0.5-2.5 m by
     default), which holds every catalogue target, and the two branches meet at k = 1 at R = standoff_min_radius."""
     radius = target.bound_radius
@@ -142,11 +140,10 @@ def _param_array(name: str, value) -> jax.Array:
     return jnp.asarray(arr)
 
 
-_SIZE_KEY = 0x5126  # fold_in data of the size-randomisation draw (TrackingEnv.size_factor)
-
-
 class TrackingEnv:
     """Static env object; all methods are pure functions of their arguments (jit/vmap them freely)."""
+
+    SIZE_KEY = 0x5126  # fold_in data of the size-randomisation draw (size_factor)
 
     def __init__(self, config: EnvConfig = EnvConfig()):
         self.config = config
@@ -227,14 +224,13 @@ class TrackingEnv:
             scale=scale,
         )
 
-    @staticmethod
-    def size_factor(key: jax.Array, params: EnvParams) -> jax.Array:
+    def size_factor(self, key: jax.Array, params: EnvParams) -> jax.Array:
         """[] Factor on the episode's target geometry, log-uniform in [size_scale_min, size_scale_max] (exactly 1.0
-        by default). Its key is folded in from initial_state's key, so the other draws of an episode do not depend
-        on whether sizes are randomised. Mass and inertia stay as they are: torque-free rotation is the same for
-        every uniform scale of the inertia (Euler's equations are homogeneous in it), and the env reads no mass."""
+        by default), from a key folded in from initial_state's: the episode's other draws do not depend on it.
+        Mass and inertia are kept: torque-free rotation does not change under a uniform scale of the inertia
+        (Euler's equations are homogeneous in it), and the env reads no mass."""
         low, high = jnp.log(params.size_scale_min), jnp.log(params.size_scale_max)
-        return jnp.exp(jax.random.uniform(jax.random.fold_in(key, _SIZE_KEY), (), minval=low, maxval=high))
+        return jnp.exp(jax.random.uniform(jax.random.fold_in(key, self.SIZE_KEY), (), minval=low, maxval=high))
 
     # ----------------------------------------------------------------------------------------- step
     def transition(self, key: jax.Array, state: EnvState, action: jax.Array, params: EnvParams) -> EnvState:
