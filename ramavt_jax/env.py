@@ -62,7 +62,7 @@ class EnvState:
     steps: jax.Array  # [] steps taken this episode
     episode_return: jax.Array  # []
     done: jax.Array  # [] bool, the last step ended the episode (used by next_step autoreset)
-    scale: jax.Array  # [] stand-off scale k of this episode's target (>= 1; 1 for every catalogue target)
+    scale: jax.Array  # [] stand-off scale k of this episode's target (standoff_scale; 1 for every catalogue target)
 
 
 @struct.dataclass
@@ -85,9 +85,17 @@ def relative_position(state: EnvState) -> jax.Array:
 
 
 def standoff_scale(target: targets_lib.TargetModel, params: EnvParams) -> jax.Array:
-    """[] k = max(1, standoff_per_radius * bound_radius / desired distance): how much farther than the nominal
-    5 m a target this large must be held so that it fits the view (see EnvParams.standoff_per_radius)."""
-    return jnp.maximum(1.0, params.standoff_per_radius * target.bound_radius / params.desired_pos[2])
+    """[] Stand-off scale k of a target with bounding radius R (see EnvParams.standoff_per_radius):
+    - R >= standoff_min_radius: k = max(1, standoff_per_radius * R / desired distance), how much farther than the
+      nominal 5 m a target this large must be held so that it fits the view;
+    - R < standoff_min_radius: k = max(standoff_min_scale, R / standoff_min_radius) <= 1, how much closer a small
+      target is held so that it fills the view like a standoff_min_radius target at 5 m (floored for safety).
+    k is exactly 1.0 for R from standoff_min_radius to desired distance / standoff_per_radius (0.5-2.5 m by
+    default), which holds every catalogue target, and the two branches meet at k = 1 at R = standoff_min_radius."""
+    radius = target.bound_radius
+    large = jnp.maximum(1.0, params.standoff_per_radius * radius / params.desired_pos[2])
+    small = jnp.maximum(params.standoff_min_scale, radius / params.standoff_min_radius)
+    return jnp.where(radius < params.standoff_min_radius, small, large)
 
 
 def desired_position(state: EnvState, params: EnvParams) -> jax.Array:
@@ -107,7 +115,8 @@ def _where(condition: jax.Array, on_true, on_false):
 
 
 def in_view(position: jax.Array, camera: CameraConfig) -> jax.Array:
-    """Whether a camera-frame point [3] projects inside the image and lies in front of the near plane."""
+    """Whether a camera-frame point [3] projects inside the image and lies in front of the near plane. The env
+    passes the position divided by the stand-off scale k, as it renders: the near plane is k * camera.near away."""
     tan_half = jnp.tan(jnp.deg2rad(camera.fov_deg) / 2.0)
     z = position[2]
     safe_z = jnp.where(z > camera.near, z, 1.0)
@@ -116,7 +125,7 @@ def in_view(position: jax.Array, camera: CameraConfig) -> jax.Array:
 
 def reward_fn(position: jax.Array, visible: jax.Array, params: EnvParams, scale: jax.Array = 1.0) -> jax.Array:
     """+1 if the target centre is in view else -5, minus dist_weight * ||r* - p|| (original SNCOAT reward).
-    For a target held at a scaled stand-off (scale k > 1) the distance is measured in units of k metres, so the
+    For a target held at a scaled stand-off (scale k != 1) the distance is measured in units of k metres, so the
     reward means the same for every target size; k = 1 is the original reward exactly."""
     return jnp.where(visible, 1.0, -5.0) - params.dist_weight * jnp.linalg.norm(params.desired_pos - position / scale)
 
@@ -133,6 +142,8 @@ def _param_array(name: str, value) -> jax.Array:
 
 class TrackingEnv:
     """Static env object; all methods are pure functions of their arguments (jit/vmap them freely)."""
+
+    SIZE_KEY = 0x5126  # fold_in data of the size-randomisation draw (size_factor)
 
     def __init__(self, config: EnvConfig = EnvConfig()):
         self.config = config
@@ -180,11 +191,12 @@ class TrackingEnv:
 
     def initial_state(self, key: jax.Array, params: EnvParams) -> EnvState:
         """Initial distribution (original values): target at x,y ~ N(0, 1), z ~ U[2, 12) m in the camera frame,
+        times the stand-off scale k of the episode's target (standoff_scale, after the size factor of size_factor),
         velocity N(0, 0.2) m/s, random orientation, spin N(0, 0.1) rad/s per body axis; chaser at rest at the origin.
         The frame history is zeros (``reset`` fills it with the first observation)."""
         k_tgt, k_xy, k_z, k_vel, k_quat, k_spin, k_acc = jax.random.split(key, 7)
         index = jax.random.categorical(k_tgt, jnp.log(params.target_probs))
-        target = targets_lib.select(params.catalogue, index)
+        target = targets_lib.scaled(targets_lib.select(params.catalogue, index), self.size_factor(key, params))
         scale = standoff_scale(target, params)
         xy = params.init_xy_std * jax.random.normal(k_xy, (2,))
         z = jax.random.uniform(k_z, (), minval=params.init_z_min, maxval=params.init_z_max)
@@ -211,6 +223,14 @@ class TrackingEnv:
             done=jnp.zeros((), bool),
             scale=scale,
         )
+
+    def size_factor(self, key: jax.Array, params: EnvParams) -> jax.Array:
+        """[] Factor on the episode's target geometry, log-uniform in [size_scale_min, size_scale_max] (exactly 1.0
+        by default), from a key folded in from initial_state's: the episode's other draws do not depend on it.
+        Mass and inertia are kept: torque-free rotation does not change under a uniform scale of the inertia
+        (Euler's equations are homogeneous in it), and the env reads no mass."""
+        low, high = jnp.log(params.size_scale_min), jnp.log(params.size_scale_max)
+        return jnp.exp(jax.random.uniform(jax.random.fold_in(key, self.SIZE_KEY), (), minval=low, maxval=high))
 
     # ----------------------------------------------------------------------------------------- step
     def transition(self, key: jax.Array, state: EnvState, action: jax.Array, params: EnvParams) -> EnvState:
@@ -249,7 +269,7 @@ class TrackingEnv:
     def score(self, state: EnvState, params: EnvParams) -> tuple[EnvState, jax.Array, jax.Array, jax.Array, dict]:
         """Reward and episode end for a state just reached. Returns (state, reward, terminated, truncated, info)."""
         position = relative_position(state)
-        visible = in_view(position, self.config.camera)
+        visible = in_view(position / state.scale, self.config.camera)
         error = position - desired_position(state, params)
         lost = ~visible | (jnp.linalg.norm(error) > params.lost_distance * state.scale)
         lost_steps = jnp.where(lost, state.lost_steps + 1, 0)
@@ -321,7 +341,7 @@ class TrackingEnv:
         return dict(
             rel_pos=position,
             tracking_error=position - desired_position(state, params),
-            in_view=in_view(position, self.config.camera),
+            in_view=in_view(position / state.scale, self.config.camera),
             lost=jnp.zeros((), bool),
             target_index=state.target_index,
             episode_return=jnp.zeros(()),
@@ -341,8 +361,9 @@ class TrackingEnv:
         """Camera frame of `state`; where `visible` is False the target is moved behind the camera, which the
         renderer's culling skips at almost no cost (used for frames that will be discarded).
 
-        A target at stand-off scale k is rendered shrunk by 1 / k at 1 / k of its distance: the same image, with
-        depths divided by k, i.e. a far plane k times farther (exact: multiplying by 1.0 changes no float)."""
+        A target at stand-off scale k is rendered scaled by 1 / k at 1 / k of its distance: the same image, with
+        depths divided by k, i.e. near and far planes k times farther (exact: multiplying by 1.0 changes no float).
+        For k < 1 the near plane is k * camera.near away, and a start at k * init_z_min stays in front of it."""
         pose = self.pose(state, params)
         position = pose.position / state.scale
         if visible is not None:

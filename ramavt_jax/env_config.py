@@ -90,11 +90,22 @@ class EnvParams:
     max_steps: jax.Array = 1000  # truncation
     lost_distance: jax.Array = 15.0  # m from the desired position counts as lost
     desired_pos: jax.Array = struct.field(default_factory=lambda: jnp.array([0.0, 0.0, 5.0]))
-    # Stand-off for large targets: an episode's lengths (desired position, start positions, lost distance, far
-    # plane) are scaled by k = max(1, standoff_per_radius * bound_radius / desired_pos[2]): the target is held at
-    # least two bounding radii away. Every catalogue target (bounding radius <= 2.4 m) keeps k = 1; a user's 12 m
-    # satellite is held 24 m away.
+    # Stand-off scale k of an episode's target (env.standoff_scale, from its bounding radius R): the episode's
+    # lengths (desired position, start positions, lost distance, near and far plane) are scaled by k.
+    # Large targets: k = max(1, standoff_per_radius * R / desired_pos[2]), held at least two bounding radii away
+    # (a 12 m satellite at 24 m). Small targets (R < standoff_min_radius): k = max(standoff_min_scale,
+    # R / standoff_min_radius), held closer so that they fill the view like a standoff_min_radius target at 5 m
+    # (a 0.3 m cubesat at 3 m), never closer than standoff_min_scale * 5 m. Every catalogue target (bounding radius
+    # 0.56-2.4 m) keeps k = 1. Speeds are not scaled (command speed, target velocities): relative to its size the
+    # chaser is slower for a large target and faster for a small one, and the true-state ceiling holds both.
     standoff_per_radius: jax.Array = 2.0
+    standoff_min_radius: jax.Array = 0.5  # m
+    standoff_min_scale: jax.Array = 0.3  # floor of k (in (0, 1])
+    # Size randomisation (training): each episode's target geometry times a factor drawn log-uniformly from
+    # [size_scale_min, size_scale_max] (1, 1: off, the default); the stand-off rule then applies to the scaled
+    # radius. Evaluation keeps the models' own sizes (evaluation.rollouts.EVAL_FIELDS).
+    size_scale_min: jax.Array = 1.0
+    size_scale_max: jax.Array = 1.0
     init_xy_std: jax.Array = 1.0  # m
     init_z_min: jax.Array = 2.0  # m
     init_z_max: jax.Array = 12.0  # m
@@ -137,6 +148,10 @@ def validate_params(params: EnvParams, config: EnvConfig) -> EnvParams:
     check("max_steps", lambda v: v >= 1, ">= 1")
     check("lost_distance", lambda v: v > 0, "> 0")
     check("standoff_per_radius", lambda v: v > 0, "> 0")
+    check("standoff_min_radius", lambda v: v > 0, "> 0 (m)")
+    check("standoff_min_scale", lambda v: (v > 0) & (v <= 1), "in (0, 1]")
+    check("size_scale_min", lambda v: v > 0, "> 0")
+    check("size_scale_max", lambda v: v >= np.asarray(params.size_scale_min), ">= size_scale_min")
     check("init_z_max", lambda v: v > np.asarray(params.init_z_min), "> init_z_min")
     check("init_z_min", lambda v: v > config.camera.near, f"> camera.near ({config.camera.near})")
     check("blur_frames", lambda v: (v >= 1) & (v <= config.frame_history), f"in [1, EnvConfig.frame_history={config.frame_history}]")

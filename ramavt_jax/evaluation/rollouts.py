@@ -19,8 +19,9 @@ from ramavt_jax.baselines import Policy
 from ramavt_jax.evaluation import statistics
 from ramavt_jax.training import memory as memplan
 
-# EnvParams fields whose evaluation values (env.eval_params) replace a run's training values
-EVAL_FIELDS = ("dist_weight", "lost_patience")
+# EnvParams fields whose evaluation values (env.eval_params) replace a run's training values (the size
+# randomisation of training is off in evaluation: every target is evaluated at its own size)
+EVAL_FIELDS = ("dist_weight", "lost_patience", "size_scale_min", "size_scale_max")
 
 
 def run_env_overrides(env_params) -> dict:

@@ -252,7 +252,8 @@ def select(catalogue: TargetModel, index: jax.Array) -> TargetModel:
 
 def scaled(target: TargetModel, factor: jax.Array) -> TargetModel:
     """The same target with every length multiplied by `factor` (a scalar, may be traced); inertia and mass are
-    left as they are (only the geometry is used where this is called: rendering at a scaled stand-off)."""
+    left as they are (used for rendering at a scaled stand-off and for size randomisation, where the torque-free
+    rotation does not depend on a uniform scale of the inertia)."""
     return target.replace(geom_size=target.geom_size * factor, geom_pos=target.geom_pos * factor,
                           geom_rbound=target.geom_rbound * factor, bound_radius=target.bound_radius * factor)
 
