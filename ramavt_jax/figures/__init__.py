@@ -6,6 +6,8 @@ Above the evaluation layer; matplotlib is imported lazily (``pyplot()``), with t
 
 from __future__ import annotations
 
+from pathlib import Path
+
 
 def pyplot():
     """matplotlib.pyplot on the non-interactive Agg backend (figures are only written to files)."""
@@ -15,3 +17,12 @@ def pyplot():
     import matplotlib.pyplot as plt
 
     return plt
+
+
+def save_figure(fig, out, dpi: int = 110) -> Path:
+    """Write ``fig`` to ``out`` (its folder created), close it, and return the path."""
+    out = Path(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out, dpi=dpi)
+    pyplot().close(fig)
+    return out

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ramavt_jax.figures import pyplot
+from ramavt_jax.figures import pyplot, save_figure
 
 BASELINE_STYLE = {"depth": ("tab:gray", "--"), "mpc": ("black", ":")}
 
@@ -50,8 +50,4 @@ def plot_curve(result: dict, out: str | Path, title: str = "") -> Path:
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
     fig.tight_layout()
-    out = Path(out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(out, dpi=110)
-    plt.close(fig)
-    return out
+    return save_figure(fig, out)

@@ -10,7 +10,7 @@ from typing import Sequence
 
 import numpy as np
 
-from ramavt_jax.figures import pyplot
+from ramavt_jax.figures import pyplot, save_figure
 from ramavt_jax.training import run_folder as folders
 
 CURVE_KEYS = (("episode_length", "episode length"), ("episode_return", "episode return"), ("loss", "TD loss"),
@@ -80,11 +80,7 @@ def plot_training_runs(run_dirs: Sequence[str | Path], out: str | Path, keys=CUR
     if title:
         fig.suptitle(title)
     fig.tight_layout()
-    out = Path(out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(out, dpi=110)
-    plt.close(fig)
-    return out
+    return save_figure(fig, out)
 
 
 def run_label(run_dir: str | Path) -> str:
