@@ -140,9 +140,8 @@ def run_curve(run_dir: str | Path, ep: CurveEpisodes, policy_params: str | None 
     seed, config = _saved_config(run_dir)
     points = []
     for step in _progress(steps, row_name(run_dir), progress):
-        p = evaluate_checkpoint(run_dir, step, ep, policy_params)
-        points.append({"step": p["step"], "env_steps": p["env_steps"], "wall_s": clock.get(step, {}).get("wall_s"),
-                       **p})
+        points.append({**evaluate_checkpoint(run_dir, step, ep, policy_params),
+                       "wall_s": clock.get(step, {}).get("wall_s")})
     out = {"run_dir": str(run_dir), "name": row_name(run_dir), "seed": seed,
            "policy_params": policy_params or config.run.policy_params, "points": points, "above_depth": None}
     baselines = baselines or {}
