@@ -477,3 +477,51 @@ def test_catalogue_table_with_user_file(tmp_path):
     assert rows[1]["name"] == "ball" and rows[1]["class"] == "custom" and rows[1]["split"] == "custom"
     assert rows[1]["mass"] == pytest.approx(1000 * 4 / 3 * np.pi * 0.125, rel=1e-5)
     assert rows[1]["bound_radius"] == pytest.approx(0.5)
+
+
+# ------------------------------------------------------------------------------------------------ NAME@Rm
+def test_sized_spec_scales_every_length_and_nothing_else():
+    base, _ = targets.load_numpy("Satellite-v2")
+    for radius in (0.3, 12.0):
+        sized, info = targets.load_numpy(f"Satellite-v2@{radius:g}m")
+        factor = radius / float(base["bound_radius"])
+        assert info.name == f"Satellite-v2@{radius:g}m" and info.bound_radius == radius
+        for key in ("geom_size", "geom_pos", "geom_rbound"):
+            np.testing.assert_allclose(sized[key], base[key] * factor, rtol=1e-6, atol=1e-7)
+        for key in ("geom_type", "geom_mat", "geom_rgb", "geom_mask", "inertia", "mass"):
+            np.testing.assert_array_equal(sized[key], base[key])
+        # the stored radius still encloses every geom, and touches the outermost one
+        reach = np.linalg.norm(sized["geom_pos"], axis=1) + sized["geom_rbound"]
+        assert reach.max() == pytest.approx(radius, rel=1e-5)
+
+
+def test_sized_spec_works_on_files_and_in_target_lists(tmp_path):
+    path = tmp_path / "ball.xml"
+    path.write_text('<mujoco><worldbody><body><freejoint/><geom type="sphere" size="0.7" density="100"/></body>'
+                    '</worldbody></mujoco>')
+    arrays, info = targets.load_numpy(f"{path}@2m")
+    assert info.name == "ball@2m" and float(arrays["geom_size"][0, 0]) == pytest.approx(2.0)
+    from ramavt_jax.evaluation import rollouts
+
+    assert rollouts.resolve_targets(f"Capsule-v0@0.4m,{path}@3m") == ("Capsule-v0@0.4m", f"{path}@3m")
+    rows = targets.catalogue_table(["Capsule-v0@0.4m"])
+    assert rows[0]["class"] == "capsule" and rows[0]["split"] == "custom" and rows[0]["bound_radius"] == 0.4
+
+
+@pytest.mark.parametrize("spec", ["Satellite-v2@0m", "Satellite-v2@-1m", "Satellite-v2@bigm", "Satellite-v2@nanm",
+                                  "Satellite-v9@1m"])
+def test_bad_sized_specs_raise_one_line_target_errors(spec):
+    with pytest.raises(targets.TargetError) as err:
+        targets.load_numpy(spec)
+    assert "\n" not in str(err.value) and spec.split("@")[0] in str(err.value)
+
+
+def test_val_sizes_split_resizes_validation_shapes_outside_the_catalogue_sizes():
+    specs = targets.split("val-sizes")
+    assert specs == targets.VAL_SIZE_TARGETS and len(specs) == 6
+    bases = [targets.sized_spec(s)[0] for s in specs]
+    assert set(bases) <= set(targets.VAL_TARGETS)  # shapes of the validation split only: never trained, never test
+    radii = [targets.load_numpy(s)[1].bound_radius for s in specs]
+    catalogue = [targets.load_numpy(n)[1].bound_radius for n in targets.ALL_TARGETS]
+    assert all(r < min(catalogue) or r > max(catalogue) for r in radii)
+    assert sum(r < 0.5 for r in radii) == 3 and max(radii) == 12.0

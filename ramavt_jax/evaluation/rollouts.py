@@ -351,14 +351,16 @@ def perturbation_overrides(name: str, values: dict | None = None) -> dict:
 
 # ============================================================================================ targets
 def resolve_targets(spec: str | Sequence[str]) -> tuple[str, ...]:
-    """'test' (held-out split) | 'val' (validation split) | 'train' | 'all' | comma-separated catalogue names and/or
-    MJCF file paths.
+    """'test' (held-out split) | 'val' (validation split) | 'val-sizes' (the validation models resized) | 'train' |
+    'all' | comma-separated catalogue names and/or MJCF file paths, each with an optional size suffix ``@<radius>m``
+    (``Satellite-v2@0.3m``).
 
     Raises ValueError naming the entry that is neither a catalogue name nor a readable MJCF file."""
     items = [s.strip() for s in spec.split(",")] if isinstance(spec, str) else [str(s).strip() for s in spec]
     items = [s for s in items if s]
     if not items:
-        raise ValueError("no targets given: use 'test', 'val', 'train', 'all' or comma-separated names / MJCF files")
+        raise ValueError("no targets given: use 'test', 'val', 'val-sizes', 'train', 'all' or comma-separated names / MJCF "
+                         "files")
     out: list[str] = []
     for item in items:
         if item in targets_lib.SPLITS:
@@ -367,7 +369,7 @@ def resolve_targets(spec: str | Sequence[str]) -> tuple[str, ...]:
         try:
             targets_lib.resolve(item)
         except (ValueError, OSError) as e:
-            raise targets_lib.TargetError(f"{e} (the splits test, val, train and all are accepted too)") from None
+            raise targets_lib.TargetError(f"{e} (the splits {', '.join(targets_lib.SPLITS)} are accepted too)") from None
         out.append(item)
     return tuple(dict.fromkeys(out))  # keep order, drop repeats
 

@@ -14,6 +14,7 @@ from __future__ import annotations
 import dataclasses
 import difflib
 import os
+import re
 from pathlib import Path
 from typing import Sequence
 
@@ -46,6 +47,11 @@ TEST_TARGETS: tuple[str, ...] = ("Asteroid-v4", "Asteroid-v5", "Capsule-v2", "Ro
 VAL_TARGETS: tuple[str, ...] = tuple(n for n in CATALOGUE if "-val" in n)
 TRAIN_TARGETS: tuple[str, ...] = tuple(n for n in CATALOGUE if n not in TEST_TARGETS and n not in VAL_TARGETS)
 ALL_TARGETS: tuple[str, ...] = tuple(CATALOGUE)
+# Size-validation split: the validation models resized (``NAME@Rm``, see `sized_spec`) to bounding radii outside
+# the catalogue's 0.56-2.4 m, three small and three large, so that choices about other sizes (stand-off rule, size
+# randomisation) can be made without looking at the user models of examples/targets/.
+VAL_SIZE_TARGETS: tuple[str, ...] = ("Satellite-val0@0.3m", "Capsule-val0@0.35m", "Asteroid-val0@0.45m",
+                                     "Rocket-val0@4m", "Asteroid-val1@6m", "Station-val0@12m")
 
 
 class TargetError(ValueError):
@@ -98,9 +104,30 @@ class TargetInfo:
     geom_types: tuple[str, ...]
 
 
-def resolve(name_or_path: str | os.PathLike) -> Path:
-    """Catalogue name (e.g. ``"Satellite-v1"``) or a path to an MJCF file -> path of the file."""
+_SIZED = re.compile(r"^(?P<base>.+)@(?P<radius>[^@]*)m$")
+
+
+def sized_spec(name_or_path: str | os.PathLike) -> tuple[str, float | None]:
+    """``"Satellite-v2@0.3m"`` -> (``"Satellite-v2"``, 0.3): a catalogue name or MJCF path resized so that its
+    bounding radius is 0.3 m. Anything without an ``@<radius>m`` suffix -> (itself, None)."""
     text = str(name_or_path)
+    match = _SIZED.match(text)
+    if match is None:
+        return text, None
+    try:
+        radius = float(match["radius"])
+    except ValueError:
+        radius = float("nan")
+    if not (np.isfinite(radius) and radius > 0):
+        raise TargetError(f"target {text!r}: the size after '@' must be a bounding radius in metres > 0, such as "
+                          f"'{match['base']}@0.3m'")
+    return match["base"], radius
+
+
+def resolve(name_or_path: str | os.PathLike) -> Path:
+    """Catalogue name (e.g. ``"Satellite-v1"``) or a path to an MJCF file, either with an optional ``@<radius>m``
+    size suffix (`sized_spec`) -> path of the file."""
+    text, _ = sized_spec(name_or_path)
     if text in CATALOGUE:
         path = MODEL_DIR / f"{text}.xml"
         if not path.is_file():
@@ -131,12 +158,15 @@ def _load_mj_model(path: Path):
 def load_numpy(name_or_path: str | os.PathLike, pad_to: int | None = None) -> tuple[dict[str, np.ndarray], TargetInfo]:
     """Parse one target with MuJoCo; return padded numpy arrays (TargetModel fields) and a TargetInfo.
 
-    All geoms of the model belong to the target (bodies without joints are welded together; a free joint is fine).
+    A ``@<radius>m`` suffix (``"Satellite-v2@0.3m"``) resizes the model so that its bounding radius is that many
+    metres: every length is multiplied by one factor; mass and inertia are kept, as in `scaled` (torque-free rotation
+    does not change under a uniform scale of the inertia). All geoms of the model belong to the target (bodies without joints are welded together; a free joint is fine).
     Raises TargetError for unknown names, malformed files, unsupported geom types or a massless model.
     """
     import mujoco
 
-    path = resolve(name_or_path)
+    base, radius = sized_spec(name_or_path)
+    path = resolve(base)
     model = _load_mj_model(path)
     data = mujoco.MjData(model)
     mujoco.mj_forward(model, data)  # world poses at qpos0
@@ -199,9 +229,16 @@ def load_numpy(name_or_path: str | os.PathLike, pad_to: int | None = None) -> tu
         inertia=moments.astype(np.float32),
         mass=np.float32(total_mass),
     )
+    if radius is not None:
+        factor = radius / bound_radius
+        for key in ("geom_size", "geom_pos", "geom_rbound"):
+            arrays[key] = (arrays[key] * factor).astype(np.float32)
+        bound_radius = radius
+        arrays["bound_radius"] = np.float32(radius)
     arrays = _pad_geoms(arrays, n if pad_to is None else pad_to)
     type_names = tuple(SUPPORTED_GEOM_TYPES[int(t)] for t in model.geom_type)
-    name = str(name_or_path) if str(name_or_path) in CATALOGUE else path.stem
+    name = base if base in CATALOGUE else path.stem
+    name = name if radius is None else f"{name}@{radius:g}m"
     info = TargetInfo(name, str(path), n, bound_radius, total_mass, tuple(float(m) for m in moments), type_names)
     return arrays, info
 
@@ -258,12 +295,13 @@ def scaled(target: TargetModel, factor: jax.Array) -> TargetModel:
                           geom_rbound=target.geom_rbound * factor, bound_radius=target.bound_radius * factor)
 
 
-SPLITS: tuple[str, ...] = ("train", "val", "test", "all")
+SPLITS: tuple[str, ...] = ("train", "val", "test", "all", "val-sizes")
 
 
 def split(name: str) -> tuple[str, ...]:
-    """'train', 'val', 'test' or 'all' -> catalogue names."""
-    table = {"train": TRAIN_TARGETS, "val": VAL_TARGETS, "test": TEST_TARGETS, "all": ALL_TARGETS}
+    """'train', 'val', 'test', 'all' -> catalogue names; 'val-sizes' -> the resized validation models."""
+    table = {"train": TRAIN_TARGETS, "val": VAL_TARGETS, "test": TEST_TARGETS, "all": ALL_TARGETS,
+             "val-sizes": VAL_SIZE_TARGETS}
     if name not in table:
         raise TargetError(f"unknown split {name!r}; choose one of {sorted(table)}")
     return table[name]
@@ -276,7 +314,7 @@ def catalogue_table(names: Sequence[str | os.PathLike] | None = None) -> list[di
     for target in ALL_TARGETS if names is None else names:
         _, info = load_numpy(target)
         key = str(target)
-        split_name = next((n for n in ("train", "val", "test") if key in split(n)), "custom")
-        rows.append({"name": info.name, "class": CATALOGUE.get(key, "custom"), "split": split_name,
+        split_name = next((n for n in ("train", "val", "test", "val-sizes") if key in split(n)), "custom")
+        rows.append({"name": info.name, "class": CATALOGUE.get(sized_spec(key)[0], "custom"), "split": split_name,
                      "num_geoms": info.num_geoms, "bound_radius": info.bound_radius, "mass": info.mass})
     return rows
