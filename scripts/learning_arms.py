@@ -126,6 +126,12 @@ ARMS["q-mha"] = lambda c: _net(ARMS["aux-lr2"](c), variant="mha")
 # then, in the time saved, twice the env steps: 'patch-768k' is the quick preset now.
 ARMS["patch"] = lambda c: _net(ARMS["aux-lr2"](c), kernels=(4, 2, 3), strides=(4, 2, 1), pools=(False, False, False))
 ARMS["patch-768k"] = lambda c: ARMS["patch"](c).override(total_env_steps=768_000)
+# Each one change to 'patch-768k' (the quick preset), on the validation split: a shorter discount horizon (the
+# ceiling's one-step look-ahead is within 4 AER of its 12-step one, so the task looks myopic), and size
+# randomisation over [0.15, 5]x (bounding radii of about 0.1-12 m) for targets of other sizes (split 'val-sizes').
+ARMS["gamma09"] = lambda c: ARMS["patch-768k"](c).override(gamma=0.9)
+ARMS["size-wide"] = lambda c: ARMS["patch-768k"](c).override(env_params={"size_scale_min": 0.15,
+                                                                          "size_scale_max": 5.0})
 
 
 def arm_config(name: str, preset: str = "quick", **overrides):

@@ -122,8 +122,9 @@ def eval_cmd(
         agent: the shipped agent evaluated by --policy pretrained.
         baselines: with --policy checkpoint, also evaluate mpc, proportional, depth tracker and random in every table (a
             baseline given as --policy is evaluated alone).
-        targets: 'test' (held-out split), 'val' (validation split), 'train', 'all', or comma-separated catalogue
-            names / MJCF files.
+        targets: 'test' (held-out split), 'val' (validation split), 'val-sizes' (validation models resized to
+            0.3-12 m), 'train', 'all', or comma-separated catalogue names / MJCF files, each optionally resized to
+            a bounding radius with '@<radius>m' (Satellite-v2@0.3m).
         episodes: episodes per target (run side by side; the paper's protocol: 100).
         max_steps: episode length cap (the paper: 1000).
         tables: which tables to produce (2 runs the five perturbation settings, 5x the episodes).
