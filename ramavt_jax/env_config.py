@@ -42,7 +42,7 @@ class EnvConfig:
     camera: CameraConfig = CameraConfig()
     obs_mode: str = "depth"  # 'depth' [H,W,1] | 'color' [H,W,3] | 'rgbd' [H,W,4]
     dynamics: str = "cw"  # 'cw' (Clohessy-Wiltshire + torque-free attitude) | 'kinematic' (original benchmark)
-    targets: tuple[str, ...] = targets_lib.TRAIN_TARGETS  # catalogue names or MJCF paths
+    targets: tuple[str, ...] = targets_lib.TRAIN_TARGETS  # catalogue names or MJCF paths, each maybe NAME@<radius>m
     frame_history: int = 1  # frames kept for averaging blur (EnvParams.blur_frames <= this)
     autoreset: str = "same_step"  # 'same_step' | 'next_step'
     final_obs_in_info: bool = True  # same_step only: render the final frame too

@@ -10,6 +10,7 @@ of its own env).
 from __future__ import annotations
 
 import argparse
+
 import jax
 import numpy as np
 

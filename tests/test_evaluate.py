@@ -116,8 +116,8 @@ def test_target_specs_and_unknown_target(tmp_path):
     path = tmp_path / "probe.xml"
     path.write_text(PROBE_XML)
     assert rollouts.resolve_targets(f"Capsule-v2,{path}") == ("Capsule-v2", str(path))
-    with pytest.raises(ValueError, match="unknown target 'Sputnik-v9': not in the catalogue .*splits test, val, "
-                                         "train"):
+    with pytest.raises(ValueError, match="unknown target 'Sputnik-v9': not in the catalogue .*splits train, val, "
+                                         "test"):
         rollouts.resolve_targets("Satellite-v2,Sputnik-v9")
     with pytest.raises(ValueError, match="Did you mean Satellite-v1"):
         rollouts.resolve_targets("Satelite-v1")

@@ -480,6 +480,12 @@ def test_catalogue_table_with_user_file(tmp_path):
 
 
 # ------------------------------------------------------------------------------------------------ NAME@Rm
+def _reach(arrays) -> float:
+    """How far the real geoms reach from the centre of mass (m), from the geometry, not the stored radius."""
+    reach = np.linalg.norm(arrays["geom_pos"], axis=1) + arrays["geom_rbound"]
+    return float(reach[arrays["geom_mask"]].max())
+
+
 def test_sized_spec_scales_every_length_and_nothing_else():
     base, _ = targets.load_numpy("Satellite-v2")
     for radius in (0.3, 12.0):
@@ -490,9 +496,7 @@ def test_sized_spec_scales_every_length_and_nothing_else():
             np.testing.assert_allclose(sized[key], base[key] * factor, rtol=1e-6, atol=1e-7)
         for key in ("geom_type", "geom_mat", "geom_rgb", "geom_mask", "inertia", "mass"):
             np.testing.assert_array_equal(sized[key], base[key])
-        # the stored radius still encloses every geom, and touches the outermost one
-        reach = np.linalg.norm(sized["geom_pos"], axis=1) + sized["geom_rbound"]
-        assert reach.max() == pytest.approx(radius, rel=1e-5)
+        assert _reach(sized) == pytest.approx(radius, rel=1e-5)  # the geoms themselves reach that far
 
 
 def test_sized_spec_works_on_files_and_in_target_lists(tmp_path):
@@ -505,11 +509,25 @@ def test_sized_spec_works_on_files_and_in_target_lists(tmp_path):
 
     assert rollouts.resolve_targets(f"Capsule-v0@0.4m,{path}@3m") == ("Capsule-v0@0.4m", f"{path}@3m")
     rows = targets.catalogue_table(["Capsule-v0@0.4m"])
-    assert rows[0]["class"] == "capsule" and rows[0]["split"] == "custom" and rows[0]["bound_radius"] == 0.4
+    assert rows[0]["class"] == "capsule" and rows[0]["split"] == "custom" and rows[0]["name"] == "Capsule-v0@0.4m"
+    # one size, one spelling (and so one set of episodes); a file whose own name looks like a suffix is a file
+    assert rollouts.resolve_targets("Capsule-v0@.40m,Capsule-v0@0.4m") == ("Capsule-v0@0.4m",)
+    odd = tmp_path / "probe@2m"
+    odd.write_text(path.read_text())
+    assert targets.load_numpy(str(odd))[1].bound_radius == pytest.approx(0.7)
+
+
+def test_a_resized_target_gets_its_size_stand_off_in_the_env():
+    from ramavt_jax import env
+
+    tracking_env = env.TrackingEnv(env.EnvConfig(targets=("Satellite-v2@0.3m", "Satellite-v2@12m", "Satellite-v2")))
+    params = tracking_env.default_params()
+    k = [float(env.standoff_scale(targets.select(params.catalogue, i), params)) for i in range(3)]
+    assert k == pytest.approx([0.6, 4.8, 1.0])
 
 
 @pytest.mark.parametrize("spec", ["Satellite-v2@0m", "Satellite-v2@-1m", "Satellite-v2@bigm", "Satellite-v2@nanm",
-                                  "Satellite-v9@1m"])
+                                  "Satellite-v2@1e-9m", "Satellite-v2@1m@2m", "Satellite-v9@1m"])
 def test_bad_sized_specs_raise_one_line_target_errors(spec):
     with pytest.raises(targets.TargetError) as err:
         targets.load_numpy(spec)
@@ -521,7 +539,7 @@ def test_val_sizes_split_resizes_validation_shapes_outside_the_catalogue_sizes()
     assert specs == targets.VAL_SIZE_TARGETS and len(specs) == 6
     bases = [targets.sized_spec(s)[0] for s in specs]
     assert set(bases) <= set(targets.VAL_TARGETS)  # shapes of the validation split only: never trained, never test
-    radii = [targets.load_numpy(s)[1].bound_radius for s in specs]
+    radii = [_reach(targets.load_numpy(s)[0]) for s in specs]
     catalogue = [targets.load_numpy(n)[1].bound_radius for n in targets.ALL_TARGETS]
     assert all(r < min(catalogue) or r > max(catalogue) for r in radii)
-    assert sum(r < 0.5 for r in radii) == 3 and max(radii) == 12.0
+    assert sum(r < 0.5 for r in radii) == 3 and max(radii) == pytest.approx(12.0)

@@ -46,7 +46,7 @@ def render_cmd(
     """Fly one episode with a baseline policy and write what the camera sees, beside the trajectory, as GIF/MP4.
 
     Args:
-        target: catalogue name or path to an MJCF file.
+        target: catalogue name or path to an MJCF file (resized with a suffix: Satellite-v2@0.3m).
         policy: baseline that flies the chaser, or 'pretrained': the agent shipped with the package (--agent); it
             sees with its own camera resolution and observation mode.
         steps: number of steps to record.

@@ -193,7 +193,7 @@ def plot_cmd(
             band.
         run: a trained run folder whose greedy policy flies the episode (attention maps included); else --policy.
         policy: baseline flying the episode when no --run is given.
-        target: catalogue name or MJCF file of the episode's target.
+        target: catalogue name or MJCF file of the episode's target (resized with a suffix: Satellite-v2@0.3m).
         steps: episode length cap.
         resolution: camera resolution for a baseline (a trained run uses its own).
         obs: observation mode for a baseline (a trained run uses its own).

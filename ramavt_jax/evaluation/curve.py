@@ -42,7 +42,8 @@ SETTING = "none"  # no perturbation: Table I's episodes
 @dataclasses.dataclass(frozen=True)
 class CurveEpisodes:
     """The episodes every checkpoint and baseline flies: ``episodes`` per target of ``targets`` (catalogue names or
-    MJCF files), at most ``max_steps`` steps, drawn from ``seed`` as ``ramavt eval --seed`` draws them."""
+    MJCF files, each maybe resized: NAME@<radius>m), at most ``max_steps`` steps, drawn from ``seed`` as
+    ``ramavt eval --seed`` draws them."""
 
     targets: tuple[str, ...]
     episodes: int

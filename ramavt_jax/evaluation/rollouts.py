@@ -351,16 +351,15 @@ def perturbation_overrides(name: str, values: dict | None = None) -> dict:
 
 # ============================================================================================ targets
 def resolve_targets(spec: str | Sequence[str]) -> tuple[str, ...]:
-    """'test' (held-out split) | 'val' (validation split) | 'val-sizes' (the validation models resized) | 'train' |
-    'all' | comma-separated catalogue names and/or MJCF file paths, each with an optional size suffix ``@<radius>m``
-    (``Satellite-v2@0.3m``).
+    """A split (targets_lib.SPLITS: 'test', 'val', 'val-sizes', ...) | comma-separated catalogue names and/or MJCF
+    file paths, each with an optional size suffix ``@<radius>m`` (``Satellite-v2@0.3m``).
 
-    Raises ValueError naming the entry that is neither a catalogue name nor a readable MJCF file."""
+    Raises ValueError naming the entry that is neither a catalogue name nor a readable MJCF file, or has a bad size."""
     items = [s.strip() for s in spec.split(",")] if isinstance(spec, str) else [str(s).strip() for s in spec]
     items = [s for s in items if s]
     if not items:
-        raise ValueError("no targets given: use 'test', 'val', 'val-sizes', 'train', 'all' or comma-separated names / MJCF "
-                         "files")
+        raise ValueError(f"no targets given: use a split ({', '.join(targets_lib.SPLITS)}) or comma-separated names "
+                         "/ MJCF files")
     out: list[str] = []
     for item in items:
         if item in targets_lib.SPLITS:
@@ -369,8 +368,9 @@ def resolve_targets(spec: str | Sequence[str]) -> tuple[str, ...]:
         try:
             targets_lib.resolve(item)
         except (ValueError, OSError) as e:
-            raise targets_lib.TargetError(f"{e} (the splits {', '.join(targets_lib.SPLITS)} are accepted too)") from None
-        out.append(item)
+            splits = ", ".join(targets_lib.SPLITS)
+            raise targets_lib.TargetError(f"{e} (the splits {splits} are accepted too)") from None
+        out.append(targets_lib.sized_name(item))  # one spelling per size: one set of episodes
     return tuple(dict.fromkeys(out))  # keep order, drop repeats
 
 

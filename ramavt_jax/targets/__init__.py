@@ -104,29 +104,41 @@ class TargetInfo:
     geom_types: tuple[str, ...]
 
 
-_SIZED = re.compile(r"^(?P<base>.+)@(?P<radius>[^@]*)m$")
+_SIZED = re.compile(r"^(?P<base>.+)@(?P<radius>[^@/\\]*)m$")
+MIN_SIZED_RADIUS, MAX_SIZED_RADIUS = 0.01, 1000.0  # m: a bounding radius asked for with NAME@<radius>m
 
 
 def sized_spec(name_or_path: str | os.PathLike) -> tuple[str, float | None]:
     """``"Satellite-v2@0.3m"`` -> (``"Satellite-v2"``, 0.3): a catalogue name or MJCF path resized so that its
-    bounding radius is 0.3 m. Anything without an ``@<radius>m`` suffix -> (itself, None)."""
+    bounding radius is 0.3 m. Anything without an ``@<radius>m`` suffix, or an existing file, -> (itself, None).
+    Raises TargetError for a radius that is not a number in [MIN_SIZED_RADIUS, MAX_SIZED_RADIUS] or a second
+    suffix."""
     text = str(name_or_path)
     match = _SIZED.match(text)
-    if match is None:
+    if match is None or Path(text).expanduser().is_file():
         return text, None
     try:
         radius = float(match["radius"])
     except ValueError:
         radius = float("nan")
-    if not (np.isfinite(radius) and radius > 0):
-        raise TargetError(f"target {text!r}: the size after '@' must be a bounding radius in metres > 0, such as "
-                          f"'{match['base']}@0.3m'")
+    if not MIN_SIZED_RADIUS <= radius <= MAX_SIZED_RADIUS:  # False for nan
+        raise TargetError(f"target {text!r}: the size after '@' must be a bounding radius in metres from "
+                          f"{MIN_SIZED_RADIUS:g} to {MAX_SIZED_RADIUS:g}, such as '{match['base']}@0.3m'")
+    if _SIZED.match(match["base"]) and not Path(match["base"]).expanduser().is_file():
+        raise TargetError(f"target {text!r}: one size suffix '@<radius>m' at most")
     return match["base"], radius
+
+
+def sized_name(name_or_path: str | os.PathLike) -> str:
+    """The canonical spelling of a target spec: ``"Satellite-v2@.30m"`` -> ``"Satellite-v2@0.3m"`` (the radius to
+    6 significant digits, as loaded), so that one size has one name, and so one set of episodes."""
+    base, radius = sized_spec(name_or_path)
+    return base if radius is None else f"{base}@{radius:g}m"
 
 
 def resolve(name_or_path: str | os.PathLike) -> Path:
     """Catalogue name (e.g. ``"Satellite-v1"``) or a path to an MJCF file, either with an optional ``@<radius>m``
-    size suffix (`sized_spec`) -> path of the file."""
+    size suffix (`sized_spec`) -> path of the file (at its own size: `load_numpy` applies the suffix)."""
     text, _ = sized_spec(name_or_path)
     if text in CATALOGUE:
         path = MODEL_DIR / f"{text}.xml"
@@ -160,12 +172,13 @@ def load_numpy(name_or_path: str | os.PathLike, pad_to: int | None = None) -> tu
 
     A ``@<radius>m`` suffix (``"Satellite-v2@0.3m"``) resizes the model so that its bounding radius is that many
     metres: every length is multiplied by one factor; mass and inertia are kept, as in `scaled` (torque-free rotation
-    does not change under a uniform scale of the inertia). All geoms of the model belong to the target (bodies without joints are welded together; a free joint is fine).
+    does not change under a uniform scale of the inertia). All geoms of the model belong to the target (bodies
+    without joints are welded together; a free joint is fine).
     Raises TargetError for unknown names, malformed files, unsupported geom types or a massless model.
     """
     import mujoco
 
-    base, radius = sized_spec(name_or_path)
+    base, radius = sized_spec(sized_name(name_or_path))
     path = resolve(base)
     model = _load_mj_model(path)
     data = mujoco.MjData(model)
