@@ -121,6 +121,19 @@ def test_a_run_without_checkpoints_is_a_one_line_error(smoke_run, tmp_path, caps
         assert len(err.splitlines()) == 1 and err.startswith("ramavt: error: ") and expected in err, err
 
 
+def test_chunks_pick_checkpoints_and_a_missing_one_is_a_one_line_error(smoke_run, tmp_path, capsys):
+    assert curve.chosen_steps(smoke_run, (3, 1, 3)) == [1, 3] and curve.chosen_steps(smoke_run) == [1, 2, 3, 4]
+    out = tmp_path / "two"
+    cli.main(["curve", "--run", str(smoke_run), *EPISODES, "--no-baselines", "--no-progress", "--chunks", "2", "4",
+              "--out", str(out)])
+    assert [p["step"] for p in json.loads((out / "curve.json").read_text())["runs"][0]["points"]] == [2, 4]
+    capsys.readouterr()
+    with pytest.raises(SystemExit) as e:
+        cli.main(["curve", "--run", str(smoke_run), *EPISODES, "--chunks", "2", "9", "--out", str(tmp_path / "o")])
+    err = capsys.readouterr().err.strip()
+    assert e.value.code == 2 and len(err.splitlines()) == 1 and "no checkpoint of chunk(s) [9]" in err, err
+
+
 def test_a_locked_out_folder_is_refused(smoke_run, tmp_path, capsys):
     with run_folder.RunLock(tmp_path):
         with pytest.raises(SystemExit) as e:

@@ -43,6 +43,7 @@ def curve_cmd(
     horizon: int = baselines_lib.MPC_HORIZON,
     out: Path = Path("curve"),
     progress: bool = True,
+    chunks: tuple[int, ...] = (),
 ) -> dict:
     """Evaluate every checkpoint of training runs greedily on the same episodes and plot the return (AER) against
     training wall time, beside the depth tracker and the mpc ceiling; writes curve.json and curve.png to --out.
@@ -63,6 +64,7 @@ def curve_cmd(
         horizon: look-ahead steps of the mpc ceiling (as `ramavt eval --horizon`).
         out: output folder (curve.json, curve.png).
         progress: a progress bar over each run's checkpoints.
+        chunks: only the checkpoints of these chunks (e.g. `--chunks 6 7 8 9 10`); default: every checkpoint.
     """
     for name, value in (("--episodes", episodes), ("--max-steps", max_steps), ("--resolution", resolution),
                         ("--horizon", horizon)):
@@ -73,7 +75,7 @@ def curve_cmd(
     ep = curve_lib.CurveEpisodes(names, episodes, max_steps, seed)
     with run_folder.RunLock(Path(out), OTHER_WRITER):  # a second command writing into --out is refused
         result = curve_lib.learning_curves(run, ep, policy_params, tuple(curve_lib.BASELINES) if baselines else (),
-                                           resolution, horizon, progress=progress)
+                                           resolution, horizon, progress=progress, chunks=chunks)
         js = run_folder.replace_atomic(Path(out) / JSON_FILE,
                                        lambda tmp: tmp.write_text(run_folder.dumps(result, indent=1)))
         png = run_folder.replace_atomic(Path(out) / PNG_FILE, lambda tmp: curve_fig.plot_curve(result, tmp))

@@ -31,7 +31,7 @@ from ramavt_jax.train_config import TrainConfig
 from ramavt_jax.training import run_folder as folders
 from ramavt_jax.training.checkpoint import CheckpointNotFoundError, CheckpointStore, has_checkpoint
 
-__all__ = ["CurveEpisodes", "BASELINES", "checkpoint_steps", "training_clock", "evaluate_checkpoint",
+__all__ = ["CurveEpisodes", "BASELINES", "checkpoint_steps", "chosen_steps", "training_clock", "evaluate_checkpoint",
            "evaluate_baselines", "first_above", "run_curve", "learning_curves"]
 
 DEPTH, CEILING = "depth", "mpc"
@@ -120,6 +120,18 @@ def evaluate_checkpoint(run_dir: str | Path, step: int, ep: CurveEpisodes, polic
     return {"step": lr.step, "env_steps": lr.meta.get("env_steps"), **_point(res)}
 
 
+def chosen_steps(run_dir: str | Path, chunks: Sequence[int] = ()) -> list[int]:
+    """The run's checkpoint steps among ``chunks`` (all of them when empty), oldest first. Raises
+    CheckpointNotFoundError (one line) naming the asked-for chunks the run has no checkpoint of."""
+    steps = checkpoint_steps(run_dir)
+    if not chunks:
+        return steps
+    missing = sorted(set(chunks) - set(steps))
+    if missing:
+        raise CheckpointNotFoundError(f"{run_dir} has no checkpoint of chunk(s) {missing}; it has {steps}")
+    return sorted(set(chunks))
+
+
 def first_above(points: Sequence[dict], level: float) -> dict | None:
     """The first point (oldest step) whose AER exceeds ``level``: {'step', 'env_steps', 'wall_s', 'aer'}; None when
     no point does."""
@@ -130,13 +142,14 @@ def first_above(points: Sequence[dict], level: float) -> dict | None:
 
 
 def run_curve(run_dir: str | Path, ep: CurveEpisodes, policy_params: str | None = None,
-              baselines: dict | None = None, progress: bool = False) -> dict:
+              baselines: dict | None = None, progress: bool = False, chunks: Sequence[int] = ()) -> dict:
     """Every checkpoint of one run on ``ep``, oldest first: {'run_dir', 'name', 'seed', 'policy_params', 'points':
     [{'step', 'env_steps', 'wall_s', 'aer', 'aer_ci_low', 'aer_ci_high', 'ael', 'lost_fraction', 'per_target'}],
     'above_depth'}. ``wall_s`` is :func:`training_clock`'s (None for a step without a metrics record). With
     ``baselines`` (:func:`evaluate_baselines`' result) each point gets 'ceiling_fraction' (AER / the ceiling's,
-    None for a non-positive ceiling) and 'above_depth' is the first point above the depth tracker's AER."""
-    steps = checkpoint_steps(run_dir)
+    None for a non-positive ceiling) and 'above_depth' is the first point above the depth tracker's AER.
+    ``chunks``: only these checkpoint steps (:func:`chosen_steps`); empty = all."""
+    steps = chosen_steps(run_dir, chunks)
     clock = training_clock(run_dir)
     seed, config = _saved_config(run_dir)
     points = []
@@ -183,12 +196,13 @@ def evaluate_baselines(names: Sequence[str], ep: CurveEpisodes, resolution: int 
 def learning_curves(run_dirs: Sequence[str | Path], ep: CurveEpisodes, policy_params: str | None = None,
                     baselines: Sequence[str] = (DEPTH, CEILING), resolution: int = 64,
                     horizon: int = baselines_lib.MPC_HORIZON, progress: bool = False,
-                    log: Callable[[str], None] = print) -> dict:
+                    log: Callable[[str], None] = print, chunks: Sequence[int] = ()) -> dict:
     """The curve of every run in ``run_dirs`` (:func:`run_curve`) and of the ``baselines`` flown once
     (:func:`evaluate_baselines`, with the first run's dynamics): {'episodes', 'baselines', 'runs', 'wall_s'}.
+    ``chunks``: only these checkpoints of each run (empty = all).
     JSON-able (write it with run_folder.dumps)."""
     t0 = time.time()
-    counts = [len(checkpoint_steps(run_dir)) for run_dir in run_dirs]  # every run has some before anything compiles
+    counts = [len(chosen_steps(run_dir, chunks)) for run_dir in run_dirs]  # all there before anything compiles
     dynamics = _saved_config(run_dirs[0])[1].env.dynamics if run_dirs else "cw"
     base = {}
     if baselines:
@@ -198,7 +212,7 @@ def learning_curves(run_dirs: Sequence[str | Path], ep: CurveEpisodes, policy_pa
     runs = []
     for run_dir, count in zip(run_dirs, counts):
         log(f"{run_dir}: {count} checkpoint(s) (one compile per network, the parameters are its input) ...")
-        runs.append(run_curve(run_dir, ep, policy_params, base, progress))
+        runs.append(run_curve(run_dir, ep, policy_params, base, progress, chunks))
     return {"episodes": ep.as_dict(), "baselines": base, "baseline_settings": {"resolution": resolution,
             "dynamics": dynamics, "mpc_horizon": horizon}, "runs": runs, "wall_s": time.time() - t0}
 
