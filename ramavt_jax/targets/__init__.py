@@ -106,6 +106,7 @@ class TargetInfo:
 
 _SIZED = re.compile(r"^(?P<base>.+)@(?P<radius>[^@/\\]*)m$")
 MIN_SIZED_RADIUS, MAX_SIZED_RADIUS = 0.01, 1000.0  # m: a bounding radius asked for with NAME@<radius>m
+_LENGTH_FIELDS = ("geom_size", "geom_pos", "geom_rbound", "bound_radius")  # what a uniform resize multiplies
 
 
 def sized_spec(name_or_path: str | os.PathLike) -> tuple[str, float | None]:
@@ -126,12 +127,12 @@ def sized_spec(name_or_path: str | os.PathLike) -> tuple[str, float | None]:
                           f"{MIN_SIZED_RADIUS:g} to {MAX_SIZED_RADIUS:g}, such as '{match['base']}@0.3m'")
     if _SIZED.match(match["base"]) and not Path(match["base"]).expanduser().is_file():
         raise TargetError(f"target {text!r}: one size suffix '@<radius>m' at most")
-    return match["base"], radius
+    return match["base"], float(f"{radius:g}")  # 6 significant digits: what `sized_name` spells is what loads
 
 
 def sized_name(name_or_path: str | os.PathLike) -> str:
-    """The canonical spelling of a target spec: ``"Satellite-v2@.30m"`` -> ``"Satellite-v2@0.3m"`` (the radius to
-    6 significant digits, as loaded), so that one size has one name, and so one set of episodes."""
+    """The canonical spelling of a target spec: ``"Satellite-v2@.30m"`` -> ``"Satellite-v2@0.3m"``, so that one
+    size has one name, and so one set of episodes."""
     base, radius = sized_spec(name_or_path)
     return base if radius is None else f"{base}@{radius:g}m"
 
@@ -178,7 +179,7 @@ def load_numpy(name_or_path: str | os.PathLike, pad_to: int | None = None) -> tu
     """
     import mujoco
 
-    base, radius = sized_spec(sized_name(name_or_path))
+    base, radius = sized_spec(name_or_path)
     path = resolve(base)
     model = _load_mj_model(path)
     data = mujoco.MjData(model)
@@ -244,10 +245,8 @@ def load_numpy(name_or_path: str | os.PathLike, pad_to: int | None = None) -> tu
     )
     if radius is not None:
         factor = radius / bound_radius
-        for key in ("geom_size", "geom_pos", "geom_rbound"):
-            arrays[key] = (arrays[key] * factor).astype(np.float32)
-        bound_radius = radius
-        arrays["bound_radius"] = np.float32(radius)
+        arrays.update({k: (arrays[k] * factor).astype(np.float32) for k in _LENGTH_FIELDS})
+        arrays["bound_radius"], bound_radius = np.float32(radius), radius  # exact, not the float32 product
     arrays = _pad_geoms(arrays, n if pad_to is None else pad_to)
     type_names = tuple(SUPPORTED_GEOM_TYPES[int(t)] for t in model.geom_type)
     name = base if base in CATALOGUE else path.stem
@@ -304,8 +303,7 @@ def scaled(target: TargetModel, factor: jax.Array) -> TargetModel:
     """The same target with every length multiplied by `factor` (a scalar, may be traced); inertia and mass are
     left as they are (used for rendering at a scaled stand-off and for size randomisation, where the torque-free
     rotation does not depend on a uniform scale of the inertia)."""
-    return target.replace(geom_size=target.geom_size * factor, geom_pos=target.geom_pos * factor,
-                          geom_rbound=target.geom_rbound * factor, bound_radius=target.bound_radius * factor)
+    return target.replace(**{k: getattr(target, k) * factor for k in _LENGTH_FIELDS})
 
 
 SPLITS: tuple[str, ...] = ("train", "val", "test", "all", "val-sizes")
@@ -326,7 +324,7 @@ def catalogue_table(names: Sequence[str | os.PathLike] | None = None) -> list[di
     rows = []
     for target in ALL_TARGETS if names is None else names:
         _, info = load_numpy(target)
-        key = str(target)
+        key = sized_name(target)
         split_name = next((n for n in ("train", "val", "test", "val-sizes") if key in split(n)), "custom")
         rows.append({"name": info.name, "class": CATALOGUE.get(sized_spec(key)[0], "custom"), "split": split_name,
                      "num_geoms": info.num_geoms, "bound_radius": info.bound_radius, "mass": info.mass})
