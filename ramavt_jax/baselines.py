@@ -57,7 +57,7 @@ def proportional_policy(gain: float = 1.0) -> Policy:
         position = env_lib.relative_position(env_state)
         target_vel_cam = env_lib.HILL_FROM_CAM.T @ env_state.target_vel
         desired = target_vel_cam + gain * (position - env_lib.desired_position(env_state, params))
-        return quantise_velocity(desired, params.speed), pstate
+        return quantise_velocity(desired, env_lib.command_speed(env_state, params)), pstate
 
     return Policy("proportional", lambda key: jnp.zeros(()), act)
 
@@ -172,9 +172,10 @@ def depth_tracker_policy(
         target_vel = jnp.where(seen & pstate.has_estimate, blend * pstate.target_vel + (1 - blend) * target_vel_raw,
                                pstate.target_vel)
         desired = target_vel + kp * (position - env_lib.desired_position(env_state, params))
-        action = quantise_velocity(desired, params.speed)
-        action = jnp.where(seen, action, quantise_velocity(pstate.last_command, params.speed))
-        command = jnp.asarray(env_lib.ACTIONS)[action] * params.speed
+        speed = env_lib.command_speed(env_state, params)  # the env's speed rule, as a tracker knows its actuator
+        action = quantise_velocity(desired, speed)
+        action = jnp.where(seen, action, quantise_velocity(pstate.last_command, speed))
+        command = jnp.asarray(env_lib.ACTIONS)[action] * speed
         new_state = DepthTrackerState(
             last_position=jnp.where(seen, position, pstate.last_position),
             target_vel=target_vel,

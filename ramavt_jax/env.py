@@ -98,6 +98,12 @@ def standoff_scale(target: targets_lib.TargetModel, params: EnvParams) -> jax.Ar
     return jnp.where(radius < params.standoff_min_radius, small, large)
 
 
+def command_speed(state: EnvState, params: EnvParams) -> jax.Array:
+    """[] m/s per unit action in this episode: speed * max(1, k) ** speed_standoff_power (k: the stand-off scale).
+    Exactly params.speed for every catalogue target and every small one (k <= 1), and with power 0."""
+    return params.speed * jnp.maximum(state.scale, 1.0) ** params.speed_standoff_power
+
+
 def desired_position(state: EnvState, params: EnvParams) -> jax.Array:
     """Where the target centre should be in the camera frame [3] for this episode's target (m)."""
     return params.desired_pos * state.scale
@@ -236,7 +242,7 @@ class TrackingEnv:
     def transition(self, key: jax.Array, state: EnvState, action: jax.Array, params: EnvParams) -> EnvState:
         """Physics only: apply the velocity command and advance target and chaser by one (possibly delayed) step."""
         k_noise, k_delay = jax.random.split(key)
-        command_cam = jnp.asarray(ACTIONS)[action] * params.speed
+        command_cam = jnp.asarray(ACTIONS)[action] * command_speed(state, params)
         command_cam = command_cam * (1.0 + params.actuator_noise * jax.random.normal(k_noise, (3,)))
         duration = params.dt + params.delay_max * jax.random.uniform(k_delay, ())
         command = HILL_FROM_CAM @ command_cam

@@ -96,11 +96,15 @@ class EnvParams:
     # (a 12 m satellite at 24 m). Small targets (R < standoff_min_radius): k = max(standoff_min_scale,
     # R / standoff_min_radius), held closer so that they fill the view like a standoff_min_radius target at 5 m
     # (a 0.3 m cubesat at 3 m), never closer than standoff_min_scale * 5 m. Every catalogue target (bounding radius
-    # 0.56-2.4 m) keeps k = 1. Speeds are not scaled (command speed, target velocities): relative to its size the
-    # chaser is slower for a large target and faster for a small one, and the true-state ceiling holds both.
+    # 0.56-2.4 m) keeps k = 1. Target velocities are not scaled. The chaser's command speed is
+    # speed * max(1, k) ** speed_standoff_power. With power 0 it is the same in m/s for every target: relative to
+    # its stand-off the chaser is slower at a large target. With 1 a target held farther than nominal (k > 1) gets
+    # k times the speed, the same share of its stand-off per second as a catalogue target; a small target keeps the
+    # nominal speed, which it needs to follow the targets' drift (at 0.6 m/s the ceiling loses a 0.3 m target).
     standoff_per_radius: jax.Array = 2.0
     standoff_min_radius: jax.Array = 0.5  # m
     standoff_min_scale: jax.Array = 0.3  # floor of k (in (0, 1])
+    speed_standoff_power: jax.Array = 1.0  # in [0, 1]; an evaluation field (evaluation.rollouts.EVAL_FIELDS)
     # Size randomisation (training): each episode's target geometry times a factor drawn log-uniformly from
     # [size_scale_min, size_scale_max] (1, 1: off, the default); the stand-off rule then applies to the scaled
     # radius. Evaluation keeps the models' own sizes (evaluation.rollouts.EVAL_FIELDS).
@@ -150,6 +154,7 @@ def validate_params(params: EnvParams, config: EnvConfig) -> EnvParams:
     check("standoff_per_radius", lambda v: v > 0, "> 0")
     check("standoff_min_radius", lambda v: v > 0, "> 0 (m)")
     check("standoff_min_scale", lambda v: (v > 0) & (v <= 1), "in (0, 1]")
+    check("speed_standoff_power", lambda v: (v >= 0) & (v <= 1), "in [0, 1]")
     check("size_scale_min", lambda v: v > 0, "> 0")
     check("size_scale_max", lambda v: v >= np.asarray(params.size_scale_min), ">= size_scale_min")
     check("init_z_max", lambda v: v > np.asarray(params.init_z_min), "> init_z_min")

@@ -103,6 +103,8 @@ BAD_INPUTS = {  # id: (arguments, {tmp} filled in, what the one-line message mus
     "unknown preset": (["train", "--preset", "fast"], "unknown preset 'fast'"),
     "eval episodes zero": (["eval", "--policy", "random", "--episodes", "0"], "--episodes must be an integer >= 1"),
     "eval run missing": (["eval", "--run", "{tmp}/no_run"], "config.json not found"),
+    "eval speed power": (["eval", "--policy", "random", "--speed-standoff-power", "2"],
+                         "--speed-standoff-power must be in [0, 1]"),
     "eval out is a file": (["eval", "--policy", "random", "--out", "{tmp}/a_file"], "is a file"),
     "plot run missing": (["plot", "--run", "{tmp}/no_run", "--out", "{tmp}/fig"], "config.json not found"),
 }

@@ -351,5 +351,7 @@ def test_proportional_holds_a_large_user_target_at_its_stand_off(tmp_path):
         obs, state, reward, term, trunc, info = step(k, state, action, p)
         assert not bool(term)
     assert float(state.scale) == pytest.approx(4.8, rel=1e-3)  # 2 x 12 m / 5 m
-    assert float(jnp.linalg.norm(info["tracking_error"])) < 2.5 and bool(trunc)
+    # within 1 stand-off unit (4.8 m) of the desired point: at 4.8 m/s per command the quantised controller
+    # chatters as far, in those units, as at a catalogue target with 1 m/s
+    assert float(jnp.linalg.norm(info["tracking_error"])) / float(state.scale) < 1.0 and bool(trunc)
     assert float(reward) > -1.0  # distance measured in units of the scaled stand-off

@@ -81,6 +81,38 @@ def test_bad_size_params_fail_in_one_line(size_env):
         assert "\n" not in str(err.value) and str(err.value).startswith("EnvParams.")
 
 
+def _chaser_step(tracking_env, params, index: int) -> tuple[np.ndarray, float]:
+    """Chaser velocity [3] (Hill frame, m/s) after one noise-free +x command from rest, and the episode's k."""
+    params = tracking_env.pinned(params.replace(actuator_noise=0.0, delay_max=0.0), index)
+    state = tracking_env.initial_state(jax.random.key(index), params)
+    moved = tracking_env.transition(jax.random.key(7), state, jnp.int32(1), params)
+    return np.asarray(moved.chaser_vel), float(state.scale)
+
+
+def test_command_speed_follows_the_stand_off_only_when_asked(size_env, models):
+    """Power 0: one action gives the chaser `speed` m/s at every size. Power 1: k times that at a target held
+    farther than nominal (k > 1), the same share of its stand-off per second; a small target (k < 1) and a catalogue
+    target (k = 1) keep `speed` exactly under either power."""
+    fixed, scaled = size_env.default_params(speed_standoff_power=0.0), size_env.default_params(speed_standoff_power=1.0)
+    for index, k_expected, gain in ((0, 0.6, 1.0), (1, 4.8, 4.8)):
+        step_fixed, k = _chaser_step(size_env, fixed, index)
+        step_scaled, _ = _chaser_step(size_env, scaled, index)
+        assert k == pytest.approx(k_expected, rel=1e-3)
+        assert np.linalg.norm(step_fixed) == pytest.approx(float(fixed.speed), rel=1e-5)
+        np.testing.assert_allclose(step_scaled, gain * step_fixed, rtol=1e-3)
+    catalogue_env = env.TrackingEnv(env.EnvConfig(camera=render.CameraConfig(resolution=RES), targets=("Capsule-v1",)))
+    step_0, _ = _chaser_step(catalogue_env, catalogue_env.default_params(), 0)
+    step_1, _ = _chaser_step(catalogue_env, catalogue_env.default_params(speed_standoff_power=1.0), 0)
+    np.testing.assert_array_equal(step_0, step_1)
+    with pytest.raises(ValueError, match="EnvParams.speed_standoff_power must be in \\[0, 1\\]"):
+        size_env.default_params(speed_standoff_power=2.0)
+
+
+def test_speed_rule_is_an_evaluation_field():
+    """A run trained with another speed rule is evaluated under the table's, like every other row."""
+    assert rollouts.run_env_overrides({"speed_standoff_power": 1.0, "speed": 0.5}) == {"speed": 0.5}
+
+
 # ------------------------------------------------------------------------------------------------ possible tasks
 def test_small_and_large_user_targets_are_tracked_by_the_ceiling(size_env):
     """From the env's own initial states, the mpc ceiling holds the 0.3 m cubesat (k = 0.6) and the 12 m satellite
@@ -97,8 +129,8 @@ def test_small_and_large_user_targets_are_tracked_by_the_ceiling(size_env):
         error = np.linalg.norm(rel - np.asarray(params.desired_pos) * k, axis=-1) / k  # stand-off units
         assert np.all(error < float(params.lost_distance))
         assert np.all(np.asarray(rec.in_view)[30:]), np.asarray(rec.in_view).all(axis=1)
-        # near the desired point at the end, or (the 12 m satellite, which may start 58 m away and closes at most
-        # 1 m/s) coming closer all the time
+        # near the desired point at the end, or (the 12 m satellite, which may start 58 m away, at 4.8 m/s or, with
+        # speed_standoff_power 0, 1 m/s) coming closer all the time
         closing = np.all(np.diff(error[-100:], axis=0) < 0.0, axis=0)
         assert np.all((error[-1] < 0.5) | closing), (index, error[0], error[-1])
 

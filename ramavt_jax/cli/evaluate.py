@@ -105,6 +105,7 @@ def eval_cmd(
     speed_steps: int = 200,
     seed: int = 0,
     horizon: int = baselines_lib.MPC_HORIZON,
+    speed_standoff_power: float | None = None,
     out: Path = Path("eval"),
     figures: bool = False,
 ) -> dict:
@@ -139,12 +140,17 @@ def eval_cmd(
             the setting's name and the target).
         horizon: look-ahead steps of the mpc ceiling: every pair of the next two commands, the second then held
             for horizon - 2 steps scoring only whether the target stays in view (2: the pairs alone).
+        speed_standoff_power: the command speed of every policy is speed * max(1, k) ** power, k the stand-off
+            scale of a target larger than the catalogue's (EnvParams.speed_standoff_power; k = 1 for every
+            catalogue target, so only large resized and user targets see it); default: EnvParams' default.
         out: output folder (tables.md, results.json, figures/).
         figures: also plot one episode per policy (tracking error, 3-D trajectory, frame strip), attention maps and
             training curves of the runs.
     """
     t0 = time.time()
     positive("--horizon", horizon)
+    if speed_standoff_power is not None and not 0.0 <= speed_standoff_power <= 1.0:
+        raise UsageError(f"--speed-standoff-power must be in [0, 1], got {speed_standoff_power}")
     finite("--actuator-noise", actuator_noise)
     finite("--delay-max", delay_max)
     names = _check_eval_args(policy, agent, run, targets, episodes, max_steps, tables, blur_frames, out)
@@ -157,11 +163,18 @@ def eval_cmd(
         if baselines and trained:
             wanted += [p for p in ("mpc", "proportional", "depth", "random") if p not in wanted]
         entries += _baseline_entries(wanted, obs, resolution, dynamics, names, horizon)
+        if speed_standoff_power is not None:  # an evaluation field: the same task for every row
+            entries = [dataclasses.replace(e, env_overrides={**e.env_overrides,
+                                                             "speed_standoff_power": speed_standoff_power})
+                       for e in entries]
         settings = tables_lib.settings_for(tuple(tables))
         print(f"evaluating {len(entries)} policies x {len(settings)} setting(s) x {len(names)} targets x {episodes} "
               f"episodes (each policy compiles first) ...", flush=True)
         values = {"actuator_noise": actuator_noise, "delay_max": delay_max, "blur_frames": blur_frames}
         result = tables_lib.run_suite(entries, names, episodes, max_steps, seed, tuple(tables), values, speed_steps)
+        result["settings"]["eval_params"]["speed_standoff_power"] = (
+            float(env_lib.EnvParams.__dataclass_fields__["speed_standoff_power"].default)
+            if speed_standoff_power is None else speed_standoff_power)
         if figures:
             print("plotting one episode per policy ...", flush=True)
             result["figures"] = episode.eval_figures(entries, loaded, names[0], Path(out) / "figures", seed=seed,

@@ -19,9 +19,11 @@ from ramavt_jax.baselines import Policy
 from ramavt_jax.evaluation import statistics
 from ramavt_jax.training import memory as memplan
 
-# EnvParams fields whose evaluation values (env.eval_params) replace a run's training values (the size
-# randomisation of training is off in evaluation: every target is evaluated at its own size)
-EVAL_FIELDS = ("dist_weight", "lost_patience", "size_scale_min", "size_scale_max")
+# EnvParams fields whose evaluation values (env.eval_params) replace a run's training values: the size
+# randomisation of training is off in evaluation (every target is evaluated at its own size), and the command
+# speed rule of resized targets is part of the task, the same for every policy of a table (`ramavt eval
+# --speed-standoff-power`)
+EVAL_FIELDS = ("dist_weight", "lost_patience", "size_scale_min", "size_scale_max", "speed_standoff_power")
 
 
 def run_env_overrides(env_params) -> dict:
