@@ -231,12 +231,15 @@ class TrackingEnv:
         )
 
     def size_factor(self, key: jax.Array, params: EnvParams) -> jax.Array:
-        """[] Factor on the episode's target geometry, log-uniform in [size_scale_min, size_scale_max] (exactly 1.0
-        by default), from a key folded in from initial_state's: the episode's other draws do not depend on it.
+        """[] Factor on the episode's target geometry: in a share size_scale_prob of the episodes log-uniform in
+        [size_scale_min, size_scale_max], else 1 (exactly 1.0 by default), from keys folded in from initial_state's:
+        the episode's other draws do not depend on them.
         Mass and inertia are kept: torque-free rotation does not change under a uniform scale of the inertia
         (Euler's equations are homogeneous in it), and the env reads no mass."""
         low, high = jnp.log(params.size_scale_min), jnp.log(params.size_scale_max)
-        return jnp.exp(jax.random.uniform(jax.random.fold_in(key, self.SIZE_KEY), (), minval=low, maxval=high))
+        factor = jnp.exp(jax.random.uniform(jax.random.fold_in(key, self.SIZE_KEY), (), minval=low, maxval=high))
+        resized = jax.random.uniform(jax.random.fold_in(key, self.SIZE_KEY + 1), ()) < params.size_scale_prob
+        return jnp.where(resized, factor, 1.0)
 
     # ----------------------------------------------------------------------------------------- step
     def transition(self, key: jax.Array, state: EnvState, action: jax.Array, params: EnvParams) -> EnvState:

@@ -106,10 +106,12 @@ class EnvParams:
     standoff_min_scale: jax.Array = 0.3  # floor of k (in (0, 1])
     speed_standoff_power: jax.Array = 1.0  # in [0, 1]; an evaluation field (evaluation.rollouts.EVAL_FIELDS)
     # Size randomisation (training): each episode's target geometry times a factor drawn log-uniformly from
-    # [size_scale_min, size_scale_max] (1, 1: off, the default); the stand-off rule then applies to the scaled
-    # radius. Evaluation keeps the models' own sizes (evaluation.rollouts.EVAL_FIELDS).
+    # [size_scale_min, size_scale_max] (1, 1: off, the default) in a share size_scale_prob of the episodes; the
+    # stand-off rule then applies to the scaled radius. Evaluation keeps the models' own sizes
+    # (evaluation.rollouts.EVAL_FIELDS).
     size_scale_min: jax.Array = 1.0
     size_scale_max: jax.Array = 1.0
+    size_scale_prob: jax.Array = 1.0  # share of episodes resized; the others keep the model's own size
     init_xy_std: jax.Array = 1.0  # m
     init_z_min: jax.Array = 2.0  # m
     init_z_max: jax.Array = 12.0  # m
@@ -157,6 +159,7 @@ def validate_params(params: EnvParams, config: EnvConfig) -> EnvParams:
     check("speed_standoff_power", lambda v: (v >= 0) & (v <= 1), "in [0, 1]")
     check("size_scale_min", lambda v: v > 0, "> 0")
     check("size_scale_max", lambda v: v >= np.asarray(params.size_scale_min), ">= size_scale_min")
+    check("size_scale_prob", lambda v: (v >= 0) & (v <= 1), "in [0, 1]")
     check("init_z_max", lambda v: v > np.asarray(params.init_z_min), "> init_z_min")
     check("init_z_min", lambda v: v > config.camera.near, f"> camera.near ({config.camera.near})")
     check("blur_frames", lambda v: (v >= 1) & (v <= config.frame_history), f"in [1, EnvConfig.frame_history={config.frame_history}]")

@@ -190,6 +190,25 @@ def test_size_randomisation(size_env, vreset):
                                np.asarray(st_d.target_pos) / np.asarray(st_d.scale)[:, None], rtol=1e-5, atol=1e-6)
 
 
+def test_size_scale_prob_resizes_that_share_of_the_episodes(size_env, vreset):
+    """With size_scale_prob 0.5 about half the episodes keep the model's own size exactly; the others draw the same
+    factor as with prob 1 (one key per draw), and every other draw of the episode is unchanged."""
+    keys = jax.random.split(jax.random.key(2), NUM_ENVS)
+    both = jnp.array([0.5, 0.5], jnp.float32)
+    always = _params(size_env, size_scale_min=0.5, size_scale_max=0.9, target_probs=both)
+    half = _params(size_env, size_scale_min=0.5, size_scale_max=0.9, size_scale_prob=0.5, target_probs=both)
+    (_, st_all), (_, st_half) = vreset(keys, always), vreset(keys, half)
+    base = np.asarray(always.catalogue.bound_radius)[np.asarray(st_half.target_index)]
+    kept = np.asarray(st_half.target.bound_radius) == base
+    assert 0.2 < kept.mean() < 0.8, kept.mean()
+    np.testing.assert_array_equal(np.asarray(st_half.target.bound_radius)[~kept],
+                                  np.asarray(st_all.target.bound_radius)[~kept])
+    assert not np.any(np.asarray(st_all.target.bound_radius) == base)  # factors in [0.5, 0.9]: none kept
+    np.testing.assert_array_equal(np.asarray(st_half.target_quat), np.asarray(st_all.target_quat))
+    with pytest.raises(ValueError, match="EnvParams.size_scale_prob must be in \\[0, 1\\]"):
+        size_env.default_params(size_scale_prob=1.5)
+
+
 def test_size_randomisation_is_for_training_only():
     from ramavt_jax.train_config import preset
 

@@ -23,7 +23,8 @@ from ramavt_jax.training import memory as memplan
 # randomisation of training is off in evaluation (every target is evaluated at its own size), and the command
 # speed rule of resized targets is part of the task, the same for every policy of a table (`ramavt eval
 # --speed-standoff-power`)
-EVAL_FIELDS = ("dist_weight", "lost_patience", "size_scale_min", "size_scale_max", "speed_standoff_power")
+EVAL_FIELDS = ("dist_weight", "lost_patience", "size_scale_min", "size_scale_max", "size_scale_prob",
+               "speed_standoff_power")
 
 
 def run_env_overrides(env_params) -> dict:
