@@ -149,7 +149,7 @@ def _param_array(name: str, value) -> jax.Array:
 class TrackingEnv:
     """Static env object; all methods are pure functions of their arguments (jit/vmap them freely)."""
 
-    SIZE_KEY = 0x5126  # fold_in data of the size-randomisation draw (size_factor)
+    SIZE_KEY = 0x5126  # fold_in data of the size-randomisation draws (size_factor: SIZE_KEY and SIZE_KEY + 1)
 
     def __init__(self, config: EnvConfig = EnvConfig()):
         self.config = config

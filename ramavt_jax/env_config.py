@@ -15,7 +15,7 @@ from ramavt_jax import dynamics
 from ramavt_jax import targets as targets_lib
 from ramavt_jax.render import OBSERVATION_MODES, CameraConfig
 
-# 11 velocity commands in the camera frame (original SNCOAT action set), scaled by EnvParams.speed.
+# 11 velocity commands in the camera frame (original SNCOAT action set), times env.command_speed (EnvParams.speed).
 # Module constants are numpy, not jnp: importing the package must not start a JAX backend (a multi-host run calls
 # jax.distributed.initialize after the imports).
 ACTIONS = np.array(
@@ -77,7 +77,8 @@ class EnvConfig:
 class EnvParams:
     """Every physical value of the task (traced: vmap over these for domain randomisation).
 
-    Defaults are the original benchmark's training values; evaluation uses dist_weight=1, lost_patience=20.
+    Defaults are the original benchmark's training values; evaluation uses dist_weight=1, lost_patience=20, no
+    size randomisation and the default speed rule (evaluation.rollouts.EVAL_FIELDS).
     """
 
     catalogue: targets_lib.TargetModel  # [N, G, ...] targets an episode draws from

@@ -25,6 +25,11 @@ def _episodes(result: dict) -> tuple:
     return s["seed"], s["episodes_per_target"], tuple(s["targets"]), s["max_steps"]
 
 
+def _speed_rule(result: dict) -> float | None:
+    """The command speed rule the result flew (None: recorded before the rule existed)."""
+    return result["settings"].get("eval_params", {}).get("speed_standoff_power")
+
+
 def load_arm(spec: str) -> tuple[str, dict, np.ndarray, tuple]:
     """(arm, its summary, scores [seeds, targets], the episodes' identity) of one RESULTS_JSON:ARM argument."""
     path, _, arm = spec.rpartition(":")
@@ -36,13 +41,13 @@ def load_arm(spec: str) -> tuple[str, dict, np.ndarray, tuple]:
     runs = seeds.arms(result)[key]
     targets = list(result["settings"]["targets"])
     scores = np.array([[r["per_target"][t]["return_mean"] for t in targets] for r in runs], np.float64)
-    return arm, summary[key], scores, _episodes(result)
+    return arm, summary[key], scores, _episodes(result), _speed_rule(result)
 
 
 def ceiling_aer(path: Path) -> float:
     result = json.loads(path.read_text())
     row = next(r for r in result["rows"] if r.get("info", {}).get("variant") == "mpc")
-    return row["settings"]["none"]["overall"]["return_mean"], _episodes(result)
+    return row["settings"]["none"]["overall"]["return_mean"], _episodes(result), _speed_rule(result)
 
 
 def main(argv=None) -> None:
@@ -51,15 +56,18 @@ def main(argv=None) -> None:
     p.add_argument("--ceiling", type=Path, default=None, help="a results.json with the mpc row on the same episodes")
     a = p.parse_args(argv)
     loaded = [load_arm(spec) for spec in a.arms]
-    ceiling, episodes = ceiling_aer(a.ceiling) if a.ceiling else (None, loaded[0][3])
+    ceiling, episodes, rule = ceiling_aer(a.ceiling) if a.ceiling else (None, loaded[0][3], loaded[0][4])
     if any(arm[3] != episodes for arm in loaded):
         raise SystemExit("the results did not fly the same episodes (seed, episodes per target, targets, cap differ)")
+    rules = {r for r in [rule] + [arm[4] for arm in loaded] if r is not None}
+    if len(rules) > 1 and any("@" in t or t.endswith(".xml") for t in episodes[2]):
+        raise SystemExit(f"the results flew different command speed rules (speed_standoff_power {sorted(rules)})")
     targets = episodes[2]
     print("| arm | seeds | AER | 95 % CI | std over seeds | of ceiling | lost | P(> row above) | "
           + " | ".join(targets) + " |")
     print("|---" * (8 + len(targets)) + "|")
     previous = None
-    for arm, s, scores, _ in loaded:
+    for arm, s, scores, _, _ in loaded:
         frac = f"{100 * s['return_mean'] / ceiling:.0f} %" if ceiling else "-"
         ci = f"[{s['return_ci_low']:.1f}, {s['return_ci_high']:.1f}]" if s["return_ci_low"] is not None else "-"
         p_up = f"{statistics.probability_of_improvement(scores, previous):.2f}" if previous is not None else "-"

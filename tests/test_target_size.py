@@ -101,7 +101,7 @@ def test_command_speed_follows_the_stand_off_only_when_asked(size_env, models):
         assert np.linalg.norm(step_fixed) == pytest.approx(float(fixed.speed), rel=1e-5)
         np.testing.assert_allclose(step_scaled, gain * step_fixed, rtol=1e-3)
     catalogue_env = env.TrackingEnv(env.EnvConfig(camera=render.CameraConfig(resolution=RES), targets=("Capsule-v1",)))
-    step_0, _ = _chaser_step(catalogue_env, catalogue_env.default_params(), 0)
+    step_0, _ = _chaser_step(catalogue_env, catalogue_env.default_params(speed_standoff_power=0.0), 0)
     step_1, _ = _chaser_step(catalogue_env, catalogue_env.default_params(speed_standoff_power=1.0), 0)
     np.testing.assert_array_equal(step_0, step_1)
     with pytest.raises(ValueError, match="EnvParams.speed_standoff_power must be in \\[0, 1\\]"):
@@ -212,6 +212,6 @@ def test_size_scale_prob_resizes_that_share_of_the_episodes(size_env, vreset):
 def test_size_randomisation_is_for_training_only():
     from ramavt_jax.train_config import preset
 
-    pairs = (("size_scale_max", 2.0), ("size_scale_min", 0.5), ("target_spin_std", 0.2))
+    pairs = (("size_scale_max", 2.0), ("size_scale_min", 0.5), ("size_scale_prob", 0.5), ("target_spin_std", 0.2))
     cfg = preset("smoke", env_params=pairs)  # a training preset may set them (ramavt train --env-params ...)
     assert rollouts.run_env_overrides(cfg.env_params) == {"target_spin_std": 0.2}  # evaluation: the models' sizes

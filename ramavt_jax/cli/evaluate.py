@@ -172,9 +172,6 @@ def eval_cmd(
               f"episodes (each policy compiles first) ...", flush=True)
         values = {"actuator_noise": actuator_noise, "delay_max": delay_max, "blur_frames": blur_frames}
         result = tables_lib.run_suite(entries, names, episodes, max_steps, seed, tuple(tables), values, speed_steps)
-        result["settings"]["eval_params"]["speed_standoff_power"] = (
-            float(env_lib.EnvParams.__dataclass_fields__["speed_standoff_power"].default)
-            if speed_standoff_power is None else speed_standoff_power)
         if figures:
             print("plotting one episode per policy ...", flush=True)
             result["figures"] = episode.eval_figures(entries, loaded, names[0], Path(out) / "figures", seed=seed,

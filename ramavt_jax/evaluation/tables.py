@@ -110,6 +110,11 @@ def evaluate_setting(tracking_env: env_lib.TrackingEnv, policy, env_overrides: d
     return {"overall": rollouts.summarise(rollouts.concat_stats(all_stats)).as_dict(), "per_target": per_target}
 
 
+def recorded_eval_params(params: env_lib.EnvParams) -> dict:
+    """The evaluation fields of the task a table flies (results.json settings.eval_params), as Python floats."""
+    return {name: float(getattr(params, name)) for name in rollouts.EVAL_FIELDS}
+
+
 def run_suite(entries: list[Entry], targets: tuple[str, ...], episodes: int, max_steps: int, seed: int,
               tables: tuple[int, ...] = (1, 2, 3), perturbation_values: dict | None = None, speed_steps: int = 200,
               log: Callable[[str], None] = print) -> dict:
@@ -117,11 +122,15 @@ def run_suite(entries: list[Entry], targets: tuple[str, ...], episodes: int, max
     values = {**rollouts.PERTURBATION_VALUES, **(perturbation_values or {})}
     settings = settings_for(tables)
     root = jax.random.PRNGKey(seed)
-    results = []
+    results, task = [], None
     for entry in entries:
         t_entry = time.time()
         tracking_env = suite_env(entry.env_config, targets, values)
         config = tracking_env.config
+        entry_task = recorded_eval_params(tracking_env.eval_params(**entry.env_overrides))
+        if task not in (None, entry_task):  # every row of a table flies the same task
+            raise ValueError(f"{entry.name} is evaluated with {entry_task}, the rows before it with {task}")
+        task = entry_task
         row = {"name": entry.name, "kind": entry.kind, "input": entry.input_label or config.obs_mode,
                "obs_mode": config.obs_mode, "resolution": config.camera.resolution, "dynamics": config.dynamics,
                "info": entry.info, "settings": {}}
@@ -145,7 +154,7 @@ def run_suite(entries: list[Entry], targets: tuple[str, ...], episodes: int, max
         results.append(row)
     add_ceiling_fractions(results)
     return {"settings": {"seed": seed, "episodes_per_target": episodes, "targets": list(targets),
-                         "max_steps": max_steps, "eval_params": {"dist_weight": 1.0, "lost_patience": 20},
+                         "max_steps": max_steps, "eval_params": task or {},
                          "perturbation_values": values, "perturbation_settings": settings, "tables": list(tables),
                          "speed_steps": speed_steps},
             "machine": machine_info(), "rows": results}
