@@ -85,13 +85,10 @@ def relative_position(state: EnvState) -> jax.Array:
 
 
 def standoff_scale(target: targets_lib.TargetModel, params: EnvParams) -> jax.Array:
-    """[] Stand-off scale k of a target with bounding radius R (see EnvParams.standoff_per_radius):
-    - R >= standoff_min_radius: k = max(1, standoff_per_radius * R / desired distance), how much farther than the
-      nominal 5 m a target this large must be held so that it fits the view;
-    - R < standoff_min_radius: k = max(standoff_min_scale, R / standoff_min_radius) <= 1, how much closer a small
-      target is held so that it fills the view like a standoff_min_radius target at 5 m (floored for safety).
-    k is exactly 1.0 for R from standoff_min_radius to desired distance / standoff_per_radius (0.5-2.5 m by
-    default), which holds every catalogue target, and the two branches meet at k = 1 at R = standoff_min_radius."""
+    """[] Stand-off scale k of a target with bounding radius R (see EnvParams.standoff_per_radius): for R >=
+    standoff_min_radius k = max(1, standoff_per_radius * R / desired distance), held far enough to fit the view; below
+    it k = max(standoff_min_scale, R / standoff_min_radius), held closer to fill the view like a standoff_min_radius
+    target at 5 m. k is exactly 1.0 for R in 0.5-2.5 m by default, which holds every catalogue target."""
     radius = target.bound_radius
     large = jnp.maximum(1.0, params.standoff_per_radius * radius / params.desired_pos[2])
     small = jnp.maximum(params.standoff_min_scale, radius / params.standoff_min_radius)
@@ -99,8 +96,7 @@ def standoff_scale(target: targets_lib.TargetModel, params: EnvParams) -> jax.Ar
 
 
 def command_speed(state: EnvState, params: EnvParams) -> jax.Array:
-    """[] m/s per unit action in this episode: speed * max(1, k) ** speed_standoff_power (k: the stand-off scale).
-    Exactly params.speed for every catalogue target and every small one (k <= 1), and with power 0."""
+    """[] m/s per unit action: speed * max(1, k) ** speed_standoff_power (k: stand-off scale; see EnvParams)."""
     return params.speed * jnp.maximum(state.scale, 1.0) ** params.speed_standoff_power
 
 
@@ -123,8 +119,7 @@ def _where(condition: jax.Array, on_true, on_false):
 def in_view(position: jax.Array, camera: CameraConfig) -> jax.Array:
     """Whether a camera-frame point [3] projects inside the image and lies in front of the near plane. The env
     passes the position divided by the stand-off scale k, as it renders: the near plane is k * camera.near away."""
-    tan_half = jnp.tan(jnp.deg2rad(camera.fov_deg) / 2.0)
-    z = position[2]
+    tan_half, z = jnp.tan(jnp.deg2rad(camera.fov_deg) / 2.0), position[2]
     safe_z = jnp.where(z > camera.near, z, 1.0)
     return (z > camera.near) & (jnp.abs(position[0] / safe_z) <= tan_half) & (jnp.abs(position[1] / safe_z) <= tan_half)
 
@@ -232,10 +227,9 @@ class TrackingEnv:
 
     def size_factor(self, key: jax.Array, params: EnvParams) -> jax.Array:
         """[] Factor on the episode's target geometry: in a share size_scale_prob of the episodes log-uniform in
-        [size_scale_min, size_scale_max], else 1 (exactly 1.0 by default), from keys folded in from initial_state's:
-        the episode's other draws do not depend on them.
-        Mass and inertia are kept: torque-free rotation does not change under a uniform scale of the inertia
-        (Euler's equations are homogeneous in it), and the env reads no mass."""
+        [size_scale_min, size_scale_max], else 1 (exactly 1.0 by default), from keys folded in from initial_state's
+        (the episode's other draws do not depend on them). Mass and inertia are kept: torque-free rotation does not
+        change under a uniform scale of the inertia (Euler's equations are homogeneous in it)."""
         low, high = jnp.log(params.size_scale_min), jnp.log(params.size_scale_max)
         factor = jnp.exp(jax.random.uniform(jax.random.fold_in(key, self.SIZE_KEY), (), minval=low, maxval=high))
         resized = jax.random.uniform(jax.random.fold_in(key, self.SIZE_KEY + 1), ()) < params.size_scale_prob

@@ -39,8 +39,7 @@ def _worker(*args, devices=4, timeout=900) -> dict:  # compiles from scratch: mi
 
 
 # ============================================================================================ devices
-# Slow (about 100 s on an idle 2-core machine: two compiles of the chunk on 4 forced devices); the default suite
-# still splits a multi-seed program over devices (test_seeds_are_split_over_devices_whole).
+# Slow (about 100 s on an idle 2-core machine: two compiles of the chunk on 4 forced devices).
 @pytest.mark.slow
 def test_sharded_run_equals_unsharded_run_and_uses_every_device():
     r = _worker("shard", 2)
@@ -65,6 +64,9 @@ def test_env_batch_that_does_not_divide_over_devices_is_a_clear_error():
     assert "num_envs=8 does not divide over 3 devices" in r["error"] and "--devices" in r["error"]
 
 
+# Slow (the default suite's costliest test on a 2-core machine, about 2 min: a 4-device compile in a subprocess);
+# the default suite keeps the vmapped seeds' equality with single-seed runs and the indivisible-batch error.
+@pytest.mark.slow
 def test_seeds_are_split_over_devices_whole():
     r = _worker("seeds", devices=2)
     assert r["obs_devices"] == 2 and r["obs_shard_shapes"] == [[1, 8, 16, 16, 1]]  # one whole seed per device

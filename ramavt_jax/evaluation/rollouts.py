@@ -19,10 +19,8 @@ from ramavt_jax.baselines import Policy
 from ramavt_jax.evaluation import statistics
 from ramavt_jax.training import memory as memplan
 
-# EnvParams fields whose evaluation values (env.eval_params) replace a run's training values: the size
-# randomisation of training is off in evaluation (every target is evaluated at its own size), and the command
-# speed rule of resized targets is part of the task, the same for every policy of a table (`ramavt eval
-# --speed-standoff-power`)
+# EnvParams fields whose evaluation values (env.eval_params) replace a run's training values: no size randomisation
+# (each target at its own size), one command speed rule for every row of a table (`--speed-standoff-power`)
 EVAL_FIELDS = ("dist_weight", "lost_patience", "size_scale_min", "size_scale_max", "size_scale_prob",
                "speed_standoff_power")
 
