@@ -96,8 +96,9 @@ def standoff_scale(target: targets_lib.TargetModel, params: EnvParams) -> jax.Ar
 
 
 def command_speed(state: EnvState, params: EnvParams) -> jax.Array:
-    """[] m/s per unit action: speed * max(1, k) ** speed_standoff_power (k: stand-off scale; see EnvParams)."""
-    return params.speed * jnp.maximum(state.scale, 1.0) ** params.speed_standoff_power
+    """[] m/s per unit action: speed * max(1, k) ** speed_standoff_power * min(1, k) ** small_standoff_power."""
+    large, small = jnp.maximum(state.scale, 1.0), jnp.minimum(state.scale, 1.0)
+    return params.speed * large ** params.speed_standoff_power * small ** params.small_standoff_power
 
 
 def desired_position(state: EnvState, params: EnvParams) -> jax.Array:
@@ -149,8 +150,7 @@ class TrackingEnv:
     def __init__(self, config: EnvConfig = EnvConfig()):
         self.config = config
 
-    # Equal configs make equal envs (the object holds nothing else), so caches of compiled rollouts keyed on the
-    # env are shared by every env built from the same config.
+    # Equal configs make equal envs (it holds nothing else): compiled-rollout caches keyed on the env are shared.
     def __eq__(self, other) -> bool:
         return type(other) is type(self) and other.config == self.config
 
@@ -160,8 +160,7 @@ class TrackingEnv:
     # ----------------------------------------------------------------------------------------- parameters
     def default_params(self, **overrides: Any) -> EnvParams:
         """Original training values with this config's targets loaded; keyword overrides replace fields."""
-        catalogue, _ = targets_lib.load_many(self.config.targets)
-        num = len(self.config.targets)
+        catalogue, num = targets_lib.load_many(self.config.targets)[0], len(self.config.targets)
         params = EnvParams(catalogue=catalogue, target_probs=jnp.full((num,), 1.0 / num))
         params = params.replace(**{k: _param_array(k, v) for k, v in overrides.items()}) if overrides else params
         return validate_params(params, self.config)
@@ -202,8 +201,9 @@ class TrackingEnv:
         xy = params.init_xy_std * jax.random.normal(k_xy, (2,))
         z = jax.random.uniform(k_z, (), minval=params.init_z_min, maxval=params.init_z_max)
         pos_cam = jnp.array([xy[0], xy[1], z]) * scale
-        vel_cam = params.target_vel_std * jax.random.normal(k_vel, (3,))
-        accel_cam = params.target_accel_std * jax.random.normal(k_acc, (3,))
+        drift = jnp.minimum(scale, 1.0) ** params.small_standoff_power  # 1: a small target's, in stand-off units
+        vel_cam = params.target_vel_std * jax.random.normal(k_vel, (3,)) * drift
+        accel_cam = params.target_accel_std * jax.random.normal(k_acc, (3,)) * drift
         r, c = self.config.camera.resolution, OBS_CHANNELS[self.config.obs_mode]
         zero = jnp.zeros(3)
         return EnvState(

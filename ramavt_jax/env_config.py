@@ -106,6 +106,9 @@ class EnvParams:
     standoff_min_radius: jax.Array = 0.5  # m
     standoff_min_scale: jax.Array = 0.3  # floor of k (in (0, 1])
     speed_standoff_power: jax.Array = 1.0  # in [0, 1]; an evaluation field (evaluation.rollouts.EVAL_FIELDS)
+    # A small target's (k < 1) command speed and drift (initial velocity and acceleration) times k ** this power: 1
+    # makes its dynamics the catalogue's in stand-off units (a diagnostic; 0, physical speeds, the default).
+    small_standoff_power: jax.Array = 0.0  # in [0, 1]; an evaluation field
     # Size randomisation (training): each episode's target geometry times a factor drawn log-uniformly from
     # [size_scale_min, size_scale_max] (1, 1: off, the default) in a share size_scale_prob of the episodes; the
     # stand-off rule then applies to the scaled radius. Evaluation keeps the models' own sizes
@@ -158,6 +161,7 @@ def validate_params(params: EnvParams, config: EnvConfig) -> EnvParams:
     check("standoff_min_radius", lambda v: v > 0, "> 0 (m)")
     check("standoff_min_scale", lambda v: (v > 0) & (v <= 1), "in (0, 1]")
     check("speed_standoff_power", lambda v: (v >= 0) & (v <= 1), "in [0, 1]")
+    check("small_standoff_power", lambda v: (v >= 0) & (v <= 1), "in [0, 1]")
     check("size_scale_min", lambda v: v > 0, "> 0")
     check("size_scale_max", lambda v: v >= np.asarray(params.size_scale_min), ">= size_scale_min")
     check("size_scale_prob", lambda v: (v >= 0) & (v <= 1), "in [0, 1]")

@@ -108,9 +108,26 @@ def test_command_speed_follows_the_stand_off_only_when_asked(size_env, models):
         size_env.default_params(speed_standoff_power=2.0)
 
 
+def test_small_standoff_power_gives_a_small_target_the_catalogue_dynamics_in_stand_off_units(size_env):
+    """Power 1: the 0.3 m cubesat (k = 0.6) gets k times the command speed and k times the drift of power 0 (same
+    key), the 12 m satellite (k = 4.8) and its drift are untouched."""
+    plain, scaled = size_env.default_params(), size_env.default_params(small_standoff_power=1.0)
+    for index, gain in ((0, 0.6), (1, 1.0)):
+        step_plain, k = _chaser_step(size_env, plain, index)
+        step_scaled, _ = _chaser_step(size_env, scaled, index)
+        np.testing.assert_allclose(step_scaled, gain * step_plain, rtol=1e-3)
+        drift = [size_env.initial_state(jax.random.key(5), size_env.pinned(p, index)).target_vel
+                 for p in (plain, scaled)]
+        np.testing.assert_allclose(np.asarray(drift[1]), gain * np.asarray(drift[0]), rtol=1e-3)
+        assert np.linalg.norm(np.asarray(drift[0])) > 0.0
+    with pytest.raises(ValueError, match="EnvParams.small_standoff_power must be in"):
+        size_env.default_params(small_standoff_power=-0.5)
+
+
 def test_speed_rule_is_an_evaluation_field():
     """A run trained with another speed rule is evaluated under the table's, like every other row."""
-    assert rollouts.run_env_overrides({"speed_standoff_power": 1.0, "speed": 0.5}) == {"speed": 0.5}
+    assert rollouts.run_env_overrides({"speed_standoff_power": 1.0, "small_standoff_power": 1.0, "speed": 0.5}) == {
+        "speed": 0.5}
 
 
 # ------------------------------------------------------------------------------------------------ possible tasks

@@ -106,6 +106,7 @@ def eval_cmd(
     seed: int = 0,
     horizon: int = baselines_lib.MPC_HORIZON,
     speed_standoff_power: float | None = None,
+    small_standoff_power: float | None = None,
     out: Path = Path("eval"),
     figures: bool = False,
 ) -> dict:
@@ -143,14 +144,19 @@ def eval_cmd(
         speed_standoff_power: the command speed of every policy is speed * max(1, k) ** power, k the stand-off
             scale of a target larger than the catalogue's (EnvParams.speed_standoff_power; k = 1 for every
             catalogue target, so only large resized and user targets see it); default: EnvParams' default.
+        small_standoff_power: a small target's (k < 1) command speed and drift times k ** power (1: its dynamics are
+            the catalogue's in stand-off units; EnvParams.small_standoff_power); default: EnvParams' default (0).
         out: output folder (tables.md, results.json, figures/).
         figures: also plot one episode per policy (tracking error, 3-D trajectory, frame strip), attention maps and
             training curves of the runs.
     """
     t0 = time.time()
     positive("--horizon", horizon)
-    if speed_standoff_power is not None and not 0.0 <= speed_standoff_power <= 1.0:
-        raise UsageError(f"--speed-standoff-power must be in [0, 1], got {speed_standoff_power}")
+    task = {"speed_standoff_power": speed_standoff_power, "small_standoff_power": small_standoff_power}
+    task = {name: value for name, value in task.items() if value is not None}
+    for name, value in task.items():
+        if not 0.0 <= value <= 1.0:
+            raise UsageError(f"--{name.replace('_', '-')} must be in [0, 1], got {value}")
     finite("--actuator-noise", actuator_noise)
     finite("--delay-max", delay_max)
     names = _check_eval_args(policy, agent, run, targets, episodes, max_steps, tables, blur_frames, out)
@@ -163,10 +169,8 @@ def eval_cmd(
         if baselines and trained:
             wanted += [p for p in ("mpc", "proportional", "depth", "random") if p not in wanted]
         entries += _baseline_entries(wanted, obs, resolution, dynamics, names, horizon)
-        if speed_standoff_power is not None:  # an evaluation field: the same task for every row
-            entries = [dataclasses.replace(e, env_overrides={**e.env_overrides,
-                                                             "speed_standoff_power": speed_standoff_power})
-                       for e in entries]
+        if task:  # evaluation fields: the same task for every row
+            entries = [dataclasses.replace(e, env_overrides={**e.env_overrides, **task}) for e in entries]
         settings = tables_lib.settings_for(tuple(tables))
         print(f"evaluating {len(entries)} policies x {len(settings)} setting(s) x {len(names)} targets x {episodes} "
               f"episodes (each policy compiles first) ...", flush=True)
