@@ -25,9 +25,13 @@ def _episodes(result: dict) -> tuple:
     return s["seed"], s["episodes_per_target"], tuple(s["targets"]), s["max_steps"]
 
 
-def _speed_rule(result: dict) -> float | None:
-    """The command speed rule the result flew (None: recorded before the rule existed)."""
-    return result["settings"].get("eval_params", {}).get("speed_standoff_power")
+def _speed_rule(result: dict) -> tuple | None:
+    """The stand-off speed rules the result flew, (speed_standoff_power, small_standoff_power); None: recorded
+    before the rules existed."""
+    task = result["settings"].get("eval_params", {})
+    if "speed_standoff_power" not in task:
+        return None
+    return task["speed_standoff_power"], task.get("small_standoff_power", 0.0)
 
 
 def load_arm(spec: str) -> tuple[str, dict, np.ndarray, tuple]:
@@ -61,7 +65,8 @@ def main(argv=None) -> None:
         raise SystemExit("the results did not fly the same episodes (seed, episodes per target, targets, cap differ)")
     rules = {r for r in [rule] + [arm[4] for arm in loaded] if r is not None}
     if len(rules) > 1 and any("@" in t or t.endswith(".xml") for t in episodes[2]):
-        raise SystemExit(f"the results flew different command speed rules (speed_standoff_power {sorted(rules)})")
+        raise SystemExit(f"the results flew different stand-off speed rules ((speed_standoff_power, "
+                         f"small_standoff_power): {sorted(rules)})")
     targets = episodes[2]
     print("| arm | seeds | AER | 95 % CI | std over seeds | of ceiling | lost | P(> row above) | "
           + " | ".join(targets) + " |")
