@@ -140,6 +140,9 @@ ARMS["size-small"] = lambda c: ARMS["patch-768k"](c).override(env_params={"size_
 ARMS["value-rescale"] = lambda c: ARMS["patch-768k"](c).override(value_rescale=True)
 # size-small gained most on the small models and cost 72 AER on the catalogue's sizes: resize only half of the
 # episodes (one change to 'size-small').
+# size-small on the budget of 'patch-1152k' (one change to 'size-small'): whether more env steps buy back its cost
+# on the catalogue's sizes.
+ARMS["size-small-1152k"] = lambda c: ARMS["size-small"](c).override(total_env_steps=1_152_000)
 ARMS["size-half"] = lambda c: ARMS["size-small"](c).override(env_params={"size_scale_min": 0.15,
                                                                           "size_scale_max": 1.0,
                                                                           "size_scale_prob": 0.5})
