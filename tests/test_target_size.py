@@ -232,3 +232,20 @@ def test_size_randomisation_is_for_training_only():
     pairs = (("size_scale_max", 2.0), ("size_scale_min", 0.5), ("size_scale_prob", 0.5), ("target_spin_std", 0.2))
     cfg = preset("smoke", env_params=pairs)  # a training preset may set them (ramavt train --env-params ...)
     assert rollouts.run_env_overrides(cfg.env_params) == {"target_spin_std": 0.2}  # evaluation: the models' sizes
+
+
+def test_eval_records_the_stand_off_rules_it_flew(tmp_path):
+    """`ramavt eval --speed-standoff-power 0 --small-standoff-power 1` flies those rules for every row and writes them
+    beside the numbers (results.json and tables.md)."""
+    import json
+
+    from ramavt_jax import cli
+
+    out = tmp_path / "eval"
+    cli.main(["eval", "--policy", "random", "--targets", "Satellite-v2@12m", "--episodes", "1", "--max-steps", "3",
+              "--tables", "1", "--resolution", "8", "--speed-steps", "0", "--speed-standoff-power", "0",
+              "--small-standoff-power", "1", "--out", str(out)])
+    task = json.loads((out / "results.json").read_text())["settings"]["eval_params"]
+    assert task["speed_standoff_power"] == 0.0 and task["small_standoff_power"] == 1.0
+    assert task["size_scale_min"] == task["size_scale_max"] == 1.0 and task["dist_weight"] == 1.0
+    assert "'speed_standoff_power': 0.0" in (out / "tables.md").read_text()

@@ -290,7 +290,7 @@ def to_markdown(result: dict, command: str = "") -> str:
         f"- episodes per target: {s['episodes_per_target']} (vmapped; {s['episodes_per_target'] * len(s['targets'])} "
         f"per row and setting), seed {s['seed']}, same initial states for every policy",
         f"- settings: eval params (reward dist_weight 1, lost after > 20 consecutive lost steps), max {s['max_steps']} "
-        f"steps, greedy policies",
+        f"steps, greedy policies; evaluation fields {s.get('eval_params', {})}",
         f"- perturbations: actuator noise {pv['actuator_noise']} (command x (1 + a N(0,1))), time delay "
         f"U(0, {pv['delay_max']}) s added to each 0.1 s step, blur = mean of the last {pv['blur_frames']} frames",
         f"- speed: policy + env step of ONE env as one jitted call per step, {s['speed_steps']} steps (Hz)",
