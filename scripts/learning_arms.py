@@ -128,21 +128,22 @@ ARMS["patch"] = lambda c: _net(ARMS["aux-lr2"](c), kernels=(4, 2, 3), strides=(4
 ARMS["patch-768k"] = lambda c: ARMS["patch"](c).override(total_env_steps=768_000)
 # Each one change to 'patch-768k' (the quick preset), on the validation split: a shorter discount horizon (the
 # ceiling's one-step look-ahead is within 4 AER of its 12-step one, so the task looks myopic), and size
-# randomisation over [0.15, 5]x (bounding radii of about 0.1-12 m) for targets of other sizes (split 'val-sizes').
+# randomisation over [0.15, 5]x (bounding radii of about 0.1-12 m) for targets of other sizes (split 'val-sizes'),
+# trained before the stand-off speed rule (1 m/s at every size: speed_standoff_power 0).
 ARMS["gamma09"] = lambda c: ARMS["patch-768k"](c).override(gamma=0.9)
-ARMS["size-wide"] = lambda c: ARMS["patch-768k"](c).override(env_params={"size_scale_min": 0.15,
-                                                                          "size_scale_max": 5.0})
+ARMS["size-wide"] = lambda c: ARMS["patch-768k"](c).override(env_params={"size_scale_min": 0.15, "size_scale_max": 5.0,
+                                                                          "speed_standoff_power": 0.0})
 # Size randomisation towards small sizes only ([0.15, 1]x): size-wide's gain on other sizes was all on the small
 # models and its cost on the large ones; the command speed rule (EnvParams.speed_standoff_power) now serves large
 # targets. R2D2's value rescaling of the targets (one change to the preset).
 ARMS["size-small"] = lambda c: ARMS["patch-768k"](c).override(env_params={"size_scale_min": 0.15,
                                                                            "size_scale_max": 1.0})
 ARMS["value-rescale"] = lambda c: ARMS["patch-768k"](c).override(value_rescale=True)
-# size-small gained most on the small models and cost 72 AER on the catalogue's sizes: resize only half of the
-# episodes (one change to 'size-small').
 # size-small on the budget of 'patch-1152k' (one change to 'size-small'): whether more env steps buy back its cost
 # on the catalogue's sizes.
 ARMS["size-small-1152k"] = lambda c: ARMS["size-small"](c).override(total_env_steps=1_152_000)
+# size-small gained most on the small models and cost 72 AER on the catalogue's sizes: resize only half of the
+# episodes (one change to 'size-small').
 ARMS["size-half"] = lambda c: ARMS["size-small"](c).override(env_params={"size_scale_min": 0.15,
                                                                           "size_scale_max": 1.0,
                                                                           "size_scale_prob": 0.5})
