@@ -6,7 +6,8 @@ its mean per target, and P(arm > the arm before it) (rliable's probability of im
         --ceiling results/val/mpc_h12/results.json
 
 Each argument is RESULTS_JSON:ARM (the arm as the results name it, without " (seeds)"). The results must share the
-evaluation seed, the episodes per target, the targets and the episode cap, so that every arm flew the same episodes.
+evaluation seed, the episodes per target, the targets and the episode cap, so that every arm flew the same episodes,
+and the evaluation fields they record (the stand-off speed rules, say).
 """
 
 from __future__ import annotations
@@ -14,10 +15,32 @@ from __future__ import annotations
 import argparse
 import json
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 
 from ramavt_jax.evaluation import seeds, statistics
+
+
+class Arm(NamedTuple):
+    name: str
+    summary: dict  # seeds.summarise_arms' entry of the arm
+    scores: np.ndarray  # [seeds, targets] AER
+    episodes: tuple  # (seed, episodes per target, targets, cap): which episodes it flew
+    task: dict  # the evaluation fields it flew (_task)
+
+
+# What a result recorded before these evaluation fields existed flew: 1 m/s at every size.
+RULES_BEFORE_RECORDED = {"speed_standoff_power": 0.0, "small_standoff_power": 0.0}
+
+
+def _task(result: dict) -> dict:
+    """The evaluation fields a result flew. The stand-off speed rules only count where a target may be resized
+    (a size suffix or an MJCF file): at a catalogue target's k = 1 they change nothing."""
+    task = {**RULES_BEFORE_RECORDED, **result["settings"].get("eval_params", {})}
+    if not any("@" in t or t.endswith(".xml") for t in result["settings"]["targets"]):
+        task = {k: v for k, v in task.items() if k not in RULES_BEFORE_RECORDED}
+    return task
 
 
 def _episodes(result: dict) -> tuple:
@@ -25,17 +48,8 @@ def _episodes(result: dict) -> tuple:
     return s["seed"], s["episodes_per_target"], tuple(s["targets"]), s["max_steps"]
 
 
-def _speed_rule(result: dict) -> tuple | None:
-    """The stand-off speed rules the result flew, (speed_standoff_power, small_standoff_power); None: recorded
-    before the rules existed."""
-    task = result["settings"].get("eval_params", {})
-    if "speed_standoff_power" not in task:
-        return None
-    return task["speed_standoff_power"], task.get("small_standoff_power", 0.0)
-
-
-def load_arm(spec: str) -> tuple[str, dict, np.ndarray, tuple]:
-    """(arm, its summary, scores [seeds, targets], the episodes' identity) of one RESULTS_JSON:ARM argument."""
+def load_arm(spec: str) -> Arm:
+    """One RESULTS_JSON:ARM argument."""
     path, _, arm = spec.rpartition(":")
     result = json.loads(Path(path).read_text())
     summary = seeds.summarise_arms(result)["arms"]
@@ -45,13 +59,14 @@ def load_arm(spec: str) -> tuple[str, dict, np.ndarray, tuple]:
     runs = seeds.arms(result)[key]
     targets = list(result["settings"]["targets"])
     scores = np.array([[r["per_target"][t]["return_mean"] for t in targets] for r in runs], np.float64)
-    return arm, summary[key], scores, _episodes(result), _speed_rule(result)
+    return Arm(arm, summary[key], scores, _episodes(result), _task(result))
 
 
-def ceiling_aer(path: Path) -> float:
+def ceiling_aer(path: Path) -> tuple[float, tuple, dict]:
+    """(the mpc row's AER, the episodes it flew, the evaluation fields it flew) of a results.json."""
     result = json.loads(path.read_text())
     row = next(r for r in result["rows"] if r.get("info", {}).get("variant") == "mpc")
-    return row["settings"]["none"]["overall"]["return_mean"], _episodes(result), _speed_rule(result)
+    return row["settings"]["none"]["overall"]["return_mean"], _episodes(result), _task(result)
 
 
 def main(argv=None) -> None:
@@ -60,24 +75,25 @@ def main(argv=None) -> None:
     p.add_argument("--ceiling", type=Path, default=None, help="a results.json with the mpc row on the same episodes")
     a = p.parse_args(argv)
     loaded = [load_arm(spec) for spec in a.arms]
-    ceiling, episodes, rule = ceiling_aer(a.ceiling) if a.ceiling else (None, loaded[0][3], loaded[0][4])
-    if any(arm[3] != episodes for arm in loaded):
+    ceiling, episodes, task = ceiling_aer(a.ceiling) if a.ceiling else (None, loaded[0].episodes, loaded[0].task)
+    if any(arm.episodes != episodes for arm in loaded):
         raise SystemExit("the results did not fly the same episodes (seed, episodes per target, targets, cap differ)")
-    rules = {r for r in [rule] + [arm[4] for arm in loaded] if r is not None}
-    if len(rules) > 1 and any("@" in t or t.endswith(".xml") for t in episodes[2]):
-        raise SystemExit(f"the results flew different stand-off speed rules ((speed_standoff_power, "
-                         f"small_standoff_power): {sorted(rules)})")
+    for arm in loaded:  # a field both record must agree (a speed rule, say); older results record fewer
+        differ = {k: (task[k], arm.task[k]) for k in task.keys() & arm.task.keys() if task[k] != arm.task[k]}
+        if differ:
+            raise SystemExit(f"{arm.name} flew other evaluation fields than the first result: {differ}")
     targets = episodes[2]
     print("| arm | seeds | AER | 95 % CI | std over seeds | of ceiling | lost | P(> row above) | "
           + " | ".join(targets) + " |")
     print("|---" * (8 + len(targets)) + "|")
     previous = None
-    for arm, s, scores, _, _ in loaded:
+    for arm in loaded:
+        s, scores = arm.summary, arm.scores
         frac = f"{100 * s['return_mean'] / ceiling:.0f} %" if ceiling else "-"
         ci = f"[{s['return_ci_low']:.1f}, {s['return_ci_high']:.1f}]" if s["return_ci_low"] is not None else "-"
         p_up = f"{statistics.probability_of_improvement(scores, previous):.2f}" if previous is not None else "-"
         per = " | ".join(f"{v:+.0f}" for v in scores.mean(axis=0))
-        print(f"| {arm} | {scores.shape[0]} | {s['return_mean']:+.1f} | {ci} | {s['return_sample_std_over_runs']:.1f} "
+        print(f"| {arm.name} | {scores.shape[0]} | {s['return_mean']:+.1f} | {ci} | {s['return_sample_std_over_runs']:.1f} "
               f"| {frac} | {100 * s['lost_fraction_over_runs']:.1f} % | {p_up} | {per} |")
         previous = scores
 

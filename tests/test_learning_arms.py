@@ -11,6 +11,8 @@ import pytest
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts"))
 import learning_arms  # noqa: E402
 
+ROOT = Path(__file__).resolve().parents[1]
+
 
 def _flat(x, prefix: str = "") -> dict:
     """A nested config dataclass as {'group.field': value}."""
@@ -63,3 +65,21 @@ def test_report_prints_the_seeds(tmp_path, capsys):
     out = capsys.readouterr().out
     assert "| x [target params] | 990.0 ± 10.0 | 188.5 ± 223.5 | 0 | 1000, 980 | +412, -35 |" in out
     assert "| x [target params] | 990.0 ± 10.0 | 188.5 ± 223.5 | 0 | " + " | ".join(["990 / 188"] * len(names)) in out
+
+
+def test_arm_table_refuses_arms_flown_under_other_speed_rules(capsys):
+    """The committed val-sizes results: the preset flown at 1 m/s against a ceiling flown under the speed rule is
+    refused; the same arm against its own rule's ceiling is tabled; catalogue-only results of either age compare."""
+    import arm_table
+
+    sizes = ROOT / "results" / "val" / "sizes"
+    arm = f"{sizes / 'fixed-speed' / 'quick_now' / 'results.json'}:quick_now"
+    with pytest.raises(SystemExit, match="speed_standoff_power"):
+        arm_table.main([arm, "--ceiling", str(sizes / "baselines" / "results.json")])
+    arm_table.main([arm, "--ceiling", str(sizes / "fixed-speed" / "baselines" / "results.json")])
+    arms = ROOT / "results" / "val" / "arms"
+    arm_table.main([f"{arms / 'patch-768k' / 'results.json'}:patch2_768k",
+                    f"{arms / 'size-small-1152k' / 'results.json'}:size_small_1152k",
+                    "--ceiling", str(ROOT / "results" / "val" / "mpc_h12" / "results.json")])
+    rows = [line for line in capsys.readouterr().out.splitlines() if line.startswith("| ") and "| seeds |" not in line]
+    assert [r.split(" | ")[0] for r in rows] == ["| quick_now", "| patch2_768k", "| size_small_1152k"]
