@@ -248,4 +248,4 @@ def test_eval_records_the_stand_off_rules_it_flew(tmp_path):
     task = json.loads((out / "results.json").read_text())["settings"]["eval_params"]
     assert task["speed_standoff_power"] == 0.0 and task["small_standoff_power"] == 1.0
     assert task["size_scale_min"] == task["size_scale_max"] == 1.0 and task["dist_weight"] == 1.0
-    assert "'speed_standoff_power': 0.0" in (out / "tables.md").read_text()
+    assert "command speed x max(1, k) ** 0 x min(1, k) ** 1" in (out / "tables.md").read_text()

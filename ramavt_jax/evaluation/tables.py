@@ -127,7 +127,8 @@ def run_suite(entries: list[Entry], targets: tuple[str, ...], episodes: int, max
         t_entry = time.time()
         tracking_env = suite_env(entry.env_config, targets, values)
         config = tracking_env.config
-        entry_task = recorded_eval_params(tracking_env.eval_params(**entry.env_overrides))
+        params = tracking_env.eval_params(**entry.env_overrides, max_steps=max_steps)
+        entry_task = recorded_eval_params(params)
         if task not in (None, entry_task):  # every row of a table flies the same task
             raise ValueError(f"{entry.name} is evaluated with {entry_task}, the rows before it with {task}")
         task = entry_task
@@ -146,9 +147,8 @@ def run_suite(entries: list[Entry], targets: tuple[str, ...], episodes: int, max
                 f"AER {overall['return_mean']:9.1f} lost {overall['lost_fraction']:.2f} ({time.time() - t0:.0f} s)")
         row["speed_hz"] = None
         if speed_steps > 0:
-            params = tracking_env.pinned(tracking_env.eval_params(**entry.env_overrides, max_steps=max_steps), 0)
-            row["speed_hz"] = rollouts.measure_speed(tracking_env, entry.policy, params, jax.random.fold_in(root, 99),
-                                                     speed_steps)
+            row["speed_hz"] = rollouts.measure_speed(tracking_env, entry.policy, tracking_env.pinned(params, 0),
+                                                     jax.random.fold_in(root, 99), speed_steps)
             log(f"{entry.name:<22} {row['input']:<6} speed {row['speed_hz']:.1f} Hz (single env, {speed_steps} steps)")
         row["wall_s"] = time.time() - t_entry
         results.append(row)
@@ -281,7 +281,7 @@ def paper_md() -> str:
 
 def to_markdown(result: dict, command: str = "") -> str:
     s, m = result["settings"], result["machine"]
-    pv = s["perturbation_values"]
+    pv, task = s["perturbation_values"], s.get("eval_params", {})
     head = [
         "# Evaluation",
         "",
@@ -289,8 +289,10 @@ def to_markdown(result: dict, command: str = "") -> str:
         f"- targets ({len(s['targets'])}): {', '.join(s['targets'])}",
         f"- episodes per target: {s['episodes_per_target']} (vmapped; {s['episodes_per_target'] * len(s['targets'])} "
         f"per row and setting), seed {s['seed']}, same initial states for every policy",
-        f"- settings: eval params (reward dist_weight 1, lost after > 20 consecutive lost steps), max {s['max_steps']} "
-        f"steps, greedy policies; evaluation fields {s.get('eval_params', {})}",
+        f"- settings: reward dist_weight {task.get('dist_weight', 1.0):g}, lost after > {task.get('lost_patience', 20):g} "
+        f"consecutive lost steps, command speed x max(1, k) ** {task.get('speed_standoff_power', 0.0):g} x "
+        f"min(1, k) ** {task.get('small_standoff_power', 0.0):g} (k: stand-off scale), max {s['max_steps']} steps, "
+        f"greedy policies",
         f"- perturbations: actuator noise {pv['actuator_noise']} (command x (1 + a N(0,1))), time delay "
         f"U(0, {pv['delay_max']}) s added to each 0.1 s step, blur = mean of the last {pv['blur_frames']} frames",
         f"- speed: policy + env step of ONE env as one jitted call per step, {s['speed_steps']} steps (Hz)",
