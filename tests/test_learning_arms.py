@@ -53,6 +53,12 @@ def test_quick_preset_is_the_depth_row():
     assert learning_arms.arm_config("patch-768k") == learning_arms.train_config.preset("quick", eval_episodes=0)
 
 
+def test_sizes_preset_is_the_arm_chosen_for_other_sizes():
+    sizes = learning_arms.train_config.preset("sizes", eval_episodes=0)
+    assert learning_arms.arm_config("size-small-1152k") == sizes
+    assert dict(sizes.env_params) == {"size_scale_min": 0.15, "size_scale_max": 1.0}
+
+
 def test_report_prints_the_seeds(tmp_path, capsys):
     names = list(learning_arms.targets_lib.TEST_TARGETS)
     seeds = [{"AEL": ael, "AER": aer, "lost": 0.0, "per_target": {n: {"AEL": ael, "AER": aer} for n in names}}

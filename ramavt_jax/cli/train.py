@@ -123,7 +123,8 @@ def make_train_cmd(preset_name: str):
         Args:
             config: the training configuration (defaults: the preset's).
             preset: the named defaults of train_config.PRESETS, e.g. 'quick' (minutes on 2 CPU cores: 32x32 depth,
-                small RAMAVT), 'paper' (256x256, full RAMAVT, batch 64, lr 1e-4, gamma 0.99, 50,000-step replay),
+                small RAMAVT), 'sizes' (quick on targets resized to [0.15, 1]x, 1.15M env steps: for other sizes),
+                'paper' (256x256, full RAMAVT, batch 64, lr 1e-4, gamma 0.99, 50,000-step replay),
                 'smoke' (plumbing checks).
             seeds: number of independent seeds, trained together as ONE jitted program (vmap over seeds, each with
                 its own envs and replay) into out/seed_<k>/ (each a complete run folder).
