@@ -147,6 +147,14 @@ ARMS["size-small-1152k"] = lambda c: ARMS["size-small"](c).override(total_env_st
 ARMS["size-half"] = lambda c: ARMS["size-small"](c).override(env_params={"size_scale_min": 0.15,
                                                                           "size_scale_max": 1.0,
                                                                           "size_scale_prob": 0.5})
+# Each one change to the preset, on the validation split: a replay 4x as long (64k steps hold about one episode per
+# env, so the late fall of the training curve might be forgetting); exploration decaying in half the steps (the
+# time to a tracker that beats the depth tracker); 64x64 images with an 8x8 first patch, so that the attention
+# keeps its 4x4 token grid (whether more pixels buy tracking precision).
+ARMS["replay-256k"] = lambda c: ARMS["patch-768k"](c).override(capacity_steps=256_000)
+ARMS["eps-100k"] = lambda c: ARMS["patch-768k"](c).override(eps_decay_steps=100_000)
+ARMS["res64"] = lambda c: _net(ARMS["patch-768k"](c), kernels=(8, 2, 3), strides=(8, 2, 1)).override(
+    env=dataclasses.replace(c.env, camera=dataclasses.replace(c.env.camera, resolution=64)))
 
 
 def arm_config(name: str, preset: str = "quick", **overrides):

@@ -43,6 +43,10 @@ def _changes(arm: str, reference: str) -> dict:
         ("patch", "aux-lr2", {"network.kernels": (4, 2, 3), "network.strides": (4, 2, 1),
                               "network.pools": (False, False, False)}),  # one change: the stem
         ("patch-768k", "patch", {"run.total_env_steps": 768_000}),
+        ("replay-256k", "patch-768k", {"replay.capacity_steps": 256_000}),
+        ("eps-100k", "patch-768k", {"acting.eps_decay_steps": 100_000}),
+        ("res64", "patch-768k", {"env.camera.resolution": 64, "network.kernels": (8, 2, 3),
+                                 "network.strides": (8, 2, 1)}),  # one change: the image, its patch kept 4x4 tokens
     ],
 )
 def test_each_table_arm_is_one_change(arm, reference, change):
