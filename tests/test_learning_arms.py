@@ -45,6 +45,8 @@ def _changes(arm: str, reference: str) -> dict:
         ("patch-768k", "patch", {"run.total_env_steps": 768_000}),
         ("replay-256k", "patch-768k", {"replay.capacity_steps": 256_000}),
         ("eps-100k", "patch-768k", {"acting.eps_decay_steps": 100_000}),
+        ("adv-learning", "patch-768k", {"learner.advantage_alpha": 0.9}),
+        ("dueling", "patch-768k", {"network.dueling": True}),
         ("res64", "patch-768k", {"env.camera.resolution": 64, "network.kernels": (8, 2, 3),
                                  "network.strides": (8, 2, 1)}),  # one change: the image, its patch kept 4x4 tokens
     ],
