@@ -1,7 +1,7 @@
 """Where a policy's distance penalty comes from: the target centre's camera-frame position error, split into its
-mean (bias) and its spread (std) per axis, per held-out target, after the first 100 steps (the approach).
+mean (bias) and its spread (std) per axis, per target of a split, after the first 100 steps (the approach).
 
-    python scripts/position_error.py depth pretrained runs/arms/prev/seed_0 --episodes 8
+    python scripts/position_error.py mpc depth runs/quick_now/seed_0 --targets val --episodes 8
 
 Policies: 'depth' / 'proportional' / 'mpc' (baselines), 'pretrained' (the shipped agent) or a training run folder.
 Every policy runs the same episodes (fixed key) with the evaluation's reward rules.
@@ -32,10 +32,11 @@ def main() -> None:
     ap.add_argument("--episodes", type=int, default=8, help="episodes per target")
     ap.add_argument("--resolution", type=int, default=32)
     ap.add_argument("--skip", type=int, default=100, help="steps of each episode left out (the approach)")
+    ap.add_argument("--targets", default="val", help="a split of targets_lib.split: val (default), test, ...")
     args = ap.parse_args()
     policies = {spec: load(spec, args.resolution) for spec in args.policies}
     print(f"{'target':13s} {'policy':24s} {'AEL':>6s} {'AER':>7s}  bias x/y/z (m)       std x/y/z (m)      mean |e|")
-    for name in targets_lib.TEST_TARGETS:
+    for name in targets_lib.split(args.targets):
         tracking_env = env_lib.TrackingEnv(env_lib.EnvConfig(camera=env_lib.CameraConfig(resolution=args.resolution),
                                                              targets=(name,)))
         params = tracking_env.eval_params()
