@@ -46,7 +46,7 @@ def _changes(arm: str, reference: str) -> dict:
         ("replay-256k", "patch-768k", {"replay.capacity_steps": 256_000}),
         ("eps-100k", "patch-768k", {"acting.eps_decay_steps": 100_000}),
         ("adv-learning", "patch-768k", {"learner.advantage_alpha": 0.9}),
-        ("dueling", "patch-768k", {"network.dueling": True}),
+        ("aux-w10", "patch-768k", {"learner.aux_weight": 10.0}),
         ("res64", "patch-768k", {"env.camera.resolution": 64, "network.kernels": (8, 2, 3),
                                  "network.strides": (8, 2, 1)}),  # one change: the image, its patch kept 4x4 tokens
     ],

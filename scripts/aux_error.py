@@ -1,0 +1,86 @@
+"""Seeing or steering: a trained run's tracking error beside its own estimate of that error (the auxiliary head,
+NetworkConfig.aux_outputs = 3, fitted in training to the true tracking error), per camera axis, per target.
+
+If the head's estimate is far better than the tracking (estimate error std << tracking error std, correlation near
+1), the agent knows where the target is and fails to act on it; if they are alike (correlation near 0), what it
+holds of the target's position is no better than its tracking.
+
+    python scripts/aux_error.py runs/quick_now/seed_0 --targets val --episodes 8
+
+Steps before --skip (the approach) are left out; only steps with the target still tracked count. Metres.
+"""
+
+from __future__ import annotations
+
+import argparse
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ramavt_jax import env as env_lib
+from ramavt_jax import targets as targets_lib
+from ramavt_jax.evaluation import runs
+from ramavt_jax.network import initial_state, make_network, record_action
+
+
+def rollout(run: runs.LoadedRun, target: str, key: jax.Array, episodes: int, steps: int):
+    """Greedy episodes of one target. Returns (true error, estimated error, alive), each [episodes, steps(, 3)]:
+    target centre minus desired point (camera frame, metres of stand-off; the estimate is the aux head's)."""
+    cfg = run.config
+    env = env_lib.TrackingEnv(env_lib.EnvConfig(camera=cfg.env.camera, obs_mode=cfg.env.obs_mode, targets=(target,)))
+    params = env.eval_params()
+    net = make_network(cfg.network)
+    standoff = params.desired_pos[2]
+
+    def episode(k):
+        k_reset, k_steps = jax.random.split(k)
+        obs, state = env.reset(k_reset, params)
+        net_state = initial_state(cfg.network, 1, tuple(cfg.env.obs_shape))
+
+        def body(carry, k_step):
+            obs, state, net_state, first, alive = carry
+            (q, net_state), sown = net.apply({"params": run.params}, obs[None, None], first[None, None], net_state,
+                                             mutable=["intermediates"])
+            estimate = sown["intermediates"]["aux"][0][0, 0] * standoff
+            truth = env_lib.relative_position(state) / state.scale - params.desired_pos
+            action = jnp.argmax(q[0, 0]).astype(jnp.int32)
+            net_state = record_action(net_state, action[None])
+            obs, state, _, terminated, truncated, _ = env.step_env(k_step, state, action, params)
+            return (obs, state, net_state, jnp.zeros((), bool), alive & ~(terminated | truncated)), \
+                (truth, estimate, alive)
+
+        carry = (obs, state, net_state, jnp.ones((), bool), jnp.ones((), bool))
+        return jax.lax.scan(body, carry, jax.random.split(k_steps, steps))[1]
+
+    return jax.jit(jax.vmap(episode))(jax.random.split(key, episodes))
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("run", help="a training run folder whose network has the auxiliary head")
+    ap.add_argument("--targets", default="val", help="a split of targets_lib.split: val (default), test, ...")
+    ap.add_argument("--episodes", type=int, default=8, help="episodes per target")
+    ap.add_argument("--steps", type=int, default=1000)
+    ap.add_argument("--skip", type=int, default=100, help="steps of each episode left out (the approach)")
+    ap.add_argument("--seed", type=int, default=5)
+    args = ap.parse_args()
+    run = runs.load_policy(args.run)
+    if not run.config.network.aux_outputs:
+        raise SystemExit(f"{args.run}: its network has no auxiliary head (NetworkConfig.aux_outputs = 0)")
+    print(f"{'target':15s} tracking error std x/y/z (m)   estimate error std x/y/z (m)   corr(est, e) x/y/z"
+          f"      mean |e|  mean |est - e|")
+    for name in targets_lib.split(args.targets):
+        truth, estimate, alive = (np.asarray(a) for a in rollout(run, name, jax.random.PRNGKey(args.seed),
+                                                                  args.episodes, args.steps))
+        keep = alive[:, args.skip:]
+        e, est = truth[:, args.skip:][keep], estimate[:, args.skip:][keep]  # [n, 3]
+        miss = est - e
+        corr = [np.corrcoef(est[:, i], e[:, i])[0, 1] for i in range(3)]
+        print(f"{name:15s} {str(np.round(e.std(0), 3)):30s} {str(np.round(miss.std(0), 3)):30s} "
+              f"{str(np.round(corr, 2)):24s}"
+              f"{np.linalg.norm(e, axis=1).mean():8.3f}  {np.linalg.norm(miss, axis=1).mean():.3f}")
+
+
+if __name__ == "__main__":
+    main()
