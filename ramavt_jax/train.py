@@ -224,10 +224,12 @@ class Trainer:
         loss, aux = td_loss(q_online, prepared.td, self.td)
         mask = prepared.td.mask.astype(jnp.float32)
         masked_mean = lambda x: (x * mask).sum() / jnp.maximum(mask.sum(), 1.0)  # noqa: E731 (over [B, T])
+        aux_loss = jnp.zeros(())
         if self.config.learner.aux_weight:  # the aux head's squared error at the trained obs (LearnerConfig)
             miss = jnp.square(sown["intermediates"]["aux"][0][:, :-1] - prepared.privileged[:, :-1]).sum(-1)
-            loss = loss + self.config.learner.aux_weight * masked_mean(miss)
-        aux = dict(aux, q_mean=masked_mean(aux["q_taken"]))
+            aux_loss = masked_mean(miss)
+            loss = loss + self.config.learner.aux_weight * aux_loss
+        aux = dict(aux, q_mean=masked_mean(aux["q_taken"]), aux_loss=aux_loss)
         return loss, aux
 
     def loss(self, params, target_params, batch: replay_lib.SequenceBatch, key: jax.Array):
@@ -254,8 +256,8 @@ class Trainer:
         else:
             target = optax.periodic_update(params, learner.target_params, n, c.target_period)
         new = LearnerState(params=params, target_params=target, opt_state=opt_state, updates=n)
-        return new, LearnStats(loss=loss, q_mean=aux["q_mean"], grad_norm=optax.tree.norm(grads),
-                               updates=jnp.ones((), jnp.int32))
+        return new, LearnStats(loss=loss, aux_loss=aux["aux_loss"], q_mean=aux["q_mean"],
+                               grad_norm=optax.tree.norm(grads), updates=jnp.ones((), jnp.int32))
 
     def learn(self, learner: LearnerState, replay_state, env_steps: jax.Array, key: jax.Array):
         """``updates_per_iteration`` steps if the replay is ready, else none. Returns (learner, summed LearnStats)."""
@@ -269,7 +271,7 @@ class Trainer:
 
         def skip(learner):
             z = jnp.zeros(())
-            return learner, LearnStats(loss=z, q_mean=z, grad_norm=z, updates=jnp.zeros((), jnp.int32))
+            return learner, LearnStats(loss=z, aux_loss=z, q_mean=z, grad_norm=z, updates=jnp.zeros((), jnp.int32))
 
         return jax.lax.cond(ready, do, skip, learner)
 
@@ -282,7 +284,8 @@ class Trainer:
         env_steps = runner.env_steps + self.config.env_steps_per_iteration
         learner, learned = self.learn(runner.learner, replay_state, env_steps, k_learn)
         metrics = ChunkMetrics(episodes=stats.episodes, episode_length_sum=stats.length_sum,
-                               episode_return_sum=stats.return_sum, loss_sum=learned.loss, q_sum=learned.q_mean,
+                               episode_return_sum=stats.return_sum, loss_sum=learned.loss,
+                               aux_loss_sum=learned.aux_loss, q_sum=learned.q_mean,
                                grad_norm_sum=learned.grad_norm, updates=learned.updates, epsilon=eps,
                                env_steps=env_steps)
         runner = runner.replace(learner=learner, actor=actor, replay=replay_state, key=key, env_steps=env_steps)

@@ -61,6 +61,7 @@ class ChunkMetrics:
     episode_length_sum: jax.Array
     episode_return_sum: jax.Array  # unscaled env reward
     loss_sum: jax.Array
+    aux_loss_sum: jax.Array  # the auxiliary head's unweighted squared error per update, summed
     q_sum: jax.Array  # mean taken Q per update, summed
     grad_norm_sum: jax.Array
     updates: jax.Array  # gradient steps done this iteration
@@ -81,7 +82,8 @@ class EpisodeStats:
 class LearnStats:
     """One gradient step (``update``), or the sums over an iteration's steps (``learn``): all ``[]``."""
 
-    loss: jax.Array
+    loss: jax.Array  # the TD loss plus the weighted auxiliary loss
+    aux_loss: jax.Array  # the auxiliary head's squared error, unweighted (0 without the head)
     q_mean: jax.Array  # mean taken Q over the trained transitions
     grad_norm: jax.Array
     updates: jax.Array  # int32 gradient steps

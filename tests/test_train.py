@@ -143,7 +143,7 @@ def test_every_variant_observation_and_augmentation_traces(variant, obs_mode, au
     state = jax.eval_shape(tr.init, jax.ShapeDtypeStruct((2,), jnp.uint32))
     out, metrics = jax.eval_shape(tr.chunk, state)
     assert out.actor.obs.shape == (cfg.acting.num_envs, 16, 16, env_lib.OBS_CHANNELS[obs_mode])
-    assert metrics.loss_sum.shape == (cfg.run.iterations_per_chunk,)
+    assert metrics.loss_sum.shape == metrics.aux_loss_sum.shape == (cfg.run.iterations_per_chunk,)
     assert jax.tree.structure(out) == jax.tree.structure(state)
 
 
@@ -302,6 +302,11 @@ def test_auxiliary_loss_labels_are_the_true_tracking_error_and_train_the_aux_hea
     prepared = tr.prepare(params, params, _as_batch(window, cfg), jax.random.PRNGKey(0))
     grads = jax.grad(lambda p: tr.trained_loss(p, prepared)[0])(params)
     assert float(jnp.abs(grads["aux_head"]["kernel"]).sum()) > 0
+    # The logged aux loss is the unweighted term the loss adds: weight 3 adds twice it more than weight 1.
+    loss_w1, logged = tr.trained_loss(params, prepared)
+    loss_w3, _ = T.Trainer(cfg.override(aux_weight=3.0)).trained_loss(params, prepared)
+    assert float(logged["aux_loss"]) > 0
+    np.testing.assert_allclose(float(loss_w3 - loss_w1), 2.0 * float(logged["aux_loss"]), rtol=1e-5)
     assert "aux_head" not in jax.eval_shape(T.Trainer(SMOKE).init, jax.ShapeDtypeStruct((2,), jnp.uint32)).learner.params
 
 

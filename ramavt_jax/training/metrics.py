@@ -32,6 +32,7 @@ def aggregate(m: ChunkMetrics, wall_s: float, env_steps: int) -> dict:
         "episode_return": ratio(m.episode_return_sum.sum(), episodes),
         "updates": updates,
         "loss": ratio(m.loss_sum.sum(), updates),
+        "aux_loss": ratio(m.aux_loss_sum.sum(), updates),
         "q_mean": ratio(m.q_sum.sum(), updates),
         "grad_norm": ratio(m.grad_norm_sum.sum(), updates),
         "epsilon": float(m.epsilon[-1]),
