@@ -164,6 +164,9 @@ ARMS["aux-w10"] = lambda c: ARMS["patch-768k"](c).override(aux_weight=10.0)
 # The policy acts with the target net's Polyak average (tau 0.01, about the last 100 updates), which scored far above
 # the online params on every seed: a slower average (tau 0.005, about 200 updates), for the TD targets as well.
 ARMS["polyak-0005"] = lambda c: ARMS["patch-768k"](c).override(polyak_tau=0.005)
+# The auxiliary head barely follows the boresight error, and a tumbling target's visible surface moves about its
+# centre: more memory to average the centre's range over steps (an LSTM of 256 units instead of 128).
+ARMS["lstm256"] = lambda c: _net(ARMS["patch-768k"](c), lstm=256)
 ARMS["res64"] = lambda c: _net(ARMS["patch-768k"](c), kernels=(8, 2, 3), strides=(8, 2, 1)).override(
     env=dataclasses.replace(c.env, camera=dataclasses.replace(c.env.camera, resolution=64)))
 
