@@ -218,7 +218,8 @@ class Trainer:
                              privileged=privileged)
 
     def trained_loss(self, params, prepared: PreparedBatch):
-        """TD loss over the trained part of the window (gradient w.r.t. params only). Returns (loss, aux)."""
+        """TD loss over the trained part of the window, plus aux_weight times the auxiliary head's squared error
+        (gradient w.r.t. params only). Returns (loss, aux); aux holds q_mean and aux_loss (unweighted, 0 without)."""
         (q_online, _), sown = self.net.apply({"params": params}, prepared.obs, prepared.reset, prepared.state,
                                              actions=prepared.td.action, mutable=["intermediates"])
         loss, aux = td_loss(q_online, prepared.td, self.td)
@@ -233,8 +234,8 @@ class Trainer:
         return loss, aux
 
     def loss(self, params, target_params, batch: replay_lib.SequenceBatch, key: jax.Array):
-        """Masked TD loss of one sampled batch: burn-in without gradient, then the loss over the ``train_len``
-        transitions after it. Returns (loss, aux)."""
+        """Masked loss of one sampled batch (trained_loss): burn-in without gradient, then the loss over the
+        ``train_len`` transitions after it. Returns (loss, aux)."""
         return self.trained_loss(params, self.prepare(params, target_params, batch, key))
 
     def update(self, learner: LearnerState, replay_state, key: jax.Array):

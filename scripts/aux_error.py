@@ -7,12 +7,17 @@ holds of the target's position is no better than its tracking.
 
     python scripts/aux_error.py runs/quick_now/seed_0 --targets val --episodes 8
 
-Steps before --skip (the approach) are left out; only steps with the target still tracked count. Metres.
+The episodes fly the run's own env (its camera, dynamics and training overrides that also hold in evaluation) with
+the evaluation's rules. Steps before --skip (the approach) and after the episode ended are left out; the steps of
+up to lost_patience with the target out of view before a loss count. Errors are in metres divided by the target's
+stand-off scale k (plain metres for the catalogue's sizes).
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -20,38 +25,50 @@ import numpy as np
 
 from ramavt_jax import env as env_lib
 from ramavt_jax import targets as targets_lib
-from ramavt_jax.evaluation import runs
-from ramavt_jax.network import initial_state, make_network, record_action
+from ramavt_jax.evaluation import rollouts, runs
+from ramavt_jax.network import RecurrentState, initial_state, make_network, record_action
 
 
-def rollout(run: runs.LoadedRun, target: str, key: jax.Array, episodes: int, steps: int):
-    """Greedy episodes of one target. Returns (true error, estimated error, alive), each [episodes, steps(, 3)]:
-    target centre minus desired point (camera frame, metres of stand-off; the estimate is the aux head's)."""
+class Carry(NamedTuple):
+    obs: jax.Array  # [H, W, C]
+    state: env_lib.EnvState
+    net_state: RecurrentState  # batch of one
+    first: jax.Array  # [] bool
+    alive: jax.Array  # [] bool: the episode has not ended before this step
+
+
+class Step(NamedTuple):
+    truth: jax.Array  # [3] target centre minus desired point, camera frame, metres / k
+    estimate: jax.Array  # [3] the auxiliary head's estimate of it, same units
+    alive: jax.Array  # [] bool
+
+
+def rollout(run: runs.LoadedRun, target: str, key: jax.Array, episodes: int, steps: int) -> Step:
+    """Greedy episodes of one target, as ``Step`` arrays of [episodes, steps(, 3)]. ``truth`` is taken from the
+    state that rendered the observation the network acts on, as the auxiliary label is in training."""
     cfg = run.config
-    env = env_lib.TrackingEnv(env_lib.EnvConfig(camera=cfg.env.camera, obs_mode=cfg.env.obs_mode, targets=(target,)))
-    params = env.eval_params()
+    env = env_lib.TrackingEnv(dataclasses.replace(cfg.env, targets=(target,)))
+    params = env.eval_params(**rollouts.run_env_overrides(cfg.env_params))
     net = make_network(cfg.network)
-    standoff = params.desired_pos[2]
+    standoff = params.desired_pos[2]  # the label's unit: stand-off distances
 
     def episode(k):
         k_reset, k_steps = jax.random.split(k)
         obs, state = env.reset(k_reset, params)
-        net_state = initial_state(cfg.network, 1, tuple(cfg.env.obs_shape))
+        start = Carry(obs, state, initial_state(cfg.network, 1, tuple(cfg.env.obs_shape)), jnp.ones((), bool),
+                      jnp.ones((), bool))
 
-        def body(carry, k_step):
-            obs, state, net_state, first, alive = carry
-            (q, net_state), sown = net.apply({"params": run.params}, obs[None, None], first[None, None], net_state,
-                                             mutable=["intermediates"])
-            estimate = sown["intermediates"]["aux"][0][0, 0] * standoff
-            truth = env_lib.relative_position(state) / state.scale - params.desired_pos
+        def body(c: Carry, k_step):
+            (q, net_state), sown = net.apply({"params": run.params}, c.obs[None, None], c.first[None, None],
+                                             c.net_state, mutable=["intermediates"])
+            step = Step(truth=env_lib.relative_position(c.state) / c.state.scale - params.desired_pos,
+                        estimate=sown["intermediates"]["aux"][0][0, 0] * standoff, alive=c.alive)
             action = jnp.argmax(q[0, 0]).astype(jnp.int32)
-            net_state = record_action(net_state, action[None])
-            obs, state, _, terminated, truncated, _ = env.step_env(k_step, state, action, params)
-            return (obs, state, net_state, jnp.zeros((), bool), alive & ~(terminated | truncated)), \
-                (truth, estimate, alive)
+            obs, state, _, terminated, truncated, _ = env.step_env(k_step, c.state, action, params)
+            return Carry(obs, state, record_action(net_state, action[None]), jnp.zeros((), bool),
+                         c.alive & ~(terminated | truncated)), step
 
-        carry = (obs, state, net_state, jnp.ones((), bool), jnp.ones((), bool))
-        return jax.lax.scan(body, carry, jax.random.split(k_steps, steps))[1]
+        return jax.lax.scan(body, start, jax.random.split(k_steps, steps))[1]
 
     return jax.jit(jax.vmap(episode))(jax.random.split(key, episodes))
 
@@ -71,8 +88,9 @@ def main() -> None:
     print(f"{'target':15s} tracking error std x/y/z (m)   estimate error std x/y/z (m)   corr(est, e) x/y/z"
           f"      mean |e|  mean |est - e|")
     for name in targets_lib.split(args.targets):
-        truth, estimate, alive = (np.asarray(a) for a in rollout(run, name, jax.random.PRNGKey(args.seed),
-                                                                  args.episodes, args.steps))
+        steps = jax.tree.map(np.asarray, rollout(run, name, jax.random.PRNGKey(args.seed), args.episodes,
+                                                 args.steps))
+        truth, estimate, alive = steps.truth, steps.estimate, steps.alive
         keep = alive[:, args.skip:]
         e, est = truth[:, args.skip:][keep], estimate[:, args.skip:][keep]  # [n, 3]
         miss = est - e

@@ -154,8 +154,8 @@ ARMS["size-half"] = lambda c: ARMS["size-small"](c).override(env_params={"size_s
 ARMS["replay-256k"] = lambda c: ARMS["patch-768k"](c).override(capacity_steps=256_000)
 ARMS["eps-100k"] = lambda c: ARMS["patch-768k"](c).override(eps_decay_steps=100_000)
 # The actions' Q-values differ by a few cm of distance keeping (0.1 s at 1 m/s), small against the values
-# themselves: advantage learning (alpha 0.9) lowers the targets of worse actions (started on the earlier network,
-# never finished). The auxiliary head's estimate of the tracking error correlates weakly with the true error along
+# themselves: advantage learning (alpha 0.9) lowers the targets of worse actions (not measured on an earlier
+# network). The auxiliary head's estimate of the tracking error correlates weakly with the true error along
 # the boresight (scripts/aux_error.py); its loss (squared error in stand-off units: about 0.003 from the estimate
 # errors measured, of a total loss near 0.009 at the end of training) weighted 10x shapes the encoder and memory
 # more towards where the target is.

@@ -1,5 +1,6 @@
 """Where a policy's distance penalty comes from: the target centre's camera-frame position error, split into its
-mean (bias) and its spread (std) per axis, per target of a split, after the first 100 steps (the approach).
+mean (bias) and its spread (std) per axis, per target of a split, after the first 100 steps (the approach). Metres
+divided by the target's stand-off scale k (plain metres for the catalogue's sizes, k = 1).
 
     python scripts/position_error.py mpc depth runs/quick_now/seed_0 --targets val --episodes 8
 
@@ -40,11 +41,12 @@ def main() -> None:
         tracking_env = env_lib.TrackingEnv(env_lib.EnvConfig(camera=env_lib.CameraConfig(resolution=args.resolution),
                                                              targets=(name,)))
         params = tracking_env.eval_params()
+        k = float(tracking_env.initial_state(jax.random.PRNGKey(0), params).scale)  # stand-off scale: 1 unless resized
         for spec, policy in policies.items():
             stats, rec = rollouts.run_episodes(tracking_env, policy, params, jax.random.PRNGKey(5), args.episodes,
                                                record=True)
             alive = np.asarray(rec.alive)[args.skip:]
-            err = (np.asarray(rec.rel_pos) - np.asarray(params.desired_pos))[args.skip:][alive]  # [steps, 3]
+            err = (np.asarray(rec.rel_pos) / k - np.asarray(params.desired_pos))[args.skip:][alive]  # [steps, 3]
             bias, std = np.round(err.mean(0), 2), np.round(err.std(0), 2)
             print(f"{name:13s} {spec[-24:]:24s} {float(stats.length.mean()):6.1f} "
                   f"{float(stats.episode_return.mean()):7.1f}  {str(bias):20s} {str(std):18s} "

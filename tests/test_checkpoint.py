@@ -14,7 +14,7 @@ from ramavt_jax import train as T
 from ramavt_jax import train_state
 from ramavt_jax import train_config
 from ramavt_jax.experiment import train_and_evaluate
-from ramavt_jax.training import driver, run_folder
+from ramavt_jax.training import driver, metrics, run_folder
 from ramavt_jax.training.checkpoint import CheckpointNotFoundError, CheckpointStore, has_checkpoint
 
 SMOKE = train_config.preset("smoke", eval_episodes=0, checkpoint_every_chunks=1)
@@ -135,6 +135,13 @@ def test_metrics_are_strict_json(full_run):
     for line in text.splitlines():
         json.loads(line, parse_constant=lambda c: pytest.fail(f"non-standard JSON constant {c}"))
     assert any(line.count("null") for line in text.splitlines())  # chunks without finished episodes
+
+
+def test_the_loss_is_split_where_there_is_an_auxiliary_head(full_run):
+    assert all("aux_loss" not in r and "td_loss" not in r for r in _rows(Path(full_run["out_dir"]) / "metrics.jsonl"))
+    record = {"loss": 0.5, "aux_loss": 0.1}
+    assert metrics.split_loss(record, 3.0) == {"loss": 0.5, "aux_loss": 0.1, "td_loss": pytest.approx(0.2)}
+    assert metrics.split_loss(record, 0.0) == {"loss": 0.5} and record == {"loss": 0.5, "aux_loss": 0.1}
 
 
 def test_other_config_is_refused_before_writing_and_a_run_can_be_extended(tmp_path, full_run):

@@ -25,7 +25,7 @@ from ramavt_jax.training import run_folder as folders
 from ramavt_jax.training.program import _compiled, _Program
 from ramavt_jax.training.checkpoint import CheckpointError, CheckpointNotFoundError, CheckpointStore, has_checkpoint
 from ramavt_jax.training.interrupts import StopSignals, TrainingInterrupted
-from ramavt_jax.training.metrics import Log, aggregate, diverged
+from ramavt_jax.training.metrics import Log, aggregate, diverged, split_loss
 
 __all__ = ["run", "RunSummary", "aggregate", "read_metrics", "TrainingInterrupted"]
 
@@ -159,6 +159,7 @@ class _Loop:
         for k in range(num_seeds):
             record = {"chunk": self.chunk_no, **aggregate(_seed_slice(m, k, num_seeds), wall, c.env_steps_per_chunk)}
             record["trained_frames_per_s"] = record["updates_per_s"] * c.replay.batch_size * c.replay.train_len
+            record = split_loss(record, c.learner.aux_weight)
             record["compile_s"] = self.prog.compile_s
             if num_seeds > 1:
                 record["seeds_in_program"] = num_seeds

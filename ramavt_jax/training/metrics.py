@@ -13,7 +13,7 @@ from ramavt_jax.train_state import ChunkMetrics
 from ramavt_jax.train_config import TrainConfig
 from ramavt_jax.training import run_folder as folders
 
-__all__ = ["aggregate", "diverged", "Log"]
+__all__ = ["aggregate", "split_loss", "diverged", "Log"]
 
 
 def aggregate(m: ChunkMetrics, wall_s: float, env_steps: int) -> dict:
@@ -40,6 +40,17 @@ def aggregate(m: ChunkMetrics, wall_s: float, env_steps: int) -> dict:
         "env_steps_per_s": env_steps / wall_s,
         "updates_per_s": updates / wall_s,
     }
+
+
+def split_loss(record: dict, aux_weight: float) -> dict:
+    """The record with its loss told apart: ``td_loss`` beside ``loss = td_loss + aux_weight * aux_loss`` when the run
+    has an auxiliary head, else without ``aux_loss`` (its 0 would read as a perfect fit)."""
+    record = dict(record)
+    if aux_weight:
+        record["td_loss"] = record["loss"] - aux_weight * record["aux_loss"]
+    else:
+        record.pop("aux_loss", None)
+    return record
 
 
 def diverged(record: dict) -> bool:
