@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-from typing import NamedTuple
+from typing import Callable, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -43,26 +43,32 @@ class Step(NamedTuple):
     alive: jax.Array  # [] bool
 
 
-def rollout(run: runs.LoadedRun, target: str, key: jax.Array, episodes: int, steps: int) -> Step:
-    """Greedy episodes of one target, as ``Step`` arrays of [episodes, steps(, 3)]. ``truth`` is taken from the
-    state that rendered the observation the network acts on, as the auxiliary label is in training."""
-    cfg = run.config
-    env = env_lib.TrackingEnv(dataclasses.replace(cfg.env, targets=(target,)))
-    params = env.eval_params(**rollouts.run_env_overrides(cfg.env_params))
-    net = make_network(cfg.network)
-    standoff = params.desired_pos[2]  # the label's unit: stand-off distances
+class Rollout(NamedTuple):
+    env: env_lib.TrackingEnv  # the run's env over the targets asked for
+    params: env_lib.EnvParams  # its evaluation params (pin a target with env.pinned)
+    run: Callable  # (params, network params, key) -> Step arrays [episodes, steps(, 3)], compiled once
 
-    def episode(k):
+
+def make_rollout(run: runs.LoadedRun, targets: tuple[str, ...], episodes: int, steps: int) -> Rollout:
+    """Greedy episodes of the run's network on its own env over ``targets``, one compiled program for all of them
+    (the target is chosen by the params). ``truth`` is taken from the state that rendered the observation the network
+    acts on, as the auxiliary label is in training."""
+    cfg = run.config
+    env = env_lib.TrackingEnv(dataclasses.replace(cfg.env, targets=tuple(targets)))
+    net = make_network(cfg.network)
+
+    def episode(params: env_lib.EnvParams, net_params, k: jax.Array) -> Step:
         k_reset, k_steps = jax.random.split(k)
         obs, state = env.reset(k_reset, params)
         start = Carry(obs, state, initial_state(cfg.network, 1, tuple(cfg.env.obs_shape)), jnp.ones((), bool),
                       jnp.ones((), bool))
 
         def body(c: Carry, k_step):
-            (q, net_state), sown = net.apply({"params": run.params}, c.obs[None, None], c.first[None, None],
+            (q, net_state), sown = net.apply({"params": net_params}, c.obs[None, None], c.first[None, None],
                                              c.net_state, mutable=["intermediates"])
             step = Step(truth=env_lib.relative_position(c.state) / c.state.scale - params.desired_pos,
-                        estimate=sown["intermediates"]["aux"][0][0, 0] * standoff, alive=c.alive)
+                        estimate=sown["intermediates"]["aux"][0][0, 0] * params.desired_pos[2],  # stand-off units
+                        alive=c.alive)
             action = jnp.argmax(q[0, 0]).astype(jnp.int32)
             obs, state, _, terminated, truncated, _ = env.step_env(k_step, c.state, action, params)
             return Carry(obs, state, record_action(net_state, action[None]), jnp.zeros((), bool),
@@ -70,7 +76,10 @@ def rollout(run: runs.LoadedRun, target: str, key: jax.Array, episodes: int, ste
 
         return jax.lax.scan(body, start, jax.random.split(k_steps, steps))[1]
 
-    return jax.jit(jax.vmap(episode))(jax.random.split(key, episodes))
+    def run_all(params, net_params, key):
+        return jax.vmap(episode, in_axes=(None, None, 0))(params, net_params, jax.random.split(key, episodes))
+
+    return Rollout(env, env.eval_params(**rollouts.run_env_overrides(cfg.env_params)), jax.jit(run_all))
 
 
 def main() -> None:
@@ -87,9 +96,11 @@ def main() -> None:
         raise SystemExit(f"{args.run}: its network has no auxiliary head (NetworkConfig.aux_outputs = 0)")
     print(f"{'target':15s} tracking error std x/y/z (m)   estimate error std x/y/z (m)   corr(est, e) x/y/z"
           f"      mean |e|  mean |est - e|")
-    for name in targets_lib.split(args.targets):
-        steps = jax.tree.map(np.asarray, rollout(run, name, jax.random.PRNGKey(args.seed), args.episodes,
-                                                 args.steps))
+    names = targets_lib.split(args.targets)
+    rollout = make_rollout(run, names, args.episodes, args.steps)
+    for index, name in enumerate(names):
+        pinned = rollout.env.pinned(rollout.params, index)
+        steps = jax.tree.map(np.asarray, rollout.run(pinned, run.params, jax.random.PRNGKey(args.seed)))
         truth, estimate, alive = steps.truth, steps.estimate, steps.alive
         keep = alive[:, args.skip:]
         e, est = truth[:, args.skip:][keep], estimate[:, args.skip:][keep]  # [n, 3]
