@@ -379,7 +379,7 @@ PRESETS = {"quick": _quick, "sizes": _sizes, "long": _long, "paper": _paper, "sm
 
 
 def preset(name: str, **overrides: Any) -> TrainConfig:
-    """A named configuration ('quick' | 'sizes' | 'long' | 'paper' | 'smoke'); keyword overrides as in TrainConfig.override."""
+    """A named configuration (a key of PRESETS); keyword overrides as in TrainConfig.override."""
     if name not in PRESETS:
         raise ValueError(f"unknown preset {name!r}; choose one of {sorted(PRESETS)}")
     cfg = PRESETS[name]()

@@ -93,7 +93,8 @@ def main(argv=None) -> None:
         ci = f"[{s['return_ci_low']:.1f}, {s['return_ci_high']:.1f}]" if s["return_ci_low"] is not None else "-"
         p_up = f"{statistics.probability_of_improvement(scores, previous):.2f}" if previous is not None else "-"
         per = " | ".join(f"{v:+.0f}" for v in scores.mean(axis=0))
-        print(f"| {arm.name} | {scores.shape[0]} | {s['return_mean']:+.1f} | {ci} | {s['return_sample_std_over_runs']:.1f} "
+        print(f"| {arm.name} | {scores.shape[0]} | {s['return_mean']:+.1f} | {ci} "
+              f"| {s['return_sample_std_over_runs']:.1f} "
               f"| {frac} | {100 * s['lost_fraction_over_runs']:.1f} % | {p_up} | {per} |")
         previous = scores
 

@@ -300,11 +300,10 @@ def test_auxiliary_loss_labels_are_the_true_tracking_error_and_train_the_aux_hea
     window = _window(jax.random.PRNGKey(1), cfg).replace(
         privileged=jax.random.normal(jax.random.PRNGKey(2), (cfg.replay.batch_size, cfg.sequence_length, 3)))
     prepared = tr.prepare(params, params, _as_batch(window, cfg), jax.random.PRNGKey(0))
-    grads = jax.grad(lambda p: tr.trained_loss(p, prepared)[0])(params)
+    (loss_w1, logged_w1), grads = jax.value_and_grad(tr.trained_loss, has_aux=True)(params, prepared)
     assert float(jnp.abs(grads["aux_head"]["kernel"]).sum()) > 0
     # The logged aux loss is the unweighted term the loss adds: the same at weights 1 and 3, where weight 3 adds
     # twice it more.
-    loss_w1, logged_w1 = tr.trained_loss(params, prepared)
     loss_w3, logged_w3 = T.Trainer(cfg.override(aux_weight=3.0)).trained_loss(params, prepared)
     assert float(logged_w1["aux_loss"]) > 0
     np.testing.assert_allclose(float(logged_w3["aux_loss"]), float(logged_w1["aux_loss"]), rtol=1e-6)

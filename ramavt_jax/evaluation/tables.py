@@ -289,7 +289,8 @@ def to_markdown(result: dict, command: str = "") -> str:
         f"- targets ({len(s['targets'])}): {', '.join(s['targets'])}",
         f"- episodes per target: {s['episodes_per_target']} (vmapped; {s['episodes_per_target'] * len(s['targets'])} "
         f"per row and setting), seed {s['seed']}, same initial states for every policy",
-        f"- settings: reward dist_weight {task.get('dist_weight', 1.0):g}, lost after > {task.get('lost_patience', 20):g} "
+        f"- settings: reward dist_weight {task.get('dist_weight', 1.0):g}, "
+        f"lost after > {task.get('lost_patience', 20):g} "
         f"consecutive lost steps, command speed x max(1, k) ** {task.get('speed_standoff_power', 0.0):g} x "
         f"min(1, k) ** {task.get('small_standoff_power', 0.0):g} (k: stand-off scale), max {s['max_steps']} steps, "
         f"greedy policies",

@@ -13,8 +13,8 @@ import numpy as np
 from ramavt_jax.figures import pyplot, save_figure
 from ramavt_jax.training import run_folder as folders
 
-CURVE_KEYS = (("episode_length", "episode length"), ("episode_return", "episode return"), ("loss", "loss (TD + weighted aux)"),
-              ("q_mean", "mean Q"))
+CURVE_KEYS = (("episode_length", "episode length"), ("episode_return", "episode return"),
+              ("loss", "loss (TD + weighted aux)"), ("q_mean", "mean Q"))
 RUN_CURVE_KEYS = CURVE_KEYS + (("epsilon", "epsilon"),)  # one run's own training_curves.png
 _SEED_SUFFIX = re.compile(r"[-_.]?(s|seed)\d+$", re.IGNORECASE)
 
