@@ -137,6 +137,16 @@ def with_hit_mask(x: jax.Array) -> jax.Array:
     return jnp.concatenate([x, (jnp.max(x, axis=-1, keepdims=True) > 0).astype(x.dtype)], axis=-1)
 
 
+def with_depth_rescaled(x: jax.Array, hit: jax.Array, centre: float, gain: float) -> jax.Array:
+    """[N, H, W, C] -> the same with the depth channel (the last; C = 1 'depth' or 4 'rgbd') of the hit pixels
+    (hit [N, H, W, 1], 1 on the target) mapped to (depth - centre) * gain; the background stays 0."""
+    if x.shape[-1] not in (1, 4):
+        raise ValueError(f"depth_centre / depth_gain need a depth channel (1 'depth' or 4 'rgbd' channels), got "
+                         f"{x.shape[-1]} channels")
+    depth = (x[..., -1:] - centre) * gain * hit
+    return jnp.concatenate([x[..., :-1], depth], axis=-1)
+
+
 def coordinate_planes(h: int, w: int, dtype=jnp.float32) -> jax.Array:
     """[H, W, 2]: the column and the row coordinate of each pixel in [-1, 1] (CoordConv)."""
     cols = jnp.broadcast_to(jnp.linspace(-1.0, 1.0, w, dtype=dtype)[None, :], (h, w))
@@ -167,6 +177,9 @@ class Encoder(nn.Module):
         planes = None
         if cfg.coord_channels:  # the hit mask joins the frame; the coordinate planes go to the first conv apart
             x, planes = with_hit_mask(x), coordinate_planes(*x.shape[1:3], dtype)
+            if cfg.rescales_depth:  # the mask (last channel now) was taken from the raw frame, before centring
+                x = jnp.concatenate([with_depth_rescaled(x[..., :-1], x[..., -1:], cfg.depth_centre,
+                                                         cfg.depth_gain), x[..., -1:]], axis=-1)
         n_blocks = len(cfg.channels)
         skip = None
         for i, (ch, k, s, p) in enumerate(zip(cfg.channels, cfg.kernels, cfg.strides, cfg.pools)):

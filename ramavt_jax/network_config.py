@@ -43,6 +43,13 @@ class NetworkConfig:
     # followed by a per-frame LayerNorm is exactly invariant to a global scaling of the depth image.
     coord_channels: bool = False  # append a hit mask and the pixel coordinates in [-1, 1] to the input channels
     pooled_skip: bool = False  # append the spatial mean of block 1's activations, taken BEFORE its norm, to the output
+    # The depth channel on the target's pixels as (depth - depth_centre) * depth_gain before the first conv (the
+    # background stays 0; needs coord_channels, whose hit mask then tells a pixel at depth_centre from the
+    # background). In depth / far units a 0.1 m range change at the 5 m stand-off is 0.005 (far 20 m), too small for
+    # the first layer's initial weights (std about 1/8) and a few thousand Adam steps to amplify: centre 0.25 and
+    # gain 20 give metres from the stand-off. 0 and 1: the observation as it is.
+    depth_centre: float = 0.0
+    depth_gain: float = 1.0
     prev_action: bool = False  # R2D2's LSTM input: the previous action (one-hot; a 'none' entry at episode starts)
     # A linear head of this many outputs on the LSTM output, sown as intermediates 'aux' (apply with
     # mutable=["intermediates"]): the trainer fits it to the true tracking error (LearnerConfig.aux_weight). 0 = none.
@@ -89,6 +96,15 @@ class NetworkConfig:
             fail(f"aux_outputs must be an integer >= 0, got {self.aux_outputs!r}")
         if self.aux_outputs and not self.recurrent:
             fail("aux_outputs needs a recurrent variant (the head reads the LSTM output), not 'drlavt'")
+        for name in ("depth_centre", "depth_gain"):
+            v = getattr(self, name)
+            if not isinstance(v, (int, float, np.floating, np.integer)) or isinstance(v, bool) or not np.isfinite(v):
+                fail(f"{name} must be a finite number, got {v!r}")
+        if not self.depth_gain > 0:
+            fail(f"depth_gain must be > 0 (1 = the observation as it is), got {self.depth_gain!r}")
+        if self.rescales_depth and not self.coord_channels:
+            fail("depth_centre / depth_gain need coord_channels=True: once centred, a target pixel at depth_centre "
+                 "reads 0 like the background, and only the hit mask tells them apart")
         if self.prev_action and not self.recurrent:
             fail("prev_action needs a recurrent variant (the previous action is an LSTM input), not 'drlavt'")
         if self.use_mha and self.channels[-1] % self.attention_heads != 0:
@@ -105,6 +121,10 @@ class NetworkConfig:
     @property
     def use_mha(self) -> bool:
         return self.variant in ("ramavt", "mha")
+
+    @property
+    def rescales_depth(self) -> bool:
+        return self.depth_centre != 0 or self.depth_gain != 1
 
     @property
     def recurrent(self) -> bool:

@@ -167,6 +167,10 @@ ARMS["polyak-0005"] = lambda c: ARMS["patch-768k"](c).override(polyak_tau=0.005)
 # The auxiliary head barely follows the boresight error, and a tumbling target's visible surface moves about its
 # centre: more memory to average the centre's range over steps (an LSTM of 256 units instead of 128).
 ARMS["lstm256"] = lambda c: _net(ARMS["patch-768k"](c), lstm=256)
+# Perception along the boresight: in depth / far units a 0.1 m range change at the stand-off is 0.005, which the
+# first layer and a few thousand updates barely amplify; the depth of the target's pixels in metres from the
+# stand-off instead (NetworkConfig.depth_centre / depth_gain).
+ARMS["depth-metres"] = lambda c: _net(ARMS["patch-768k"](c), depth_centre=0.25, depth_gain=20.0)
 ARMS["res64"] = lambda c: _net(ARMS["patch-768k"](c), kernels=(8, 2, 3), strides=(8, 2, 1)).override(
     env=dataclasses.replace(c.env, camera=dataclasses.replace(c.env.camera, resolution=64)))
 

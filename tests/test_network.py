@@ -426,6 +426,57 @@ def test_coordinate_encoder_equals_plain_encoder_on_appended_channels():
     np.testing.assert_allclose(folded, appended, atol=1e-5)
 
 
+def test_rescaled_depth_encoder_equals_plain_encoder_on_rescaled_channels():
+    """depth_centre / depth_gain: the encoder gives what the plain encoder gives on the frame built by hand as
+    [(depth - centre) * gain on the target, 0 elsewhere; hit mask of the raw frame; coordinate planes] (same
+    parameters); the mask comes from the raw frame, so a target pixel exactly at the centre is still a hit."""
+    from ramavt_jax.network import Encoder, coordinate_planes
+
+    cfg = small("ramavt", coord_channels=True, pooled_skip=True, depth_centre=0.25, depth_gain=20.0)
+    plain = dataclasses.replace(cfg, coord_channels=False, depth_centre=0.0, depth_gain=1.0)
+    raw = np.asarray(_silhouette(0.3)).repeat(3, axis=0)
+    raw[1, 10:14, 10:14, 0] = 0.25  # on the target, exactly at the centre
+    hit = (raw > 0).astype(np.float32)
+    planes = np.broadcast_to(np.asarray(coordinate_planes(32, 32)), (3, 32, 32, 2))
+    by_hand = np.concatenate([(raw - 0.25) * 20.0 * hit, hit, planes], axis=-1)
+    params = init_params(cfg, jax.random.key(0), raw.shape[1:])["params"]["encoder"]
+    rescaled = jax.jit(Encoder(cfg).apply)({"params": params}, jnp.asarray(raw))
+    appended = jax.jit(Encoder(plain).apply)({"params": params}, jnp.asarray(by_hand))
+    np.testing.assert_allclose(rescaled, appended, atol=1e-5)
+
+
+def test_rescaled_depth_makes_a_small_range_change_visible_before_the_norm():
+    """A 0.1 m range change at the 5 m stand-off (depth 0.25 -> 0.255 in depth / far units): with centre 0.25 and
+    gain 20 the pre-norm pooled skip moves about 20x as much as on the raw depth (same parameters)."""
+    from ramavt_jax.network import Encoder
+
+    cfg = small("ramavt", coord_channels=True, pooled_skip=True)
+    rescaled = dataclasses.replace(cfg, depth_centre=0.25, depth_gain=20.0)
+    params = {"params": init_params(cfg, jax.random.key(0), (32, 32, 1))["params"]["encoder"]}
+    c1 = cfg.channels[0]
+    skip = lambda c, x: Encoder(c).apply(params, x)[:, -c1:]  # noqa: E731
+    change = lambda c: float(jnp.linalg.norm(skip(c, _silhouette(0.255)) - skip(c, _silhouette(0.25))))  # noqa: E731
+    assert change(rescaled) > 10 * change(cfg), (change(rescaled), change(cfg))
+
+
+@pytest.mark.parametrize("kw, message", [
+    (dict(depth_gain=0.0), "depth_gain must be > 0"),
+    (dict(depth_centre=float("nan")), "depth_centre must be a finite number"),
+    (dict(depth_centre=0.25, coord_channels=False), "need coord_channels=True"),
+])
+def test_depth_rescaling_config_is_validated(kw, message):
+    with pytest.raises(ValueError, match=message):
+        small("ramavt", **{"coord_channels": True, **kw})
+
+
+def test_depth_rescaling_needs_a_depth_channel():
+    from ramavt_jax.network import with_depth_rescaled
+
+    x = jnp.ones((1, 4, 4, 3))
+    with pytest.raises(ValueError, match="need a depth channel"):
+        with_depth_rescaled(x, x[..., :1], 0.25, 20.0)
+
+
 @pytest.mark.parametrize("backend", ["cpu", "gpu"])
 def test_hybrid_conv_vmapped_over_kernels_equals_each_kernel(backend, monkeypatch):
     """vmapped over seeds (kernels batched), the hybrid conv runs one convolution per kernel on CPU instead of XLA's
