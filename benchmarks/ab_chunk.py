@@ -84,7 +84,7 @@ def main(argv=None) -> None:
     p.add_argument("--seeds", type=int, default=1)
     p.add_argument("--rounds", type=int, default=3)
     p.add_argument("--act-only", action="store_true")
-    p.add_argument("--out", default="benchmarks/results_ab_chunk.json")
+    p.add_argument("--out", default=str(Path(__file__).resolve().parent / "results_ab_chunk.json"))
     a = p.parse_args(argv)
     if a.seeds < 1 or a.rounds < 1:
         p.error("--seeds and --rounds must be >= 1")

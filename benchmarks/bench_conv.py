@@ -129,7 +129,7 @@ def main(argv=None) -> None:
     p.add_argument("--seeds", type=int, default=1, help="vmap the layers over this many seeds' kernels")
     p.add_argument("--rounds", type=int, default=15)
     p.add_argument("--skip-update", action="store_true", help="only the layers")
-    p.add_argument("--out", default="benchmarks/results_conv.json")
+    p.add_argument("--out", default=str(Path(__file__).resolve().parent / "results_conv.json"))
     a = p.parse_args(argv)
     if a.seeds < 1 or a.rounds < 1:
         p.error("--seeds and --rounds must be >= 1")

@@ -252,7 +252,7 @@ def _summary(points, mujoco) -> list:
 
 if __name__ == "__main__":
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--out", default="benchmarks/results_env.json", help="JSON file (a key per plan and baseline)")
+    parser.add_argument("--out", default=str(Path(__file__).resolve().parent / "results_env.json"), help="JSON file (a key per plan and baseline)")
     parser.add_argument("--quick", action="store_true")
     parser.add_argument("--gpu", action="store_true", help="accelerator sweep, 1k..64k envs (about 5-8 min)")
     parser.add_argument("--mj-check", action="store_true", help="only the step vs mj_multiRay (interleaved), 3 points")

@@ -108,7 +108,7 @@ def run(out="benchmarks/results_mjx_ray.json", quick: bool = False, num_envs: in
 
 if __name__ == "__main__":
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--out", default="benchmarks/results_mjx_ray.json")
+    parser.add_argument("--out", default=str(Path(__file__).resolve().parent / "results_mjx_ray.json"))
     parser.add_argument("--envs", type=int, default=16)
     parser.add_argument("--target", default="Satellite-v0")
     args = parser.parse_args()

@@ -16,6 +16,7 @@ import os
 import platform
 import statistics
 import time
+from pathlib import Path
 
 import jax
 import jax.numpy as jnp
@@ -153,7 +154,7 @@ def main():
     ap.add_argument("--train-variants", default="ramavt,drlavt")
     ap.add_argument("--profile", action="store_true")
     ap.add_argument("--extra", default="", help="comma list of extra ramavt configs: lax,bf16,nonorm,batchnorm")
-    ap.add_argument("--out", default="benchmarks/results_network.json")
+    ap.add_argument("--out", default=str(Path(__file__).resolve().parent / "results_network.json"))
     args = ap.parse_args()
     ch = args.channels
     results = {"platform": platform.processor() or platform.machine(), "devices": str(jax.devices()),

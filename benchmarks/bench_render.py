@@ -14,6 +14,7 @@ import json
 import os
 import statistics
 import time
+from pathlib import Path
 
 import jax
 import jax.numpy as jnp
@@ -142,7 +143,7 @@ def run(envs=DEFAULT_ENVS, resolutions=DEFAULT_RES, budget_s: float = 2.0, out: 
 
 def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--out", default="benchmarks/results_render.json")
+    p.add_argument("--out", default=str(Path(__file__).resolve().parent / "results_render.json"))
     p.add_argument("--envs", type=int, nargs="*", default=list(DEFAULT_ENVS))
     p.add_argument("--res", type=int, nargs="*", default=list(DEFAULT_RES))
     p.add_argument("--budget", type=float, default=2.0, help="seconds of timing per point")

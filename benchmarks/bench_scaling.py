@@ -497,7 +497,7 @@ def run(out: str | Path = "benchmarks/results_scaling.json", quick: bool = False
 
 def main(argv=None) -> None:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--out", default="benchmarks/results_scaling.json")
+    p.add_argument("--out", default=str(Path(__file__).resolve().parent / "results_scaling.json"))
     p.add_argument("--png", default=None, help="plot path (default: scaling.png beside --out)")
     p.add_argument("--quick", action="store_true", help="D in 1 2; 16 and 64 envs/device; shorter timing")
     p.add_argument("--devices", type=int, nargs="+", default=None, help="device counts D (one worker each)")

@@ -209,7 +209,7 @@ def main(argv=None):
     p.add_argument("--train-len", type=int, default=20)
     p.add_argument("--rollout-steps", type=int, default=20)
     p.add_argument("--repeats", type=int, default=5)
-    p.add_argument("--out", default="benchmarks/results_train.json")
+    p.add_argument("--out", default=str(Path(__file__).resolve().parent / "results_train.json"))
     p.add_argument("--preset", default=None, choices=sorted(train_config.PRESETS), help="benchmark a training preset's network")
     a = p.parse_args(argv)
     run(a.variants, a.resolution, a.num_envs, a.batch_size, a.burn_in, a.train_len, a.rollout_steps, a.repeats, a.out,

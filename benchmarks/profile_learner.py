@@ -24,6 +24,7 @@ import dataclasses
 import json
 import os
 import time
+from pathlib import Path
 
 import jax
 import jax.numpy as jnp
@@ -109,7 +110,7 @@ def main(argv=None) -> None:
     p.add_argument("--batch-size", type=int, default=None)
     p.add_argument("--repeats", type=int, default=20)
     p.add_argument("--trace", action="store_true", help="also attribute the update's time to source lines")
-    p.add_argument("--out", default="benchmarks/results_learner_profile.json")
+    p.add_argument("--out", default=str(Path(__file__).resolve().parent / "results_learner_profile.json"))
     p.add_argument("--network", type=json.loads, default=None,
                    help='NetworkConfig fields as JSON, e.g. \'{"kernels": [4, 3, 3], "strides": [4, 1, 1], '
                         '"pools": [false, true, false]}\' (the patch stem)')

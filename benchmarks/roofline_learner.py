@@ -24,6 +24,7 @@ from __future__ import annotations
 import argparse
 import os
 import time
+from pathlib import Path
 
 import jax
 import jax.numpy as jnp
@@ -87,7 +88,7 @@ def main(argv=None) -> None:
     p.add_argument("--preset", default="quick", choices=sorted(train_config.PRESETS))
     p.add_argument("--batch-size", type=int, default=None)
     p.add_argument("--repeats", type=int, default=15)
-    p.add_argument("--out", default="benchmarks/results_roofline.json")
+    p.add_argument("--out", default=str(Path(__file__).resolve().parent / "results_roofline.json"))
     a = p.parse_args(argv)
     t0, load0 = time.time(), os.getloadavg()
     r = roofline(a.preset, a.repeats, a.batch_size)
