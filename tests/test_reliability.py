@@ -160,6 +160,21 @@ def test_an_incomplete_config_json_is_refused_naming_the_field(tmp_path, capsys)
     assert "cannot read" in _refused(TRAIN + ["--out", str(run)], capsys)
 
 
+def test_a_config_json_written_before_a_field_was_added_reads_as_that_field_s_old_value(tmp_path):
+    """run_folder.ADDED_FIELDS: a config.json without a field added later reads as the value its run was trained
+    with; without any other field it is still refused."""
+    from ramavt_jax.training import run_folder
+
+    config_json = json.loads(json.dumps(SMOKE.to_dict()))
+    older = _without(_without(config_json, "network", "depth_centre"), "network", "depth_gain")
+    (tmp_path / "config.json").write_text(json.dumps({"seed": 0, "config": older}))
+    network = run_folder.read_config(tmp_path)["config"]["network"]
+    assert (network["depth_centre"], network["depth_gain"]) == (0.0, 1.0)
+    (tmp_path / "config.json").write_text(json.dumps({"seed": 0, "config": _without(older, "network", "lstm")}))
+    with pytest.raises(run_folder.RunFolderError, match="lacks network.lstm"):
+        run_folder.read_config(tmp_path)
+
+
 def test_a_flat_config_json_of_early_versions_is_refused_not_filled_with_defaults(tmp_path, capsys):
     config_json = json.loads(json.dumps(SMOKE.to_dict()))
     flat = {k: v for k, v in config_json.items() if k not in ("acting", "replay", "learner", "run")}
