@@ -307,7 +307,7 @@ def _quick() -> TrainConfig:
     are patch layers (4x4 then 2x2 patches: no im2col copies, 1.7x faster learner updates than 3x3 convs with
     max-pools; a 4x4 final map = 16 attention tokens) that sees absolute depth and image position and feeds the
     previous action to its LSTM; 'target lost' bootstrapped, an auxiliary tracking-error loss, replay ratio 2; the
-    trained policy acts with the Polyak-averaged target params. Measurements: RESULTS.md."""
+    trained policy acts with the Polyak-averaged target params. Measurements: RESULTS.md, docs/experiments.md."""
     return TrainConfig(
         env=env_lib.EnvConfig(camera=CameraConfig(resolution=32), autoreset="next_step"),
         network=NetworkConfig(variant="ramavt", channels=(16, 32, 32), kernels=(4, 2, 3), strides=(4, 2, 1),
@@ -338,7 +338,7 @@ def _long() -> TrainConfig:
 def _sizes() -> TrainConfig:
     """The quick preset for targets of other sizes: each training episode's target resized by a factor drawn
     log-uniformly in [0.15, 1] (small targets need the practice; large ones are held farther and flown faster, so
-    they look like the catalogue's) on 1.15M env steps, which size randomisation needs (RESULTS.md: 60 % of the
+    they look like the catalogue's) on 1.15M env steps, which size randomisation needs (docs/experiments.md: 60 % of the
     ceiling on the resized validation models against the quick preset's 22 %, and 27 AER below it on the
     catalogue's own sizes)."""
     return _quick().override(env_params={"size_scale_min": 0.15, "size_scale_max": 1.0},

@@ -122,8 +122,8 @@ ARMS["q-aug"] = lambda c: ARMS["q-origin"](c).override(augment=True)
 ARMS["q-se"] = lambda c: _net(ARMS["aux-lr2"](c), variant="se")
 ARMS["q-mha"] = lambda c: _net(ARMS["aux-lr2"](c), variant="mha")
 # Chosen on the validation split with 5 seeds per arm (`ramavt train --seeds 5` + `ramavt eval --targets val`;
-# RESULTS.md): the first two blocks as patch layers (4x4, then 2x2 patches, no max-pools; the learner 1.7x faster),
-# then, in the time saved, twice the env steps: 'patch-768k' is the quick preset now.
+# docs/experiments.md): the first two blocks as patch layers (4x4, then 2x2 patches, no max-pools; the learner 1.7x
+# faster), then, in the time saved, twice the env steps: 'patch-768k' is the quick preset now.
 ARMS["patch"] = lambda c: _net(ARMS["aux-lr2"](c), kernels=(4, 2, 3), strides=(4, 2, 1), pools=(False, False, False))
 ARMS["patch-768k"] = lambda c: ARMS["patch"](c).override(total_env_steps=768_000)
 # Each one change to 'patch-768k' (the quick preset), on the validation split: a shorter discount horizon (the
