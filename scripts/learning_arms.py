@@ -175,6 +175,11 @@ ARMS["depth-metres"] = lambda c: _net(ARMS["patch-768k"](c), depth_centre=0.25, 
 # 20 m, about the boresight precision asked for; the policy acts on the unquantised frames. float16 keeps about 5 mm
 # at the stand-off.
 ARMS["replay-f16"] = lambda c: ARMS["patch-768k"](c).override(obs_dtype="float16")
+# The memory is trained by backpropagation through 20 steps (2 s) after a 10-step burn-in, while inferring where a
+# tumbling target's centre lies behind its visible surface takes longer (the probes of scripts/aux_error.py: the
+# frames show range within a target, the surface-to-centre relation is not learned): windows of 40 trained steps,
+# 16 of them per batch, so that each update trains the same frames and the run the same number of updates.
+ARMS["window-40"] = lambda c: ARMS["patch-768k"](c).override(train_len=40, batch_size=16)
 ARMS["res64"] = lambda c: _net(ARMS["patch-768k"](c), kernels=(8, 2, 3), strides=(8, 2, 1)).override(
     env=dataclasses.replace(c.env, camera=dataclasses.replace(c.env.camera, resolution=64)))
 

@@ -51,6 +51,7 @@ def _changes(arm: str, reference: str) -> dict:
         ("lstm256", "patch-768k", {"network.lstm": 256}),
         ("depth-metres", "patch-768k", {"network.depth_centre": 0.25, "network.depth_gain": 20.0}),
         ("replay-f16", "patch-768k", {"replay.obs_dtype": "float16"}),
+        ("window-40", "patch-768k", {"replay.train_len": 40, "replay.batch_size": 16}),  # same frames per update
         ("res64", "patch-768k", {"env.camera.resolution": 64, "network.kernels": (8, 2, 3),
                                  "network.strides": (8, 2, 1)}),  # one change: the image, its patch kept 4x4 tokens
     ],
