@@ -131,10 +131,14 @@ def stack_frames(obs: jax.Array, reset: jax.Array, frames: jax.Array) -> tuple[j
     return jnp.swapaxes(stacked, 0, 1), hist
 
 
+def hit_mask(x: jax.Array) -> jax.Array:
+    """[N, H, W, C] -> [N, H, W, 1]: 1 where any channel > 0 (the background is 0 in every observation mode)."""
+    return (jnp.max(x, axis=-1, keepdims=True) > 0).astype(x.dtype)
+
+
 def with_hit_mask(x: jax.Array) -> jax.Array:
-    """[N, H, W, C] -> [N, H, W, C + 1]: the frame and a hit mask (any channel > 0; the background is 0 in every
-    observation mode)."""
-    return jnp.concatenate([x, (jnp.max(x, axis=-1, keepdims=True) > 0).astype(x.dtype)], axis=-1)
+    """[N, H, W, C] -> [N, H, W, C + 1]: the frame and its hit mask."""
+    return jnp.concatenate([x, hit_mask(x)], axis=-1)
 
 
 def with_depth_rescaled(x: jax.Array, hit: jax.Array, centre: float, gain: float) -> jax.Array:
@@ -176,10 +180,10 @@ class Encoder(nn.Module):
         x = x.astype(dtype)
         planes = None
         if cfg.coord_channels:  # the hit mask joins the frame; the coordinate planes go to the first conv apart
-            x, planes = with_hit_mask(x), coordinate_planes(*x.shape[1:3], dtype)
-            if cfg.rescales_depth:  # the mask (last channel now) was taken from the raw frame, before centring
-                x = jnp.concatenate([with_depth_rescaled(x[..., :-1], x[..., -1:], cfg.depth_centre,
-                                                         cfg.depth_gain), x[..., -1:]], axis=-1)
+            hit = hit_mask(x)  # of the raw frame: a centred target pixel may read 0
+            if cfg.rescales_depth:
+                x = with_depth_rescaled(x, hit, cfg.depth_centre, cfg.depth_gain)
+            x, planes = jnp.concatenate([x, hit], axis=-1), coordinate_planes(*x.shape[1:3], dtype)
         n_blocks = len(cfg.channels)
         skip = None
         for i, (ch, k, s, p) in enumerate(zip(cfg.channels, cfg.kernels, cfg.strides, cfg.pools)):

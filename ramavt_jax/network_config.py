@@ -46,7 +46,7 @@ class NetworkConfig:
     # The depth channel on the target's pixels as (depth - depth_centre) * depth_gain before the first conv (the
     # background stays 0; needs coord_channels, whose hit mask then tells a pixel at depth_centre from the
     # background). In depth / far units a 0.1 m range change at the 5 m stand-off is 0.005 (far 20 m), too small for
-    # the first layer's initial weights (std about 1/8) and a few thousand Adam steps to amplify: centre 0.25 and
+    # the first layer's initial weights (He: std about 0.18) and a few thousand Adam steps to amplify: centre 0.25 and
     # gain 20 give metres from the stand-off. 0 and 1: the observation as it is.
     depth_centre: float = 0.0
     depth_gain: float = 1.0

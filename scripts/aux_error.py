@@ -66,6 +66,7 @@ def make_rollout(run: runs.LoadedRun, targets: tuple[str, ...], episodes: int, s
     cfg = run.config
     env = env_lib.TrackingEnv(dataclasses.replace(cfg.env, targets=tuple(targets)))
     net = make_network(cfg.network)
+    encoder_only = lambda module, method: isinstance(module, Encoder) and method == "__call__"  # noqa: E731
 
     def episode(params: env_lib.EnvParams, net_params, k: jax.Array) -> Step:
         k_reset, k_steps = jax.random.split(k)
@@ -75,11 +76,11 @@ def make_rollout(run: runs.LoadedRun, targets: tuple[str, ...], episodes: int, s
 
         def body(c: Carry, k_step):
             (q, net_state), sown = net.apply({"params": net_params}, c.obs[None, None], c.first[None, None],
-                                             c.net_state, mutable=["intermediates"])
+                                             c.net_state, mutable=["intermediates"], capture_intermediates=encoder_only)
             step = Step(truth=env_lib.relative_position(c.state) / c.state.scale - params.desired_pos,
                         estimate=sown["intermediates"]["aux"][0][0, 0] * params.desired_pos[2],  # stand-off units
                         memory=net_state.h[-1, 0],
-                        frame=Encoder(cfg.network).apply({"params": net_params["encoder"]}, c.obs[None])[0],
+                        frame=sown["intermediates"]["encoder"]["__call__"][0][0],
                         alive=c.alive)
             action = jnp.argmax(q[0, 0]).astype(jnp.int32)
             obs, state, _, terminated, truncated, _ = env.step_env(k_step, c.state, action, params)

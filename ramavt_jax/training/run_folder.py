@@ -37,10 +37,10 @@ LOCK_FILE = ".lock"
 # checkpointed state (a larger total_env_steps extends the run)
 RESUMABLE_FIELDS = ("run.total_env_steps", "run.eval_episodes", "run.eval_max_steps", "run.checkpoint_every_chunks",
                     "run.keep_checkpoints", "run.tensorboard")
-# Fields added to TrainConfig after run folders of earlier versions were written, each with the value those runs
-# were trained with (the field's default, which reproduces them): a config.json without such a field reads as that
-# value. Any other missing field means a file cut short or edited, and is refused.
-ADDED_FIELDS = {"network.depth_centre": 0.0, "network.depth_gain": 1.0}
+# Fields added to TrainConfig after run folders of earlier versions were written, each defaulting to what those
+# runs were trained with: a config.json without such a field reads as its default. Any other missing field means a
+# file cut short or edited, and is refused.
+ADDED_FIELDS = ("network.depth_centre", "network.depth_gain")
 _SEED_DIR = re.compile(r"seed_\d+")
 
 
@@ -173,7 +173,7 @@ def read_config(run_dir: str | os.PathLike, defaults: dict | None = None) -> dic
     missing = missing_fields(config, defaults)
     for name in [k for k in missing if k in ADDED_FIELDS]:  # written before the field existed
         group, field = name.split(".")
-        config[group][field] = ADDED_FIELDS[name]
+        config[group][field] = defaults[group][field]
         missing.remove(name)
     if missing:
         more = f" (and {len(missing) - 1} more)" if len(missing) > 1 else ""
