@@ -40,6 +40,8 @@ from bench_render import mujoco_caster, mujoco_on_poses  # noqa: E402
 from ramavt_jax import env as env_lib  # noqa: E402
 from ramavt_jax import render  # noqa: E402
 
+DEFAULT_OUT = Path(__file__).resolve().parent / "results_env.json"  # beside this script, from any directory
+
 STEPS_PER_CALL = 10
 RENDERERS = ("new",)  # this checkout's env step; the row label of its arm
 BASELINE = "baseline"  # the env of an earlier git revision (--baseline REV), in the same process
@@ -150,7 +152,7 @@ def machine() -> dict:
                 device_kind=jax.devices()[0].device_kind, glibc_tunables=os.environ.get("GLIBC_TUNABLES", ""))
 
 
-def run(out="benchmarks/results_env.json", quick=False, gpu=False, budget_s=3.0, mj_check=False,
+def run(out=str(DEFAULT_OUT), quick=False, gpu=False, budget_s=3.0, mj_check=False,
         baseline: str | None = None, pixel_check: bool = False) -> dict:
     """Every plan's points; ``baseline`` (a git revision) adds that revision's env step to every point's arms."""
     extra = (BASELINE,) if baseline else ()
@@ -252,7 +254,7 @@ def _summary(points, mujoco) -> list:
 
 if __name__ == "__main__":
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--out", default=str(Path(__file__).resolve().parent / "results_env.json"), help="JSON file (a key per plan and baseline)")
+    parser.add_argument("--out", default=str(DEFAULT_OUT), help="JSON file (a key per plan and baseline)")
     parser.add_argument("--quick", action="store_true")
     parser.add_argument("--gpu", action="store_true", help="accelerator sweep, 1k..64k envs (about 5-8 min)")
     parser.add_argument("--mj-check", action="store_true", help="only the step vs mj_multiRay (interleaved), 3 points")

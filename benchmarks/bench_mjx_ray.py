@@ -24,6 +24,8 @@ from mujoco import mjx
 
 from ramavt_jax import render, targets
 
+DEFAULT_OUT = Path(__file__).resolve().parent / "results_mjx_ray.json"  # beside this script, from any directory
+
 
 def _time(fn, reps=5):
     times = []
@@ -34,7 +36,7 @@ def _time(fn, reps=5):
     return statistics.median(times)
 
 
-def run(out="benchmarks/results_mjx_ray.json", quick: bool = False, num_envs: int = 16, res: int = 64,
+def run(out=str(DEFAULT_OUT), quick: bool = False, num_envs: int = 16, res: int = 64,
         target: str = "Satellite-v0") -> dict:
     xml = Path(targets.resolve(target)).read_text()
     xml = xml.replace("<worldbody>", '<asset><material name="m"/></asset><worldbody>', 1)
@@ -108,7 +110,7 @@ def run(out="benchmarks/results_mjx_ray.json", quick: bool = False, num_envs: in
 
 if __name__ == "__main__":
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--out", default=str(Path(__file__).resolve().parent / "results_mjx_ray.json"))
+    parser.add_argument("--out", default=str(DEFAULT_OUT))
     parser.add_argument("--envs", type=int, default=16)
     parser.add_argument("--target", default="Satellite-v0")
     args = parser.parse_args()

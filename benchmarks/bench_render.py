@@ -23,6 +23,8 @@ import numpy as np
 from ramavt_jax import render as R
 from ramavt_jax import targets
 
+DEFAULT_OUT = Path(__file__).resolve().parent / "results_render.json"  # beside this script, from any directory
+
 DEFAULT_ENVS = (1, 16, 64, 256, 1024, 4096)
 DEFAULT_RES = (64, 84, 128, 256)
 
@@ -143,7 +145,7 @@ def run(envs=DEFAULT_ENVS, resolutions=DEFAULT_RES, budget_s: float = 2.0, out: 
 
 def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--out", default=str(Path(__file__).resolve().parent / "results_render.json"))
+    p.add_argument("--out", default=str(DEFAULT_OUT))
     p.add_argument("--envs", type=int, nargs="*", default=list(DEFAULT_ENVS))
     p.add_argument("--res", type=int, nargs="*", default=list(DEFAULT_RES))
     p.add_argument("--budget", type=float, default=2.0, help="seconds of timing per point")

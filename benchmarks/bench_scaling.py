@@ -44,6 +44,8 @@ import threading
 import time
 from pathlib import Path
 
+DEFAULT_OUT = Path(__file__).resolve().parent / "results_scaling.json"  # beside this script, from any directory
+
 STEPS_PER_CALL = 10
 TRAIN_REPLAY_STEPS_PER_ENV = 250  # replay rows hold this many steps (>= the 31-step window); speed barely depends on it
 PARTITIONS = ("shard_map", "gspmd")  # how the env step is split over D > 1 devices (see env_point)
@@ -422,7 +424,7 @@ def _write(out: Path, result: dict) -> None:
     out.write_text(json.dumps(result, indent=1))
 
 
-def run(out: str | Path = "benchmarks/results_scaling.json", quick: bool = False, devices=None,
+def run(out: str | Path = str(DEFAULT_OUT), quick: bool = False, devices=None,
         envs_per_device=None, train_envs_per_device: int | None = None, real_devices: bool | None = None,
         iterations_per_chunk: int | None = None, timed_chunks: int | None = None, budget_s: float | None = None,
         resolution: int = 64, timeout_s: float | None = None, png: str | Path | None = None,
@@ -497,7 +499,7 @@ def run(out: str | Path = "benchmarks/results_scaling.json", quick: bool = False
 
 def main(argv=None) -> None:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--out", default=str(Path(__file__).resolve().parent / "results_scaling.json"))
+    p.add_argument("--out", default=str(DEFAULT_OUT))
     p.add_argument("--png", default=None, help="plot path (default: scaling.png beside --out)")
     p.add_argument("--quick", action="store_true", help="D in 1 2; 16 and 64 envs/device; shorter timing")
     p.add_argument("--devices", type=int, nargs="+", default=None, help="device counts D (one worker each)")

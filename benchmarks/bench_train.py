@@ -31,6 +31,8 @@ from ramavt_jax.network import NetworkConfig, count_params
 from ramavt_jax.render import CameraConfig
 from ramavt_jax.train_config import ActingConfig, LearnerConfig, ReplayConfig, RunConfig
 
+DEFAULT_OUT = Path(__file__).resolve().parent / "results_train.json"  # beside this script, from any directory
+
 VARIANTS = ("ramavt", "drlavt", "origin", "se", "mha")
 
 
@@ -151,7 +153,7 @@ def bench_variant(variant: str, resolution: int, num_envs: int, batch_size: int,
 
 
 def run(variants=VARIANTS, resolution: int = 64, num_envs: int = 64, batch_size: int = 32, burn_in: int = 10,
-        train_len: int = 20, rollout_steps: int = 20, repeats: int = 5, out: str | None = "benchmarks/results_train.json",
+        train_len: int = 20, rollout_steps: int = 20, repeats: int = 5, out: str | None = str(DEFAULT_OUT),
         quiet: bool = False, preset: str | None = None) -> dict:
     """Benchmark each variant (the paper's network at ``resolution``); print a table; write JSON to ``out``
     (None = don't). ``preset``: instead benchmark that training preset's own network and sizes. Returns the results."""
@@ -209,7 +211,7 @@ def main(argv=None):
     p.add_argument("--train-len", type=int, default=20)
     p.add_argument("--rollout-steps", type=int, default=20)
     p.add_argument("--repeats", type=int, default=5)
-    p.add_argument("--out", default=str(Path(__file__).resolve().parent / "results_train.json"))
+    p.add_argument("--out", default=str(DEFAULT_OUT))
     p.add_argument("--preset", default=None, choices=sorted(train_config.PRESETS), help="benchmark a training preset's network")
     a = p.parse_args(argv)
     run(a.variants, a.resolution, a.num_envs, a.batch_size, a.burn_in, a.train_len, a.rollout_steps, a.repeats, a.out,
