@@ -2,6 +2,8 @@
 clear errors for missing checkpoints and mismatched configs."""
 
 import json
+import subprocess
+import sys
 from pathlib import Path
 
 import jax
@@ -125,7 +127,8 @@ def full_run(tmp_path_factory):
 
 
 def _rows(path):
-    skip = {"wall_s", "env_steps_per_s", "updates_per_s", "trained_frames_per_s", "compile_s"}
+    skip = {"wall_s", "env_steps_per_s", "updates_per_s", "trained_frames_per_s", "compile_s", "since_start_s",
+            "started_at"}
     return [{k: v for k, v in r.items() if k not in skip} for r in run_folder.read_metrics(path)]
 
 
@@ -135,6 +138,18 @@ def test_metrics_are_strict_json(full_run):
     for line in text.splitlines():
         json.loads(line, parse_constant=lambda c: pytest.fail(f"non-standard JSON constant {c}"))
     assert any(line.count("null") for line in text.splitlines())  # chunks without finished episodes
+
+
+def test_the_process_clock_counts_from_the_start_and_through_a_re_execution():
+    """process_start_time counts from the process's start, not the module's import, and a process that re-executes
+    itself (as the ramavt launcher does) keeps its first start."""
+    report = ("import time; from ramavt_jax.training.metrics import process_start_time; "
+              "print(time.time() - process_start_time())")
+    reexec = f"import os, sys, time; time.sleep(0.6); os.execv(sys.executable, [sys.executable, '-c', {report!r}])"
+    for code in (f"import time; time.sleep(0.6); {report}", reexec):
+        elapsed = float(subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                                       check=True).stdout)
+        assert 0.6 <= elapsed < 60, (code, elapsed)
 
 
 def test_the_loss_is_split_where_there_is_an_auxiliary_head(full_run):

@@ -44,6 +44,18 @@ def test_clock_adds_each_process_compile_once(tmp_path):
     assert [clock[c]["env_steps"] for c in (1, 2, 3)] == [10, 20, 30]
 
 
+def test_clock_counts_from_each_process_start(tmp_path):
+    """Records with since_start_s: the process's own clock, a resumed process's added to the earlier total."""
+    first, resumed = {"compile_s": 30.0, "started_at": 1e9}, {"compile_s": 30.0, "started_at": 1e9 + 100}
+    records = [{"chunk": 1, "env_steps": 10, "wall_s": 1.0, "since_start_s": 40.0, **first},
+               {"chunk": 2, "env_steps": 20, "wall_s": 2.0, "since_start_s": 43.0, **first},
+               {"chunk": 3, "env_steps": 30, "wall_s": 4.0, "since_start_s": 45.0, **resumed},  # a slower start
+               {"chunk": 4, "env_steps": 40, "wall_s": 4.0, "since_start_s": 50.0, **resumed}]
+    run_folder.write_metrics(tmp_path / run_folder.METRICS_FILE, records)
+    clock = curve.training_clock(tmp_path)
+    assert [clock[c]["wall_s"] for c in (1, 2, 3, 4)] == [40.0, 43.0, 88.0, 93.0]
+
+
 def test_first_above():
     points = [{"step": s, "env_steps": 10 * s, "wall_s": 1.0 * s, "aer": a} for s, a in ((1, -5.0), (2, 3.0), (3, 9.0))]
     assert curve.first_above(points, 0.0) == {"step": 2, "env_steps": 20, "wall_s": 2.0, "aer": 3.0}
@@ -59,7 +71,7 @@ def test_one_row_per_checkpoint_on_the_training_clock(smoke_run, curve_out):
     assert [p["env_steps"] for p in points] == [r["env_steps"] for r in records]
     wall = [p["wall_s"] for p in points]
     assert np.all(np.diff(wall) > 0)
-    np.testing.assert_allclose(wall, records[0]["compile_s"] + np.cumsum([r["wall_s"] for r in records]))
+    np.testing.assert_allclose(wall, [r["since_start_s"] for r in records])  # the process's clock
     for p in points:
         assert p["aer_ci_low"] <= p["aer"] <= p["aer_ci_high"] and 1 <= p["ael"] <= 30
         assert list(p["per_target"]) == ["Satellite-val0"] and p["per_target"]["Satellite-val0"]["aer"] == p["aer"]

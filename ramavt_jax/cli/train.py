@@ -21,6 +21,7 @@ from ramavt_jax.cli.checks import positive
 from ramavt_jax.experiment import train_and_evaluate
 from ramavt_jax.train_config import PRESETS, TrainConfig, preset
 from ramavt_jax.training import driver
+from ramavt_jax.training.metrics import process_start_time
 
 DEFAULT_PRESET = "quick"
 PresetName = Literal[tuple(PRESETS)]  # the choices of --preset: train_config.PRESETS
@@ -142,7 +143,7 @@ def make_train_cmd(preset_name: str):
         positive("--devices", devices, minimum=0)
         distributed.initialize(coordinator_address, num_processes, process_id)
         summary = train_and_evaluate(config, out, seed=seed, seeds=seeds, resume=resume, progress=progress,
-                                     devices=devices)
+                                     devices=devices, clock_start=process_start_time())  # imports counted
         if distributed.is_primary():
             _print_summary(summary, seeds)
 

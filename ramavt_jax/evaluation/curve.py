@@ -88,25 +88,35 @@ def checkpoint_steps(run_dir: str | Path) -> list[int]:
 
 def training_clock(run_dir: str | Path) -> dict[int, dict]:
     """{chunk: {'env_steps', 'wall_s'}} from a run's metrics.jsonl. ``wall_s``: seconds of ``ramavt train`` up to the
-    end of that chunk, the compile (``compile_s``) plus the chunks' own ``wall_s`` summed over chunks 1..chunk.
+    end of that chunk, from the start of its process: the records' ``since_start_s`` (imports, compiling, building the
+    state, the chunks, checkpoints and metrics lines before it). A resumed run's process (another ``started_at``)
+    starts its own clock; its seconds are added to the earlier processes' totals.
 
-    A record whose ``compile_s`` differs from the one before it comes from a resumed process, which compiled again:
-    its ``compile_s`` is added too (a missing one counts 0). Not counted, because the driver times a chunk from its
-    dispatch to its metrics and saves the checkpoint after that: writing checkpoints and metrics lines, start-up
-    (imports, the run folder check, building the initial state) and restoring on resume. With a checkpoint every
-    chunk, the clock on the wall runs ahead of this one by those seconds. (A second run of the same config in one
-    Python process reuses the first's program and repeats its ``compile_s``; ``ramavt train`` is one process.)"""
+    Records written before ``since_start_s`` existed count the compile (``compile_s``, added once per process: a
+    record whose ``compile_s`` differs from the one before comes from a resumed process) plus the chunks' own
+    ``wall_s``; that clock leaves out the rest of the start-up and the checkpoints, and runs behind the wall's."""
     records = folders.read_metrics(Path(run_dir) / folders.METRICS_FILE)
     clock, total, compile_s = {}, 0.0, None
+    process, process_base = None, 0.0  # the current process's started_at; the total before it
     for r in records:
-        c = r.get("compile_s")
-        c = float(c) if isinstance(c, (int, float)) and math.isfinite(c) else None
-        if c != compile_s:  # a new process (the first, or a resume) compiled before its chunks
-            compile_s = c
-            total += c or 0.0
-        total += float(r["wall_s"])
+        since = _finite(r.get("since_start_s"))
+        if since is not None:
+            if r.get("started_at") != process:  # the first record of a process
+                process, process_base = r.get("started_at"), total
+            total = process_base + since
+        else:
+            c = _finite(r.get("compile_s"))
+            if c != compile_s:  # a new process (the first, or a resume) compiled before its chunks
+                compile_s = c
+                total += c or 0.0
+            total += float(r["wall_s"])
+            process = None
         clock[int(r["chunk"])] = {"env_steps": int(r["env_steps"]), "wall_s": total}
     return clock
+
+
+def _finite(x) -> float | None:
+    return float(x) if isinstance(x, (int, float)) and math.isfinite(x) else None
 
 
 def evaluate_checkpoint(run_dir: str | Path, step: int, ep: CurveEpisodes, policy_params: str | None = None) -> dict:

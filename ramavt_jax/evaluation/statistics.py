@@ -10,10 +10,17 @@ The bootstrap resamples runs within each task (rliable's StratifiedBootstrap), w
 from __future__ import annotations
 
 import numpy as np
-from rliable import metrics as rly_metrics
 
 CONFIDENCE = 0.95
 RESAMPLES = 2000
+
+
+def _rliable():
+    """rliable's metrics, imported on first use: they import scipy.stats (0.8 s), which a training run's clock
+    would otherwise count before its first chunk."""
+    from rliable import metrics
+
+    return metrics
 
 
 def stratified_resample_means(values: np.ndarray, strata: np.ndarray | None, resamples: int,
@@ -51,7 +58,7 @@ def sample_std(values: np.ndarray) -> float:
 
 def iqm(scores: np.ndarray) -> float:
     """Interquartile mean of a score matrix [runs, tasks] (rliable.metrics.aggregate_iqm)."""
-    return float(rly_metrics.aggregate_iqm(np.asarray(scores, np.float64)))
+    return float(_rliable().aggregate_iqm(np.asarray(scores, np.float64)))
 
 
 def iqm_ci(scores: np.ndarray, confidence: float = CONFIDENCE, resamples: int = RESAMPLES,
@@ -64,7 +71,8 @@ def iqm_ci(scores: np.ndarray, confidence: float = CONFIDENCE, resamples: int = 
     rng = np.random.default_rng(seed)
     picks = rng.integers(0, runs, size=(resamples, runs, tasks))
     resampled = np.take_along_axis(np.broadcast_to(scores, (resamples, runs, tasks)), picks, axis=1)
-    stats = np.array([rly_metrics.aggregate_iqm(r) for r in resampled])
+    aggregate_iqm = _rliable().aggregate_iqm
+    stats = np.array([aggregate_iqm(r) for r in resampled])
     tail = 100 * (1 - confidence) / 2
     low, high = np.percentile(stats, [tail, 100 - tail])
     return float(low), float(high)
@@ -73,7 +81,7 @@ def iqm_ci(scores: np.ndarray, confidence: float = CONFIDENCE, resamples: int = 
 def probability_of_improvement(scores_x: np.ndarray, scores_y: np.ndarray) -> float:
     """P(X > Y): the chance that a run of arm X scores above a run of arm Y on a task, averaged over tasks
     (rliable.metrics.probability_of_improvement; Mann-Whitney U). Scores [runs_x, tasks], [runs_y, tasks]."""
-    return float(rly_metrics.probability_of_improvement(np.asarray(scores_x, np.float64),
+    return float(_rliable().probability_of_improvement(np.asarray(scores_x, np.float64),
                                                         np.asarray(scores_y, np.float64)))
 
 

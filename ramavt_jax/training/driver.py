@@ -143,6 +143,7 @@ class _Loop:
     config_json: dict
     chunk_no: int  # host mirror of state.chunk (each compiled chunk adds one): no device read per chunk
     last_saved: int | None
+    clock_start: float  # epoch second from which the records' since_start_s count (see run)
 
     def save(self, state) -> None:
         num_seeds = len(self.f.seeds)
@@ -156,11 +157,14 @@ class _Loop:
     def record(self, m, wall: float) -> None:
         """Log the metrics of the chunk just finished (raises TrainingDivergedError on a NaN/inf loss)."""
         c, num_seeds = self.config, len(self.f.seeds)
+        since_start = time.time() - self.clock_start
         for k in range(num_seeds):
             record = {"chunk": self.chunk_no, **aggregate(_seed_slice(m, k, num_seeds), wall, c.env_steps_per_chunk)}
             record["trained_frames_per_s"] = record["updates_per_s"] * c.replay.batch_size * c.replay.train_len
             record = split_loss(record, c.learner.aux_weight)
             record["compile_s"] = self.prog.compile_s
+            record["since_start_s"] = since_start
+            record["started_at"] = self.clock_start  # epoch second: tells one process's records from a resume's
             if num_seeds > 1:
                 record["seeds_in_program"] = num_seeds
             if diverged(record):
@@ -231,7 +235,7 @@ def _start(config: TrainConfig, f: _Folders, num_devices, tracking_env, say, deb
 
 def run(config: TrainConfig, out_dir, seed: int = 0, resume=True, progress: bool = True,
         max_chunks: int | None = None, tracking_env=None, num_seeds: int = 1,
-        num_devices: int | None = None, debug_nan_at_update: int = -1) -> RunSummary:
+        num_devices: int | None = None, debug_nan_at_update: int = -1, clock_start: float | None = None) -> RunSummary:
     """Train ``config`` into ``out_dir``; returns a :class:`RunSummary` (a JSON-friendly dict: counters, timings,
     memory, the last metrics record) whose ``.state`` is the final RunnerState.
 
@@ -246,6 +250,9 @@ def run(config: TrainConfig, out_dir, seed: int = 0, resume=True, progress: bool
       from that checkpoint folder (error if none is there).
     max_chunks: stop after this many chunks in this call (a checkpoint is saved), e.g. to split a run.
     debug_nan_at_update: a test hook: the loss becomes NaN from this gradient step on (-1 = off).
+    clock_start: the epoch second from which each metrics record's ``since_start_s`` (and the summary's
+      ``startup_s``, to the first chunk's dispatch) count: ``ramavt train`` passes its process's start, so that
+      imports, compiling and building the state are counted; None = the start of this call.
     Raises TrainingDivergedError on a NaN/inf loss (the last good checkpoint is kept), RunFolderError when the
     folder is locked by another process, not writable or holds another config. SIGINT / SIGTERM: the chunk in
     flight is logged and checkpointed, then TrainingInterrupted (a KeyboardInterrupt) is raised. In a multi-host
@@ -253,6 +260,7 @@ def run(config: TrainConfig, out_dir, seed: int = 0, resume=True, progress: bool
     """
     if isinstance(num_seeds, bool) or not isinstance(num_seeds, int) or num_seeds < 1:
         raise ValueError(f"num_seeds must be an int >= 1, got {num_seeds!r}")
+    clock_start = time.time() if clock_start is None else clock_start
     primary = distributed.is_primary()
     say = (lambda msg: print(msg, flush=True)) if (progress and primary) else (lambda msg: None)
     config_json = json.loads(json.dumps(config.to_dict(), default=str))
@@ -261,14 +269,14 @@ def run(config: TrainConfig, out_dir, seed: int = 0, resume=True, progress: bool
     try:
         with StopSignals(say if primary else (lambda msg: None)) as stop:
             return _run_locked(config, f, config_json, resume, max_chunks, tracking_env, num_devices, progress,
-                               primary, stop, say, debug_nan_at_update)
+                               primary, stop, say, debug_nan_at_update, clock_start)
     finally:
         if f.lock is not None:
             f.lock.close()
 
 
 def _run_locked(config, f: _Folders, config_json, resume, max_chunks, tracking_env, num_devices, progress, primary,
-                stop: StopSignals, say, debug_nan_at_update: int) -> RunSummary:
+                stop: StopSignals, say, debug_nan_at_update: int, clock_start: float) -> RunSummary:
     stop.hard_exit = "while compiling or allocating"
     prog, state, mesh = _start(config, f, num_devices, tracking_env, say, debug_nan_at_update)
     jax.block_until_ready(state)  # the allocation is done before a signal is deferred
@@ -290,7 +298,7 @@ def _run_locked(config, f: _Folders, config_json, resume, max_chunks, tracking_e
     start = _host_int(state.chunk)
     log = Log(config, f.dirs, start if f.resuming else None, primary, progress)
     stores = [CheckpointStore(d / folders.CHECKPOINTS, keep=config.run.keep_checkpoints) for d in f.dirs]
-    loop = _Loop(config, prog, f, log, stores, config_json, start, start if f.resuming else None)
+    loop = _Loop(config, prog, f, log, stores, config_json, start, start if f.resuming else None, clock_start)
     end = config.num_chunks if max_chunks is None else min(config.num_chunks, start + max_chunks)
     train_t0 = time.time()
     try:
@@ -302,23 +310,24 @@ def _run_locked(config, f: _Folders, config_json, resume, max_chunks, tracking_e
         loop.save(state)
     for store in stores:
         store.close()
-    return _summary(config, f, loop, state, prog, mesh, train_s)
+    return _summary(config, f, loop, state, prog, mesh, train_s, train_t0 - clock_start)
 
 
-def _summary(config, f: _Folders, loop: _Loop, state, prog: _Program, mesh, train_s: float) -> RunSummary:
+def _summary(config, f: _Folders, loop: _Loop, state, prog: _Program, mesh, train_s: float,
+             startup_s: float) -> RunSummary:
     num_seeds = len(f.seeds)
     per_seed = []
     for k, (s, d) in enumerate(zip(f.seeds, f.dirs)):
         per_seed.append({"seed": s, "chunks_done": loop.chunk_no, "num_chunks": config.num_chunks,
                          "env_steps": _host_int(_seed_slice(state.env_steps, k, num_seeds)),
                          "updates": _host_int(_seed_slice(state.learner.updates, k, num_seeds)),
-                         "train_wall_s": train_s, "compile_s": prog.compile_s,
+                         "train_wall_s": train_s, "compile_s": prog.compile_s, "startup_s": startup_s,
                          "last": loop.log.records[k][-1] if loop.log.records[k] else None, "out_dir": str(d)})
     if num_seeds == 1:
         summary = per_seed[0]
     else:
         summary = {k: v for k, v in per_seed[0].items() if k in ("chunks_done", "num_chunks", "train_wall_s",
-                                                                 "compile_s")}
+                                                                 "compile_s", "startup_s")}
         summary.update(out_dir=str(f.out), seeds=per_seed)
     summary.update(memory=prog.memory, devices=1 if mesh is None else int(mesh.devices.size),
                    processes=jax.process_count(), finished=loop.chunk_no >= config.num_chunks)

@@ -4,6 +4,8 @@ JSON), mirrored to TensorBoard and a progress bar."""
 from __future__ import annotations
 
 import math
+import os
+import time
 from pathlib import Path
 
 import jax
@@ -13,7 +15,7 @@ from ramavt_jax.train_state import ChunkMetrics
 from ramavt_jax.train_config import TrainConfig
 from ramavt_jax.training import run_folder as folders
 
-__all__ = ["aggregate", "split_loss", "diverged", "Log"]
+__all__ = ["aggregate", "split_loss", "diverged", "process_start_time", "Log"]
 
 
 def aggregate(m: ChunkMetrics, wall_s: float, env_steps: int) -> dict:
@@ -40,6 +42,32 @@ def aggregate(m: ChunkMetrics, wall_s: float, env_steps: int) -> dict:
         "env_steps_per_s": env_steps / wall_s,
         "updates_per_s": updates / wall_s,
     }
+
+
+_IMPORTED_AT = time.time()
+
+
+def _started_after_boot(stat: str, ticks_per_s: float) -> float:
+    """Seconds after boot at which a process started, from its ``/proc/<pid>/stat`` line (field 22, in clock
+    ticks)."""
+    after_name = stat.rsplit(")", 1)[1].split()  # the command name may hold spaces and ')'
+    return int(after_name[19]) / ticks_per_s
+
+
+def process_start_time() -> float:
+    """The epoch second this process started, so that a clock from it counts imports and start-up. On Linux from
+    /proc (uptime less the process's start, both in 10 ms ticks after boot), so a process that re-executed itself
+    (the ``ramavt`` launcher does, for huge-page malloc) counts from its first start; elsewhere, or when /proc
+    cannot be read, this module's import."""
+    now = time.time()
+    try:
+        with open("/proc/uptime") as f:
+            uptime = float(f.read().split()[0])
+        with open(f"/proc/{os.getpid()}/stat") as f:
+            since_start = uptime - _started_after_boot(f.read(), os.sysconf("SC_CLK_TCK"))
+    except (OSError, ValueError, IndexError):
+        return _IMPORTED_AT
+    return min(now - since_start, _IMPORTED_AT)
 
 
 def split_loss(record: dict, aux_weight: float) -> dict:

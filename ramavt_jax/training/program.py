@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import dataclasses
 import time
+from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
 import jax
@@ -22,7 +23,7 @@ __all__ = ["compiled_program"]
 @dataclasses.dataclass
 class _Program:
     trainer: Trainer
-    init: Any  # key [2] (or [S, 2]) -> RunnerState
+    init: Any  # AOT-compiled: key [2] (or [S, 2]) -> RunnerState
     chunk: Any  # AOT-compiled: RunnerState -> (RunnerState, ChunkMetrics)
     compile_s: float
     shardings: Any  # RunnerState pytree of NamedSharding, or None (one device)
@@ -33,19 +34,29 @@ class _Program:
 _COMPILED: dict = {}
 
 
-def _jit_pair(trainer: Trainer, num_seeds: int, mesh):
-    """(init, chunk, abstract state, shardings) of one program: vmapped over seeds when > 1, split over ``mesh``."""
+@dataclasses.dataclass(frozen=True)
+class _Jitted:
+    init: Any  # jitted: key [2] (or [S, 2]) -> RunnerState
+    chunk: Any  # jitted: RunnerState -> (RunnerState, ChunkMetrics), the state donated
+    key_spec: jax.ShapeDtypeStruct  # init's argument
+    abstract: Any  # RunnerState of ShapeDtypeStructs: the state's shapes
+    shardings: Any  # RunnerState pytree of NamedSharding, or None (one device)
+
+
+def _jit_pair(trainer: Trainer, num_seeds: int, mesh) -> _Jitted:
+    """The jitted init and chunk of one program: vmapped over seeds when > 1, split over ``mesh``."""
     init_fn, chunk_fn, key_shape = trainer.init, trainer.chunk, (2,)
     if num_seeds > 1:
         init_fn, chunk_fn, key_shape = jax.vmap(init_fn), jax.vmap(chunk_fn), (num_seeds, 2)
-    abstract = jax.eval_shape(init_fn, jax.ShapeDtypeStruct(key_shape, np.uint32))
+    key_spec = jax.ShapeDtypeStruct(key_shape, np.uint32)
+    abstract = jax.eval_shape(init_fn, key_spec)
     if mesh is None:
-        return jax.jit(init_fn), jax.jit(chunk_fn, donate_argnums=0), abstract, None
+        return _Jitted(jax.jit(init_fn), jax.jit(chunk_fn, donate_argnums=0), key_spec, abstract, None)
     shardings = distributed.runner_shardings(abstract, mesh, seed_axis=num_seeds > 1)
     rep = distributed.replicated(mesh)
     init = jax.jit(init_fn, in_shardings=rep, out_shardings=shardings)
     chunk = jax.jit(chunk_fn, in_shardings=(shardings,), out_shardings=(shardings, rep), donate_argnums=0)
-    return init, chunk, abstract, shardings
+    return _Jitted(init, chunk, key_spec, abstract, shardings)
 
 
 def check_state_fits(config: TrainConfig, abstract, num_seeds: int, mesh, chunk_temp: int = 0) -> None:
@@ -82,9 +93,16 @@ def _compiled(config: TrainConfig, tracking_env, num_seeds: int = 1, mesh=None,
         # several seeds: the seed axis is split over the devices and each seed's program runs whole on one device
         trainer = Trainer(config, tracking_env, mesh if num_seeds == 1 else None, debug_nan_at_update)
         t0 = time.time()
-        init, chunk, abstract, shardings = _jit_pair(trainer, num_seeds, mesh)
+        jitted = _jit_pair(trainer, num_seeds, mesh)
+        abstract = jitted.abstract
         check_state_fits(config, abstract, num_seeds, mesh)
-        compiled = chunk.lower(abstract).compile()
+        init_lowered, chunk_lowered = jitted.init.lower(jitted.key_spec), jitted.chunk.lower(abstract)
+        # XLA compiles a program on one thread with the GIL released: the initial state's program (the env reset's
+        # renderer, the network's init: about half as long as the chunk) compiles on a second core meanwhile
+        with ThreadPoolExecutor(1) as pool:
+            init_compiling = pool.submit(init_lowered.compile)
+            compiled = chunk_lowered.compile()
+            init = init_compiling.result()
         try:
             temp = int(compiled.memory_analysis().temp_size_in_bytes)
         except Exception:  # noqa: BLE001 (not every backend reports it)
@@ -95,7 +113,7 @@ def _compiled(config: TrainConfig, tracking_env, num_seeds: int = 1, mesh=None,
                   "chunk_temp_bytes": temp}
         if len(_COMPILED) >= 4:
             _COMPILED.pop(next(iter(_COMPILED)))
-        _COMPILED[key] = _Program(trainer, init, compiled, time.time() - t0, shardings, memory)
+        _COMPILED[key] = _Program(trainer, init, compiled, time.time() - t0, jitted.shardings, memory)
     return _COMPILED[key]
 
 

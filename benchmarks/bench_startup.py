@@ -1,0 +1,92 @@
+"""The start-up of ``ramavt train`` (imports, compiling, the initial state) against an earlier git revision, interleaved.
+
+    python benchmarks/bench_startup.py --baseline b13b41f [--rounds 3] [--preset quick]
+
+Each round runs, one after the other, this checkout's and the baseline's ``ramavt train`` as a fresh process (the
+baseline's ``ramavt_jax`` from ``git archive`` first on PYTHONPATH) for ONE chunk of the preset, without the final
+evaluation, with the persistent compile cache off, so that every process compiles from cold as on a fresh machine.
+Both processes run with huge-page malloc, as the ``ramavt`` script starts them. The process's whole wall time is
+measured from outside: both versions do the same work after their chunk (a checkpoint, the training-curve figure),
+so the difference is the start-up's. Prints each run, the medians and the load average; writes JSON to ``--out``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import statistics
+import subprocess
+import sys
+import tarfile
+import tempfile
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from bench_train import merge_json  # noqa: E402
+
+from ramavt_jax import train_config  # noqa: E402
+
+REPO = Path(__file__).resolve().parents[1]
+DEFAULT_OUT = Path(__file__).resolve().parent / "results_startup.json"
+
+
+def export_package(rev: str, where: Path) -> Path:
+    """``ramavt_jax`` of git revision ``rev`` extracted under ``where`` (to put first on PYTHONPATH)."""
+    archive = subprocess.run(["git", "-C", str(REPO), "archive", rev, "ramavt_jax"], check=True,
+                             capture_output=True).stdout
+    tar_path = where / "package.tar"
+    tar_path.write_bytes(archive)
+    with tarfile.open(tar_path) as tar:
+        tar.extractall(where, filter="data")
+    return where
+
+
+def one_chunk_run(preset: str, out: Path, pythonpath: Path | None) -> dict:
+    """A fresh ``ramavt train`` process for one chunk: {'wall_s', 'compile_s', 'startup_s' (None before it was
+    logged)} from its summary line."""
+    steps = train_config.preset(preset).env_steps_per_chunk
+    env = dict(os.environ, RAMAVT_COMPILE_CACHE="off", GLIBC_TUNABLES="glibc.malloc.hugetlb=1")
+    if pythonpath is not None:
+        env["PYTHONPATH"] = os.pathsep.join(filter(None, [str(pythonpath), env.get("PYTHONPATH")]))
+    cmd = [sys.executable, "-m", "ramavt_jax.cli", "train", "--preset", preset, "--no-progress", "--no-resume",
+           "--out", str(out), "--run.total-env-steps", str(steps), "--run.eval-episodes", "0"]
+    t = time.perf_counter()
+    done = subprocess.run(cmd, env=env, capture_output=True, text=True, cwd=REPO)
+    wall = time.perf_counter() - t
+    if done.returncode:
+        raise SystemExit(f"{' '.join(cmd)} failed:\n{done.stderr[-2000:]}")
+    summary = next(json.loads(line) for line in done.stdout.splitlines() if line.startswith('{"run"'))
+    return {"wall_s": wall, "compile_s": summary["compile_s"], "startup_s": summary.get("startup_s")}
+
+
+def main(argv=None) -> None:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--baseline", required=True, help="git revision to compare with (e.g. a commit or a tag)")
+    p.add_argument("--preset", default="quick")
+    p.add_argument("--rounds", type=int, default=3)
+    p.add_argument("--out", type=Path, default=DEFAULT_OUT)
+    a = p.parse_args(argv)
+    load = [os.getloadavg()[0]]
+    runs: dict[str, list[dict]] = {"this": [], a.baseline: []}
+    with tempfile.TemporaryDirectory() as tmp:
+        base_path = export_package(a.baseline, Path(tmp) / "pkg")
+        for r in range(a.rounds):
+            for name, path in (("this", None), (a.baseline, base_path)):
+                res = one_chunk_run(a.preset, Path(tmp) / f"run_{name}", path)
+                runs[name].append(res)
+                print(f"round {r}: {name:>10}: process {res['wall_s']:.1f} s, compile {res['compile_s']:.1f} s"
+                      + (f", start-up {res['startup_s']:.1f} s" if res["startup_s"] is not None else ""), flush=True)
+    load.append(os.getloadavg()[0])
+    medians = {k: statistics.median(x["wall_s"] for x in v) for k, v in runs.items()}
+    print(f"median process: this {medians['this']:.1f} s, {a.baseline} {medians[a.baseline]:.1f} s "
+          f"({medians[a.baseline] - medians['this']:+.1f} s); load {load[0]:.1f} -> {load[1]:.1f}")
+    merge_json(a.out, f"{a.preset}_vs_{a.baseline}", dict(
+        runs=runs, median_process_s=medians, load=load, rounds=a.rounds,
+        date=time.strftime("%Y-%m-%d"), commit=subprocess.run(["git", "-C", str(REPO), "rev-parse", "--short", "HEAD"],
+                                                               capture_output=True, text=True).stdout.strip()))
+
+
+if __name__ == "__main__":
+    main()
