@@ -36,6 +36,7 @@ def export_package(rev: str, where: Path) -> Path:
     """``ramavt_jax`` of git revision ``rev`` extracted under ``where`` (to put first on PYTHONPATH)."""
     archive = subprocess.run(["git", "-C", str(REPO), "archive", rev, "ramavt_jax"], check=True,
                              capture_output=True).stdout
+    where.mkdir(parents=True, exist_ok=True)
     tar_path = where / "package.tar"
     tar_path.write_bytes(archive)
     with tarfile.open(tar_path) as tar:
@@ -43,17 +44,17 @@ def export_package(rev: str, where: Path) -> Path:
     return where
 
 
-def one_chunk_run(preset: str, out: Path, pythonpath: Path | None) -> dict:
-    """A fresh ``ramavt train`` process for one chunk: {'wall_s', 'compile_s', 'startup_s' (None before it was
-    logged)} from its summary line."""
+def one_chunk_run(preset: str, out: Path, package_root: Path) -> dict:
+    """A fresh ``ramavt train`` process for one chunk, with the ``ramavt_jax`` under ``package_root``: {'wall_s',
+    'compile_s', 'startup_s' (None before it was logged)} from its summary line."""
     steps = train_config.preset(preset).env_steps_per_chunk
     env = dict(os.environ, RAMAVT_COMPILE_CACHE="off", GLIBC_TUNABLES="glibc.malloc.hugetlb=1")
-    if pythonpath is not None:
-        env["PYTHONPATH"] = os.pathsep.join(filter(None, [str(pythonpath), env.get("PYTHONPATH")]))
+    env["PYTHONPATH"] = os.pathsep.join(filter(None, [str(package_root), env.get("PYTHONPATH")]))
     cmd = [sys.executable, "-m", "ramavt_jax.cli", "train", "--preset", preset, "--no-progress", "--no-resume",
            "--out", str(out), "--run.total-env-steps", str(steps), "--run.eval-episodes", "0"]
     t = time.perf_counter()
-    done = subprocess.run(cmd, env=env, capture_output=True, text=True, cwd=REPO)
+    # run from the output's folder: `python -m` puts the working directory first on sys.path
+    done = subprocess.run(cmd, env=env, capture_output=True, text=True, cwd=out.parent)
     wall = time.perf_counter() - t
     if done.returncode:
         raise SystemExit(f"{' '.join(cmd)} failed:\n{done.stderr[-2000:]}")
@@ -73,8 +74,10 @@ def main(argv=None) -> None:
     with tempfile.TemporaryDirectory() as tmp:
         base_path = export_package(a.baseline, Path(tmp) / "pkg")
         for r in range(a.rounds):
-            for name, path in (("this", None), (a.baseline, base_path)):
+            for name, path in (("this", REPO), (a.baseline, base_path)):
                 res = one_chunk_run(a.preset, Path(tmp) / f"run_{name}", path)
+                if (res["startup_s"] is None) == (path == REPO):
+                    raise SystemExit(f"the {name} run did not import the package under {path}")
                 runs[name].append(res)
                 print(f"round {r}: {name:>10}: process {res['wall_s']:.1f} s, compile {res['compile_s']:.1f} s"
                       + (f", start-up {res['startup_s']:.1f} s" if res["startup_s"] is not None else ""), flush=True)

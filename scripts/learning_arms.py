@@ -186,6 +186,9 @@ ARMS["window-40"] = lambda c: ARMS["patch-768k"](c).override(train_len=40, batch
 # preset's training time, with 3/4 of its updates.
 ARMS["rr1"] = lambda c: ARMS["patch-768k"](c).override(replay_ratio=1.0)
 ARMS["rr1-1152k"] = lambda c: ARMS["rr1"](c).override(total_env_steps=1_152_000)
+# rr1 crosses the depth tracker after about as many updates as the preset, so the start of learning is bound by
+# updates, not env steps: a learning rate twice the preset's takes larger steps per update.
+ARMS["lr-2e-3"] = lambda c: ARMS["patch-768k"](c).override(lr=2e-3)
 ARMS["res64"] = lambda c: _net(ARMS["patch-768k"](c), kernels=(8, 2, 3), strides=(8, 2, 1)).override(
     env=dataclasses.replace(c.env, camera=dataclasses.replace(c.env.camera, resolution=64)))
 

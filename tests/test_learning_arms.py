@@ -54,6 +54,7 @@ def _changes(arm: str, reference: str) -> dict:
         ("window-40", "patch-768k", {"replay.train_len": 40, "replay.batch_size": 16}),  # same frames per update
         ("rr1", "patch-768k", {"learner.replay_ratio": 1.0}),
         ("rr1-1152k", "rr1", {"run.total_env_steps": 1_152_000}),
+        ("lr-2e-3", "patch-768k", {"learner.lr": 2e-3}),
         ("res64", "patch-768k", {"env.camera.resolution": 64, "network.kernels": (8, 2, 3),
                                  "network.strides": (8, 2, 1)}),  # one change: the image, its patch kept 4x4 tokens
     ],

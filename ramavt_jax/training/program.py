@@ -1,4 +1,4 @@
-"""The compiled training program of one config: the Trainer, its jitted ``init`` and the AOT-compiled ``chunk``,
+"""The compiled training program of one config: the Trainer, its AOT-compiled ``init`` and ``chunk``,
 vmapped over seeds and/or split over a device mesh, cached in-process so repeated runs and resumes compile once."""
 
 from __future__ import annotations
@@ -32,31 +32,37 @@ class _Program:
 
 # (config, seeds, mesh, env id, NaN hook) -> _Program; repeated runs, resumes and tests compile once
 _COMPILED: dict = {}
+# The initial state's program (the envs' reset with its renderer, the network's init) runs once per run, so on CPU
+# it is compiled without LLVM's optimisations, beside the chunk. On an idle 2-core VM (quick preset, cold cache):
+# the two compiled one after the other in 19.4-21.7 s, in parallel in 23.8 s (XLA already uses both cores), and in
+# parallel with the init unoptimised in 12.3-16.6 s.
+_INIT_COMPILER_OPTIONS = {"cpu": {"xla_backend_optimization_level": 0}}
 
 
 @dataclasses.dataclass(frozen=True)
-class _Jitted:
-    init: Any  # jitted: key [2] (or [S, 2]) -> RunnerState
-    chunk: Any  # jitted: RunnerState -> (RunnerState, ChunkMetrics), the state donated
-    key_spec: jax.ShapeDtypeStruct  # init's argument
+class _Staged:
+    init: Any  # lowered: key [2] (or [S, 2]) -> RunnerState
+    chunk: Any  # jitted (lowered once the state is known to fit): RunnerState -> (RunnerState, ChunkMetrics)
     abstract: Any  # RunnerState of ShapeDtypeStructs: the state's shapes
     shardings: Any  # RunnerState pytree of NamedSharding, or None (one device)
 
 
-def _jit_pair(trainer: Trainer, num_seeds: int, mesh) -> _Jitted:
-    """The jitted init and chunk of one program: vmapped over seeds when > 1, split over ``mesh``."""
+def _staged(trainer: Trainer, num_seeds: int, mesh) -> _Staged:
+    """The lowered init and the jitted chunk of one program: vmapped over seeds when > 1, split over ``mesh``."""
     init_fn, chunk_fn, key_shape = trainer.init, trainer.chunk, (2,)
     if num_seeds > 1:
         init_fn, chunk_fn, key_shape = jax.vmap(init_fn), jax.vmap(chunk_fn), (num_seeds, 2)
     key_spec = jax.ShapeDtypeStruct(key_shape, np.uint32)
-    abstract = jax.eval_shape(init_fn, key_spec)
     if mesh is None:
-        return _Jitted(jax.jit(init_fn), jax.jit(chunk_fn, donate_argnums=0), key_spec, abstract, None)
+        init = jax.jit(init_fn).lower(key_spec)
+        abstract = init.out_info  # the state's shapes from init's one trace (tracing the env's reset takes seconds)
+        return _Staged(init, jax.jit(chunk_fn, donate_argnums=0), abstract, None)
+    abstract = jax.eval_shape(init_fn, key_spec)
     shardings = distributed.runner_shardings(abstract, mesh, seed_axis=num_seeds > 1)
     rep = distributed.replicated(mesh)
     init = jax.jit(init_fn, in_shardings=rep, out_shardings=shardings)
     chunk = jax.jit(chunk_fn, in_shardings=(shardings,), out_shardings=(shardings, rep), donate_argnums=0)
-    return _Jitted(init, chunk, key_spec, abstract, shardings)
+    return _Staged(init.lower(key_spec), chunk, abstract, shardings)
 
 
 def check_state_fits(config: TrainConfig, abstract, num_seeds: int, mesh, chunk_temp: int = 0) -> None:
@@ -84,7 +90,7 @@ def _cache_key(config: TrainConfig) -> TrainConfig:
 
 def _compiled(config: TrainConfig, tracking_env, num_seeds: int = 1, mesh=None,
               debug_nan_at_update: int = -1) -> _Program:
-    """Trainer, jitted init and AOT-compiled chunk for a config: one program for ``num_seeds`` seeds (vmapped when
+    """Trainer, AOT-compiled init and chunk for a config: one program for ``num_seeds`` seeds (vmapped when
     > 1), with the envs and replay split over ``mesh`` when given. Cached per (config, seeds, mesh).
     ``debug_nan_at_update``: the Trainer's test hook."""
     key = (_cache_key(config), config.learner.learning_starts, num_seeds, mesh, id(tracking_env), debug_nan_at_update)
@@ -93,15 +99,13 @@ def _compiled(config: TrainConfig, tracking_env, num_seeds: int = 1, mesh=None,
         # several seeds: the seed axis is split over the devices and each seed's program runs whole on one device
         trainer = Trainer(config, tracking_env, mesh if num_seeds == 1 else None, debug_nan_at_update)
         t0 = time.time()
-        jitted = _jit_pair(trainer, num_seeds, mesh)
-        abstract = jitted.abstract
+        staged = _staged(trainer, num_seeds, mesh)
+        abstract = staged.abstract
         check_state_fits(config, abstract, num_seeds, mesh)
-        init_lowered, chunk_lowered = jitted.init.lower(jitted.key_spec), jitted.chunk.lower(abstract)
-        # XLA compiles a program on one thread with the GIL released: the initial state's program (the env reset's
-        # renderer, the network's init: about half as long as the chunk) compiles on a second core meanwhile
-        with ThreadPoolExecutor(1) as pool:
-            init_compiling = pool.submit(init_lowered.compile)
-            compiled = chunk_lowered.compile()
+        chunk = staged.chunk.lower(abstract)
+        with ThreadPoolExecutor(1) as pool:  # XLA releases the GIL while it compiles
+            init_compiling = pool.submit(staged.init.compile, _INIT_COMPILER_OPTIONS.get(jax.default_backend()))
+            compiled = chunk.compile()
             init = init_compiling.result()
         try:
             temp = int(compiled.memory_analysis().temp_size_in_bytes)
@@ -113,7 +117,7 @@ def _compiled(config: TrainConfig, tracking_env, num_seeds: int = 1, mesh=None,
                   "chunk_temp_bytes": temp}
         if len(_COMPILED) >= 4:
             _COMPILED.pop(next(iter(_COMPILED)))
-        _COMPILED[key] = _Program(trainer, init, compiled, time.time() - t0, jitted.shardings, memory)
+        _COMPILED[key] = _Program(trainer, init, compiled, time.time() - t0, staged.shardings, memory)
     return _COMPILED[key]
 
 
