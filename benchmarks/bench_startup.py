@@ -87,8 +87,9 @@ def main(argv=None) -> None:
           f"({medians[a.baseline] - medians['this']:+.1f} s); load {load[0]:.1f} -> {load[1]:.1f}")
     merge_json(a.out, f"{a.preset}_vs_{a.baseline}", dict(
         runs=runs, median_process_s=medians, load=load, rounds=a.rounds,
-        date=time.strftime("%Y-%m-%d"), commit=subprocess.run(["git", "-C", str(REPO), "rev-parse", "--short", "HEAD"],
-                                                               capture_output=True, text=True).stdout.strip()))
+        date=time.strftime("%Y-%m-%d"),
+        commit=subprocess.run(["git", "-C", str(REPO), "describe", "--always", "--dirty", "--abbrev=7"],
+                              capture_output=True, text=True).stdout.strip()))  # "-dirty": uncommitted changes
 
 
 if __name__ == "__main__":
