@@ -44,22 +44,35 @@ def export_package(rev: str, where: Path) -> Path:
     return where
 
 
-def one_chunk_run(preset: str, out: Path, package_root: Path) -> dict:
-    """A fresh ``ramavt train`` process for one chunk, with the ``ramavt_jax`` under ``package_root``: {'wall_s',
-    'compile_s', 'startup_s' (None before it was logged)} from its summary line."""
-    steps = train_config.preset(preset).env_steps_per_chunk
+def _environment(package_root: Path) -> dict:
     env = dict(os.environ, RAMAVT_COMPILE_CACHE="off", GLIBC_TUNABLES="glibc.malloc.hugetlb=1")
     env["PYTHONPATH"] = os.pathsep.join(filter(None, [str(package_root), env.get("PYTHONPATH")]))
+    return env
+
+
+def check_imports(package_root: Path, cwd: Path) -> None:
+    """Refuse to time anything unless a process started as the timed ones are imports the package under
+    ``package_root``."""
+    where = subprocess.run([sys.executable, "-c", "import ramavt_jax; print(ramavt_jax.__file__)"], cwd=cwd,
+                           env=_environment(package_root), capture_output=True, text=True).stdout.strip()
+    if not Path(where).resolve().is_relative_to(package_root.resolve()):
+        raise SystemExit(f"a process meant to import ramavt_jax from {package_root} imports {where or 'nothing'}")
+
+
+def one_chunk_run(steps: int, preset: str, out: Path, package_root: Path) -> dict:
+    """A fresh ``ramavt train`` process for one chunk (``steps`` env steps), with the ``ramavt_jax`` under
+    ``package_root``: {'wall_s', 'compile_s', 'startup_s' (None before it was logged)} from its summary line.
+    ``compile_s`` is the chunk's compile before 1fcfe87 and the chunk's and the initial state's after it."""
     cmd = [sys.executable, "-m", "ramavt_jax.cli", "train", "--preset", preset, "--no-progress", "--no-resume",
            "--out", str(out), "--run.total-env-steps", str(steps), "--run.eval-episodes", "0"]
     t = time.perf_counter()
     # run from the output's folder: `python -m` puts the working directory first on sys.path
-    done = subprocess.run(cmd, env=env, capture_output=True, text=True, cwd=out.parent)
+    done = subprocess.run(cmd, env=_environment(package_root), capture_output=True, text=True, cwd=out.parent)
     wall = time.perf_counter() - t
-    if done.returncode:
-        raise SystemExit(f"{' '.join(cmd)} failed:\n{done.stderr[-2000:]}")
-    summary = next(json.loads(line) for line in done.stdout.splitlines() if line.startswith('{"run"'))
-    return {"wall_s": wall, "compile_s": summary["compile_s"], "startup_s": summary.get("startup_s")}
+    summary = [json.loads(line) for line in done.stdout.splitlines() if line.startswith('{"run"')]
+    if done.returncode or not summary:
+        raise SystemExit(f"{' '.join(cmd)} failed (status {done.returncode}):\n{done.stderr[-2000:]}")
+    return {"wall_s": wall, "compile_s": summary[0]["compile_s"], "startup_s": summary[0].get("startup_s")}
 
 
 def main(argv=None) -> None:
@@ -71,13 +84,14 @@ def main(argv=None) -> None:
     a = p.parse_args(argv)
     load = [os.getloadavg()[0]]
     runs: dict[str, list[dict]] = {"this": [], a.baseline: []}
+    steps = train_config.preset(a.preset).env_steps_per_chunk  # the same for both (the quick preset's is unchanged)
     with tempfile.TemporaryDirectory() as tmp:
-        base_path = export_package(a.baseline, Path(tmp) / "pkg")
+        versions = [("this", REPO), (a.baseline, export_package(a.baseline, Path(tmp) / "pkg"))]
+        for _, path in versions:
+            check_imports(path, Path(tmp))
         for r in range(a.rounds):
-            for name, path in (("this", REPO), (a.baseline, base_path)):
-                res = one_chunk_run(a.preset, Path(tmp) / f"run_{name}", path)
-                if (res["startup_s"] is None) == (path == REPO):
-                    raise SystemExit(f"the {name} run did not import the package under {path}")
+            for name, path in versions if r % 2 == 0 else versions[::-1]:  # AB, BA, AB, ...: neither always goes first
+                res = one_chunk_run(steps, a.preset, Path(tmp) / f"run_{name}", path)
                 runs[name].append(res)
                 print(f"round {r}: {name:>10}: process {res['wall_s']:.1f} s, compile {res['compile_s']:.1f} s"
                       + (f", start-up {res['startup_s']:.1f} s" if res["startup_s"] is not None else ""), flush=True)

@@ -140,6 +140,7 @@ def test_metrics_are_strict_json(full_run):
     assert any(line.count("null") for line in text.splitlines())  # chunks without finished episodes
 
 
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="elsewhere the clock starts at the module's import")
 def test_the_process_clock_counts_from_the_start_and_through_a_re_execution():
     """process_start_time counts from the process's start, not the module's import, and a process that re-executes
     itself (as the ramavt launcher does) keeps its first start."""

@@ -54,6 +54,11 @@ def test_clock_counts_from_each_process_start(tmp_path):
     run_folder.write_metrics(tmp_path / run_folder.METRICS_FILE, records)
     clock = curve.training_clock(tmp_path)
     assert [clock[c]["wall_s"] for c in (1, 2, 3, 4)] == [40.0, 43.0, 88.0, 93.0]
+    # a run of an earlier version (compile + chunks) resumed by a process that logs since_start_s
+    old = {"chunk": 1, "env_steps": 10, "wall_s": 1.0, "compile_s": 30.0}
+    run_folder.write_metrics(tmp_path / run_folder.METRICS_FILE, [old, records[2]])
+    clock = curve.training_clock(tmp_path)
+    assert [clock[c]["wall_s"] for c in (1, 3)] == [31.0, 76.0]
 
 
 def test_first_above():
@@ -72,6 +77,8 @@ def test_one_row_per_checkpoint_on_the_training_clock(smoke_run, curve_out):
     wall = [p["wall_s"] for p in points]
     assert np.all(np.diff(wall) > 0)
     np.testing.assert_allclose(wall, [r["since_start_s"] for r in records])  # the process's clock
+    # counted from the `ramavt train` call (made in this process): its compile and chunk, not the pytest run before it
+    assert records[0]["compile_s"] + records[0]["wall_s"] <= wall[0] < records[0]["compile_s"] + 120
     for p in points:
         assert p["aer_ci_low"] <= p["aer"] <= p["aer_ci_high"] and 1 <= p["ael"] <= 30
         assert list(p["per_target"]) == ["Satellite-val0"] and p["per_target"]["Satellite-val0"]["aer"] == p["aer"]

@@ -53,7 +53,6 @@ def _changes(arm: str, reference: str) -> dict:
         ("replay-f16", "patch-768k", {"replay.obs_dtype": "float16"}),
         ("window-40", "patch-768k", {"replay.train_len": 40, "replay.batch_size": 16}),  # same frames per update
         ("rr1", "patch-768k", {"learner.replay_ratio": 1.0}),
-        ("rr1-1152k", "rr1", {"run.total_env_steps": 1_152_000}),
         ("lr-2e-3", "patch-768k", {"learner.lr": 2e-3}),
         ("wide", "patch-768k", {"network.channels": (32, 64, 64)}),
         ("res64", "patch-768k", {"env.camera.resolution": 64, "network.kernels": (8, 2, 3),

@@ -12,6 +12,7 @@ import os
 import signal
 import sys
 import threading
+import time
 from pathlib import Path
 
 import tyro
@@ -19,6 +20,7 @@ import tyro
 from ramavt_jax.cli import commands, curve, evaluate, train
 from ramavt_jax.train_state import TrainingDivergedError
 from ramavt_jax.training.interrupts import TrainingInterrupted
+from ramavt_jax.training.metrics import process_start_time
 
 USAGE_ERROR = 2  # exit status of a bad input (as argparse / tyro use for bad flags)
 INTERRUPTED = 130  # a Ctrl-C outside training (training exits with 128 + the signal number)
@@ -64,13 +66,14 @@ def _one_line(e: BaseException) -> str:
     return " ".join(str(e).split()) or type(e).__name__
 
 
-def _dispatch(argv: list[str]) -> None:
+def _dispatch(argv: list[str], clock_start: float) -> None:
     if argv[:1] == ["bench"]:
         return commands.bench_main(argv[1:])
     cmds = {
         "targets": commands.targets_cmd,
         "render": commands.render_cmd,
-        "train": train.make_train_cmd(train.preset_in(argv[1:]) if argv[:1] == ["train"] else train.DEFAULT_PRESET),
+        "train": train.make_train_cmd(train.preset_in(argv[1:]) if argv[:1] == ["train"] else train.DEFAULT_PRESET,
+                                      clock_start),
         "eval": evaluate.eval_cmd,
         "curve": curve.curve_cmd,
         "plot": evaluate.plot_cmd,
@@ -81,7 +84,9 @@ def _dispatch(argv: list[str]) -> None:
 
 
 def main(argv: list[str] | None = None) -> None:
-    """Entry point of the `ramavt` script."""
+    """Entry point of the `ramavt` script (``argv`` None: the process's own command line, and training's clock counts
+    from the process's start; a list, as from Python code: from this call)."""
+    clock_start = process_start_time() if argv is None else time.time()
     argv = list(sys.argv[1:] if argv is None else argv)
     debug = "--debug" in argv or os.environ.get("RAMAVT_DEBUG", "") not in ("", "0")
     argv = [a for a in argv if a != "--debug"]
@@ -89,7 +94,7 @@ def main(argv: list[str] | None = None) -> None:
     main_thread = threading.current_thread() is threading.main_thread()
     old = {sig: signal.signal(sig, _exit_on_signal) for sig in (signal.SIGINT, signal.SIGTERM)} if main_thread else {}
     try:
-        _dispatch(argv)
+        _dispatch(argv, clock_start)
     except TrainingInterrupted as e:
         if debug:
             raise

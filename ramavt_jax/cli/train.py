@@ -21,7 +21,6 @@ from ramavt_jax.cli.checks import positive
 from ramavt_jax.experiment import train_and_evaluate
 from ramavt_jax.train_config import PRESETS, TrainConfig, preset
 from ramavt_jax.training import driver
-from ramavt_jax.training.metrics import process_start_time
 
 DEFAULT_PRESET = "quick"
 PresetName = Literal[tuple(PRESETS)]  # the choices of --preset: train_config.PRESETS
@@ -97,8 +96,9 @@ def _print_summary(summary: driver.RunSummary, seeds: int) -> None:
           f"MiB for {seeds} seed(s) on {summary['devices']} device(s), {summary['processes']} process(es)")
 
 
-def make_train_cmd(preset_name: str):
-    """The `ramavt train` function whose TrainConfig defaults are ``preset(preset_name)``."""
+def make_train_cmd(preset_name: str, clock_start: float | None = None):
+    """The `ramavt train` function whose TrainConfig defaults are ``preset(preset_name)``; its runs' clock
+    (metrics' ``since_start_s``) counts from ``clock_start`` (an epoch second; None: when it is called)."""
     default = preset(preset_name)
 
     def train(
@@ -143,7 +143,7 @@ def make_train_cmd(preset_name: str):
         positive("--devices", devices, minimum=0)
         distributed.initialize(coordinator_address, num_processes, process_id)
         summary = train_and_evaluate(config, out, seed=seed, seeds=seeds, resume=resume, progress=progress,
-                                     devices=devices, clock_start=process_start_time())  # imports counted
+                                     devices=devices, clock_start=clock_start)
         if distributed.is_primary():
             _print_summary(summary, seeds)
 

@@ -56,14 +56,14 @@ def _started_after_boot(stat: str, ticks_per_s: float) -> float:
 
 def process_start_time() -> float:
     """The epoch second this process started, so that a clock from it counts imports and start-up. On Linux from
-    /proc (uptime less the process's start, both in 10 ms ticks after boot), so a process that re-executed itself
-    (the ``ramavt`` launcher does, for huge-page malloc) counts from its first start; elsewhere, or when /proc
-    cannot be read, this module's import."""
+    /proc (the seconds since boot less the process's start in clock ticks since boot; 10 ms resolution), so a process
+    that re-executed itself (the ``ramavt`` launcher does, for huge-page malloc) counts from its first start;
+    elsewhere, or when /proc cannot be read, this module's import (after jax's, which it then leaves out)."""
     now = time.time()
     try:
         with open("/proc/uptime") as f:
             uptime = float(f.read().split()[0])
-        with open(f"/proc/{os.getpid()}/stat") as f:
+        with open("/proc/self/stat") as f:
             since_start = uptime - _started_after_boot(f.read(), os.sysconf("SC_CLK_TCK"))
     except (OSError, ValueError, IndexError):
         return _IMPORTED_AT

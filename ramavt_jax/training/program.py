@@ -33,9 +33,9 @@ class _Program:
 # (config, seeds, mesh, env id, NaN hook) -> _Program; repeated runs, resumes and tests compile once
 _COMPILED: dict = {}
 # The initial state's program (the envs' reset with its renderer, the network's init) runs once per run, so on CPU
-# it is compiled without LLVM's optimisations, beside the chunk. On an idle 2-core VM (quick preset, cold cache):
-# the two compiled one after the other in 19.4-21.7 s, in parallel in 23.8 s (XLA already uses both cores), and in
-# parallel with the init unoptimised in 12.3-16.6 s.
+# it is compiled without LLVM's optimisations, beside the chunk. One-off timings on an idle 2-core VM (quick preset,
+# cold cache; benchmarks/RESULTS.md): the two compiled one after the other in 19.4-21.7 s, in parallel in 23.8 s
+# (XLA already uses both cores), and in parallel with the init unoptimised in 12.3-16.6 s.
 _INIT_COMPILER_OPTIONS = {"cpu": {"xla_backend_optimization_level": 0}}
 
 
@@ -68,7 +68,7 @@ def _staged(trainer: Trainer, num_seeds: int, mesh) -> _Staged:
 def check_state_fits(config: TrainConfig, abstract, num_seeds: int, mesh, chunk_temp: int = 0) -> None:
     """Refuse (MemoryPlanError, one line) a RunnerState (plus ``chunk_temp``, the compiled chunk's working memory
     once known) larger than the memory available, before it is allocated; called before compiling with the state
-    alone and after with both. ``abstract``: the state's shapes (jax.eval_shape of init), [seeds]-stacked when
+    alone and after with both. ``abstract``: the state's shapes (of init's output), [seeds]-stacked when
     ``num_seeds`` > 1; with a mesh each device holds its share (on CPU all devices share the host's RAM)."""
     total, replay = memplan.tree_bytes(abstract), memplan.tree_bytes(abstract.replay)
     device = jax.local_devices()[0]
