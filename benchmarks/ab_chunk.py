@@ -19,9 +19,7 @@ import importlib
 import json
 import os
 import statistics
-import subprocess
 import sys
-import tarfile
 import tempfile
 import time
 from pathlib import Path
@@ -30,26 +28,19 @@ import jax
 import jax.numpy as jnp
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from bench_train import merge_json  # noqa: E402
+from bench_train import export_package, merge_json  # noqa: E402
 
 from ramavt_jax import train as T  # noqa: E402
 from ramavt_jax import train_config  # noqa: E402
 from ramavt_jax.training.checkpoint import CheckpointStore  # noqa: E402
 
-REPO = Path(__file__).resolve().parents[1]
 BASELINE_MODULE = "ramavt_baseline"
 
 
 def import_baseline(rev: str, where: Path, module: str = "train"):
     """The ``ramavt_jax`` package of git revision ``rev`` imported as ``ramavt_baseline``: its ``module``."""
-    archive = subprocess.run(["git", "-C", str(REPO), "archive", rev, "ramavt_jax"], check=True,
-                             capture_output=True).stdout
-    tar_path = where / "baseline.tar"
-    tar_path.write_bytes(archive)
-    with tarfile.open(tar_path) as tar:
-        tar.extractall(where, filter="data")
     package = where / BASELINE_MODULE
-    (where / "ramavt_jax").rename(package)
+    export_package(rev, where).rename(package)
     for path in package.rglob("*.py"):
         path.write_text(path.read_text().replace("ramavt_jax", BASELINE_MODULE))
     sys.path.insert(0, str(where))

@@ -14,7 +14,6 @@ from __future__ import annotations
 import argparse
 import os
 import statistics
-import subprocess
 import sys
 import time
 from pathlib import Path
@@ -22,12 +21,11 @@ from pathlib import Path
 import jax
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from bench_train import merge_json  # noqa: E402
+from bench_train import code_version, merge_json  # noqa: E402
 
 from ramavt_jax import train_config  # noqa: E402
 from ramavt_jax.train import Trainer  # noqa: E402
 
-REPO = Path(__file__).resolve().parents[1]
 DEFAULT_OUT = Path(__file__).resolve().parent / "results_compile_level.json"
 
 
@@ -68,8 +66,7 @@ def main(argv=None) -> None:
           f"{compile_s[low]:.1f} s; load {load[0]:.1f} -> {load[1]:.1f}")
     merge_json(a.out, f"{a.preset}_level{a.level}", dict(
         compile_s=compile_s, chunk_s=chunk_s, median_chunk_s=medians, load=load, date=time.strftime("%Y-%m-%d"),
-        commit=subprocess.run(["git", "-C", str(REPO), "describe", "--always", "--dirty", "--abbrev=7"],
-                              capture_output=True, text=True).stdout.strip()))
+        commit=code_version()))
 
 
 if __name__ == "__main__":

@@ -18,30 +18,17 @@ import os
 import statistics
 import subprocess
 import sys
-import tarfile
 import tempfile
 import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from bench_train import merge_json  # noqa: E402
+from bench_train import code_version, export_package, merge_json  # noqa: E402
 
 from ramavt_jax import train_config  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 DEFAULT_OUT = Path(__file__).resolve().parent / "results_startup.json"
-
-
-def export_package(rev: str, where: Path) -> Path:
-    """``ramavt_jax`` of git revision ``rev`` extracted under ``where`` (to put first on PYTHONPATH)."""
-    archive = subprocess.run(["git", "-C", str(REPO), "archive", rev, "ramavt_jax"], check=True,
-                             capture_output=True).stdout
-    where.mkdir(parents=True, exist_ok=True)
-    tar_path = where / "package.tar"
-    tar_path.write_bytes(archive)
-    with tarfile.open(tar_path) as tar:
-        tar.extractall(where, filter="data")
-    return where
 
 
 def _environment(package_root: Path) -> dict:
@@ -86,7 +73,7 @@ def main(argv=None) -> None:
     runs: dict[str, list[dict]] = {"this": [], a.baseline: []}
     steps = train_config.preset(a.preset).env_steps_per_chunk  # the same for both (the quick preset's is unchanged)
     with tempfile.TemporaryDirectory() as tmp:
-        versions = [("this", REPO), (a.baseline, export_package(a.baseline, Path(tmp) / "pkg"))]
+        versions = [("this", REPO), (a.baseline, export_package(a.baseline, Path(tmp) / "pkg").parent)]
         for _, path in versions:
             check_imports(path, Path(tmp))
         for r in range(a.rounds):
@@ -101,9 +88,7 @@ def main(argv=None) -> None:
           f"({medians[a.baseline] - medians['this']:+.1f} s); load {load[0]:.1f} -> {load[1]:.1f}")
     merge_json(a.out, f"{a.preset}_vs_{a.baseline}", dict(
         runs=runs, median_process_s=medians, load=load, rounds=a.rounds,
-        date=time.strftime("%Y-%m-%d"),
-        commit=subprocess.run(["git", "-C", str(REPO), "describe", "--always", "--dirty", "--abbrev=7"],
-                              capture_output=True, text=True).stdout.strip()))  # "-dirty": uncommitted changes
+        date=time.strftime("%Y-%m-%d"), commit=code_version()))
 
 
 if __name__ == "__main__":

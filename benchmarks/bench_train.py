@@ -16,6 +16,8 @@ import json
 import os
 import platform
 import statistics
+import subprocess
+import tarfile
 import time
 from pathlib import Path
 
@@ -41,6 +43,24 @@ def machine_info(load_start: tuple, start_time: float) -> dict:
     return {"platform": platform.platform(), "cpus": os.cpu_count(), "jax": jax.__version__,
             "backend": jax.default_backend(), "loadavg_start": load_start, "loadavg_end": os.getloadavg(),
             "wall_s": time.time() - start_time}
+
+
+def code_version() -> str:
+    """This checkout's commit, with "-dirty" when it has uncommitted changes (the code a JSON's figures measured)."""
+    return subprocess.run(["git", "-C", str(Path(__file__).resolve().parents[1]), "describe", "--always", "--dirty",
+                           "--abbrev=7"], capture_output=True, text=True).stdout.strip()
+
+
+def export_package(rev: str, where: Path) -> Path:
+    """``ramavt_jax`` of git revision ``rev`` extracted into ``where`` (made if needed): ``where / "ramavt_jax"``."""
+    archive = subprocess.run(["git", "-C", str(Path(__file__).resolve().parents[1]), "archive", rev, "ramavt_jax"],
+                             check=True, capture_output=True).stdout
+    where.mkdir(parents=True, exist_ok=True)
+    tar_path = where / "package.tar"
+    tar_path.write_bytes(archive)
+    with tarfile.open(tar_path) as tar:
+        tar.extractall(where, filter="data")
+    return where / "ramavt_jax"
 
 
 def merge_json(path, key: str, value) -> None:
