@@ -55,6 +55,8 @@ def _changes(arm: str, reference: str) -> dict:
         ("rr1", "patch-768k", {"learner.replay_ratio": 1.0}),
         ("lr-2e-3", "patch-768k", {"learner.lr": 2e-3}),
         ("wide", "patch-768k", {"network.channels": (32, 64, 64)}),
+        ("polyak-002", "patch-768k", {"learner.polyak_tau": 0.02}),
+        ("burn-5", "patch-768k", {"replay.burn_in": 5}),
         ("res64", "patch-768k", {"env.camera.resolution": 64, "network.kernels": (8, 2, 3),
                                  "network.strides": (8, 2, 1)}),  # one change: the image, its patch kept 4x4 tokens
     ],
