@@ -127,6 +127,16 @@ class Trainer:
         frac = jnp.clip(env_steps / max(c.eps_decay_steps, 1), 0.0, 1.0) if c.eps_decay_steps else 1.0
         return c.eps_start + (c.eps_end - c.eps_start) * frac
 
+    def polyak_tau(self, updates: jax.Array):
+        """The target net's step towards the online net at gradient step ``updates`` (LearnerConfig.polyak_tau_start):
+        a float when constant, else [] float32."""
+        c = self.config.learner
+        if c.polyak_tau_start is None:
+            return c.polyak_tau
+        hold, end = c.polyak_tau_decay
+        frac = jnp.clip((updates - hold) / max(end - hold, 1), 0.0, 1.0)
+        return c.polyak_tau_start + (c.polyak_tau - c.polyak_tau_start) * frac
+
     def q_values(self, params, obs, reset, state, actions=None):
         """Online/target forward: obs [B, T, H, W, C], reset [B, T], actions [B, T] (the actions taken; used by
         prev_action networks) -> (q [B, T, A], state)."""
@@ -253,7 +263,7 @@ class Trainer:
         params = optax.apply_updates(learner.params, updates)
         n = learner.updates + 1
         if c.target_update == "polyak":
-            target = optax.incremental_update(params, learner.target_params, c.polyak_tau)
+            target = optax.incremental_update(params, learner.target_params, self.polyak_tau(learner.updates))
         else:
             target = optax.periodic_update(params, learner.target_params, n, c.target_period)
         new = LearnerState(params=params, target_params=target, opt_state=opt_state, updates=n)

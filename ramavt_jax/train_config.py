@@ -66,6 +66,11 @@ class LearnerConfig:
     target_update: str = "polyak"  # 'polyak' | 'period'
     polyak_tau: float = 0.01  # target net moves this fraction towards the online net per step ('polyak')
     target_period: int = 500  # gradient steps between hard target syncs ('period')
+    # None = polyak_tau throughout. Else the target net (and so a trained policy acting with it) starts averaging over
+    # fewer updates: tau is polyak_tau_start until gradient step polyak_tau_decay[0], then moves linearly to
+    # polyak_tau by step polyak_tau_decay[1] (the average lags the online net by about 1 / tau steps).
+    polyak_tau_start: float | None = None
+    polyak_tau_decay: tuple[int, int] = (1000, 2000)  # gradient steps: (hold start until, reach polyak_tau at)
     # Bootstrap through 'target lost' terminations as through time limits: with a terminal value of 0, a tracker
     # whose per-step reward is negative (1 - w * distance < 0) gains by losing the target on purpose; bootstrapping
     # removes that incentive. The env's reward and episode rules (and so evaluation) are unchanged.
@@ -93,6 +98,12 @@ class LearnerConfig:
                                ("replay_ratio", self.replay_ratio > 0, "> 0")):
             if not ok:
                 raise fail(f"{name} must be {rule}, got {getattr(self, name)}")
+        if self.polyak_tau_start is not None and not 0.0 < self.polyak_tau_start <= 1.0:
+            raise fail(f"polyak_tau_start must be None (a constant polyak_tau) or in (0, 1], "
+                       f"got {self.polyak_tau_start}")
+        hold, end = self.polyak_tau_decay
+        if not (isinstance(hold, int) and isinstance(end, int) and 0 <= hold <= end):
+            raise fail(f"polyak_tau_decay must be two gradient steps 0 <= hold <= end, got {self.polyak_tau_decay}")
         if self.huber_delta is not None and not self.huber_delta > 0:
             raise fail(f"huber_delta must be None (MSE) or > 0, got {self.huber_delta}")
         if self.target_update not in ("polyak", "period"):

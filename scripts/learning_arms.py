@@ -196,6 +196,9 @@ ARMS["wide"] = lambda c: _net(ARMS["patch-768k"](c), channels=(32, 64, 64))
 # update runs the network over fewer frames (from the stored recurrent state, as R2D2 does), so a chunk takes less time.
 ARMS["polyak-002"] = lambda c: ARMS["patch-768k"](c).override(polyak_tau=0.02)
 ARMS["burn-5"] = lambda c: ARMS["patch-768k"](c).override(burn_in=5)
+# polyak-002 crossed the depth tracker a chunk earlier than the preset and ended lower: tau 0.02 for the first 1000
+# updates (about 10 chunks), then linearly to the preset's 0.01 by update 2000.
+ARMS["polyak-sched"] = lambda c: ARMS["patch-768k"](c).override(polyak_tau_start=0.02, polyak_tau_decay=(1000, 2000))
 ARMS["res64"] = lambda c: _net(ARMS["patch-768k"](c), kernels=(8, 2, 3), strides=(8, 2, 1)).override(
     env=dataclasses.replace(c.env, camera=dataclasses.replace(c.env.camera, resolution=64)))
 

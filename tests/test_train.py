@@ -114,6 +114,35 @@ def test_lr_final_decays_the_learning_rate_over_the_runs_gradient_steps():
     assert 1e-5 < float(schedule(cfg.total_updates // 2)) < cfg.learner.lr
 
 
+def test_polyak_tau_start_holds_then_moves_linearly_to_polyak_tau(learner):
+    assert T.Trainer(SMOKE).polyak_tau(jnp.int32(5)) == SMOKE.learner.polyak_tau  # constant by default
+    cfg = SMOKE.override(polyak_tau=0.01, polyak_tau_start=0.05, polyak_tau_decay=(1000, 2000))
+    trainer = T.Trainer(cfg)
+    taus = [float(trainer.polyak_tau(jnp.int32(k))) for k in (0, 1000, 1500, 2000, 9000)]
+    np.testing.assert_allclose(taus, [0.05, 0.05, 0.03, 0.01, 0.01], rtol=1e-6)
+    # the update moves the target net by that fraction towards the new online params (read back from one step)
+    params, target = learner
+    replay = trainer.replay.init()
+    update = jax.jit(trainer.update)
+    for updates, tau in ((0, 0.05), (1500, 0.03)):
+        state = T.LearnerState(params=params, target_params=target, opt_state=trainer.optimizer.init(params),
+                               updates=jnp.int32(updates))
+        new, _ = update(state, replay, jax.random.PRNGKey(1))
+        moved = [(np.asarray(t1) - np.asarray(t0), np.asarray(p1) - np.asarray(t0)) for t1, t0, p1 in
+                 zip(jax.tree.leaves(new.target_params), jax.tree.leaves(target), jax.tree.leaves(new.params))]
+        step, gap = max(moved, key=lambda m: np.abs(m[1]).max())
+        np.testing.assert_allclose(step, tau * gap, rtol=1e-4, atol=1e-7)
+
+
+@pytest.mark.parametrize("overrides, message", [
+    (dict(polyak_tau_start=0.0), r"polyak_tau_start must be None \(a constant polyak_tau\) or in \(0, 1\]"),
+    (dict(polyak_tau_decay=(2000, 1000)), r"polyak_tau_decay must be two gradient steps 0 <= hold <= end"),
+])
+def test_invalid_polyak_schedules_raise(overrides, message):
+    with pytest.raises(ValueError, match=message):
+        SMOKE.override(**overrides)
+
+
 def test_override_routes_field_names_to_their_groups():
     cfg = SMOKE.override(lr=1e-3, period=2, eval_episodes=0, learner=LearnerConfig(learning_starts=0))
     assert (cfg.learner.lr, cfg.learner.learning_starts, cfg.replay.period, cfg.run.eval_episodes) == (1e-3, 0, 2, 0)

@@ -40,7 +40,8 @@ RESUMABLE_FIELDS = ("run.total_env_steps", "run.eval_episodes", "run.eval_max_st
 # Fields added to TrainConfig after run folders of earlier versions were written, each defaulting to what those
 # runs were trained with: a config.json without such a field reads as its default. Any other missing field means a
 # file cut short or edited, and is refused.
-ADDED_FIELDS = ("network.depth_centre", "network.depth_gain")
+ADDED_FIELDS = ("network.depth_centre", "network.depth_gain", "learner.polyak_tau_start",
+                "learner.polyak_tau_decay")
 _SEED_DIR = re.compile(r"seed_\d+")
 
 
