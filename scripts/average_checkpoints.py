@@ -1,5 +1,6 @@
-"""Checkpoint averaging: the uniform average of a run's policy parameters (the target net's, as the preset acts) over
-the checkpoints of chunks FIRST..LAST, written as a run folder that `ramavt eval --policy checkpoint` reads.
+"""Checkpoint averaging: the uniform average of a run's policy parameters (the set it acts with,
+RunConfig.policy_params: the target net's for the presets) over the checkpoints of chunks FIRST..LAST, written as a
+run folder that `ramavt eval --policy checkpoint` reads. With FIRST = LAST it picks out that one chunk.
 
     python scripts/average_checkpoints.py runs/eps_100k/seed_0 --chunks 13 24 --out runs/avg/eps_100k_13-24/seed_0
 
@@ -25,9 +26,10 @@ from ramavt_jax.training import run_folder as folders
 from ramavt_jax.training.checkpoint import CheckpointStore
 
 
-def average_params(run_dir: Path, first: int, last: int, which: str = "target"):
-    """(mean params over chunks first..last, the last chunk's state without replay, its meta, config)."""
+def average_params(run_dir: Path, first: int, last: int):
+    """(mean policy params over chunks first..last, the last chunk's state without replay, its meta, config)."""
     config = TrainConfig.from_dict(folders.read_config(run_dir)["config"])
+    which = config.run.policy_params
     store = CheckpointStore(run_dir / folders.CHECKPOINTS, create=False)
     try:
         missing = sorted(set(range(first, last + 1)) - set(store.all_steps()))

@@ -1,4 +1,4 @@
-"""scripts/average_checkpoints.py: the written run folder's policy is the mean of the chosen chunks' target params,
+"""scripts/average_checkpoints.py: the written run folder's policy is the mean of the chosen chunks' policy params,
 `ramavt eval` reads it, and a missing chunk is refused."""
 
 import sys
@@ -24,17 +24,18 @@ def smoke_run(tmp_path_factory):
     return out
 
 
-def test_average_is_the_mean_of_the_chunks_target_params(smoke_run, tmp_path):
+def test_average_is_the_mean_of_the_chunks_policy_params(smoke_run, tmp_path):
     out = tmp_path / "avg"
     average_checkpoints.main([str(smoke_run), "--chunks", "2", "4", "--out", str(out)])
     averaged = load_policy(out, log=lambda *_: None)
-    assert averaged.step == 4 and averaged.config.run.policy_params == "target"
+    assert averaged.step == 4 and averaged.config == load_policy(smoke_run, log=lambda *_: None).config
     chunks = [jax.tree.leaves(load_policy(smoke_run, step=s, log=lambda *_: None).params) for s in (2, 3, 4)]
     assert any(not np.allclose(a, b) for a, b in zip(chunks[0], chunks[2]))  # the chunks differ: a real mean
     for got, *per_chunk in zip(jax.tree.leaves(averaged.params), *chunks):
         np.testing.assert_allclose(got, np.mean(per_chunk, axis=0), rtol=1e-6, atol=1e-7)
-    online = load_policy(out, policy_params="online", log=lambda *_: None)  # both sets are the mean
-    for a, b in zip(jax.tree.leaves(online.params), jax.tree.leaves(averaged.params)):
+    other = {"online": "target", "target": "online"}[averaged.config.run.policy_params]
+    both = load_policy(out, policy_params=other, log=lambda *_: None)  # both sets are the mean
+    for a, b in zip(jax.tree.leaves(both.params), jax.tree.leaves(averaged.params)):
         np.testing.assert_array_equal(a, b)
 
 
