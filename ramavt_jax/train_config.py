@@ -101,8 +101,9 @@ class LearnerConfig:
         if self.polyak_tau_start is not None and not 0.0 < self.polyak_tau_start <= 1.0:
             raise fail(f"polyak_tau_start must be None (a constant polyak_tau) or in (0, 1], "
                        f"got {self.polyak_tau_start}")
-        hold, end = self.polyak_tau_decay
-        if not (isinstance(hold, int) and isinstance(end, int) and 0 <= hold <= end):
+        steps = tuple(self.polyak_tau_decay) if isinstance(self.polyak_tau_decay, (tuple, list)) else ()
+        if not (len(steps) == 2 and all(isinstance(k, int) and not isinstance(k, bool) for k in steps)
+                and 0 <= steps[0] <= steps[1]):
             raise fail(f"polyak_tau_decay must be two gradient steps 0 <= hold <= end, got {self.polyak_tau_decay}")
         if self.huber_delta is not None and not self.huber_delta > 0:
             raise fail(f"huber_delta must be None (MSE) or > 0, got {self.huber_delta}")

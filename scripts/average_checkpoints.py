@@ -4,7 +4,8 @@ run folder that `ramavt eval --policy checkpoint` reads. With FIRST = LAST it pi
 
     python scripts/average_checkpoints.py runs/eps_100k/seed_0 --chunks 13 24 --out runs/avg/eps_100k_13-24/seed_0
 
-The run needs a checkpoint of every chunk in the range (`--run.checkpoint-every-chunks 1 --run.keep-checkpoints N`).
+The run needs a checkpoint of every chunk in the range (`--run.checkpoint-every-chunks 1 --run.keep-checkpoints N`;
+`--run.no-checkpoint-replay` keeps them small, and each is read whole).
 The output folder holds the run's config.json and one checkpoint, numbered LAST, whose online and target parameters
 are both the average; its other arrays (optimiser, envs) are the LAST checkpoint's, and it has no replay, so it can be
 evaluated but not resumed.
@@ -14,7 +15,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import shutil
 from pathlib import Path
 
 import jax
@@ -36,11 +36,13 @@ def average_params(run_dir: Path, first: int, last: int):
         if missing:
             raise SystemExit(f"{run_dir}: no checkpoint of chunk(s) {missing}; "
                              f"train with --run.checkpoint-every-chunks 1")
-        like = jax.eval_shape(Trainer(config).init, jax.ShapeDtypeStruct((2,), jnp.uint32)).replace(replay=None)
+        like = jax.eval_shape(Trainer(config).init, jax.ShapeDtypeStruct((2,), jnp.uint32))
+        if not config.run.checkpoint_replay:
+            like = like.replace(replay=None)
         total = None
         for step in range(first, last + 1):  # whole states (no replay: a few MB each), one orbax handler throughout
             state, meta = store.restore(like, step)
-            params = state.learner.policy_params(which)
+            params, state = state.learner.policy_params(which), state.replace(replay=None)
             total = params if total is None else jax.tree.map(jnp.add, total, params)
         mean = jax.tree.map(lambda x: x / (last - first + 1), total)
     finally:
@@ -57,12 +59,12 @@ def main(argv=None) -> None:
     first, last = args.chunks
     if not 1 <= first <= last:
         raise SystemExit(f"--chunks {first} {last}: need 1 <= FIRST <= LAST")
+    if args.out.exists():
+        raise SystemExit(f"--out {args.out} exists: name a new folder (it is never overwritten)")
     mean, state, meta, config = average_params(args.run, first, last)
     state = state.replace(learner=state.learner.replace(params=mean, target_params=mean))
     # restore() leaves empty arrays as their shape structs (nothing to read): make them arrays again to save them
     state = jax.tree.map(lambda x: jnp.zeros(x.shape, x.dtype) if isinstance(x, jax.ShapeDtypeStruct) else x, state)
-    if args.out.exists():
-        shutil.rmtree(args.out)
     args.out.mkdir(parents=True)
     saved = folders.read_config(args.run)
     saved["config"]["run"]["checkpoint_replay"] = False  # the state written has no replay

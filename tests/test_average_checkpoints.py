@@ -42,5 +42,21 @@ def test_average_is_the_mean_of_the_chunks_policy_params(smoke_run, tmp_path):
 def test_missing_chunk_is_refused(smoke_run, tmp_path):
     with pytest.raises(SystemExit, match=r"no checkpoint of chunk\(s\) \[5, 6\]"):
         average_checkpoints.main([str(smoke_run), "--chunks", "3", "6", "--out", str(tmp_path / "x")])
+    with pytest.raises(SystemExit, match="exists: name a new folder"):
+        average_checkpoints.main([str(smoke_run), "--chunks", "2", "3", "--out", str(smoke_run)])
+    assert (smoke_run / "config.json").is_file()  # the run is left as it was
     with pytest.raises(SystemExit, match="need 1 <= FIRST <= LAST"):
         average_checkpoints.main([str(smoke_run), "--chunks", "4", "2", "--out", str(tmp_path / "y")])
+
+
+def test_a_run_that_checkpoints_its_replay_is_averaged_without_it(tmp_path):
+    run = tmp_path / "with_replay"
+    cli.main(["train", "--preset", "smoke", "--no-progress", "--out", str(run), "--run.eval-episodes", "0",
+              "--run.checkpoint-every-chunks", "1", "--run.keep-checkpoints", "100"])
+    out = tmp_path / "avg"
+    average_checkpoints.main([str(run), "--chunks", "3", "4", "--out", str(out)])
+    averaged = load_policy(out, log=lambda *_: None)
+    assert averaged.step == 4 and not averaged.config.run.checkpoint_replay
+    chunks = [jax.tree.leaves(load_policy(run, step=s, log=lambda *_: None).params) for s in (3, 4)]
+    for got, a, b in zip(jax.tree.leaves(averaged.params), *chunks):
+        np.testing.assert_allclose(got, (a + b) / 2, rtol=1e-6, atol=1e-7)

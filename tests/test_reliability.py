@@ -19,7 +19,7 @@ import pytest
 
 from ramavt_jax import cli
 from ramavt_jax.train import Trainer
-from ramavt_jax.train_config import preset
+from ramavt_jax.train_config import TrainConfig, preset
 from ramavt_jax.training import memory, run_folder
 from ramavt_jax.training.checkpoint import CheckpointError, CheckpointStore
 
@@ -170,6 +170,10 @@ def test_a_config_json_written_before_a_field_was_added_reads_as_that_field_s_ol
     (tmp_path / "config.json").write_text(json.dumps({"seed": 0, "config": older}))
     network = run_folder.read_config(tmp_path)["config"]["network"]
     assert (network["depth_centre"], network["depth_gain"]) == (0.0, 1.0)
+    no_schedule = _without(_without(config_json, "learner", "polyak_tau_start"), "learner", "polyak_tau_decay")
+    (tmp_path / "config.json").write_text(json.dumps({"seed": 0, "config": no_schedule}))
+    learner = TrainConfig.from_dict(run_folder.read_config(tmp_path)["config"]).learner
+    assert (learner.polyak_tau_start, learner.polyak_tau_decay) == (None, (1000, 2000))  # a constant tau, as trained
     (tmp_path / "config.json").write_text(json.dumps({"seed": 0, "config": _without(older, "network", "lstm")}))
     with pytest.raises(run_folder.RunFolderError, match="lacks network.lstm"):
         run_folder.read_config(tmp_path)

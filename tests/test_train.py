@@ -137,6 +137,7 @@ def test_polyak_tau_start_holds_then_moves_linearly_to_polyak_tau(learner):
 @pytest.mark.parametrize("overrides, message", [
     (dict(polyak_tau_start=0.0), r"polyak_tau_start must be None \(a constant polyak_tau\) or in \(0, 1\]"),
     (dict(polyak_tau_decay=(2000, 1000)), r"polyak_tau_decay must be two gradient steps 0 <= hold <= end"),
+    (dict(polyak_tau_decay=(1000,)), r"polyak_tau_decay must be two gradient steps 0 <= hold <= end"),
 ])
 def test_invalid_polyak_schedules_raise(overrides, message):
     with pytest.raises(ValueError, match=message):
