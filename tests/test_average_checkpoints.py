@@ -16,12 +16,8 @@ import average_checkpoints  # noqa: E402
 
 
 @pytest.fixture(scope="module")
-def smoke_run(tmp_path_factory):
-    """A smoke run with a checkpoint (parameters only) after each of its 4 chunks."""
-    out = tmp_path_factory.mktemp("average") / "smoke"
-    cli.main(["train", "--preset", "smoke", "--no-progress", "--out", str(out), "--run.eval-episodes", "0",
-              "--run.checkpoint-every-chunks", "1", "--run.keep-checkpoints", "100", "--run.no-checkpoint-replay"])
-    return out
+def smoke_run(every_chunk_run):
+    return every_chunk_run  # conftest.py
 
 
 def test_average_is_the_mean_of_the_chunks_policy_params(smoke_run, tmp_path):

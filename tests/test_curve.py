@@ -17,12 +17,8 @@ EPISODES = ["--targets", "Satellite-val0", "--episodes", "2", "--max-steps", "30
 
 
 @pytest.fixture(scope="module")
-def smoke_run(tmp_path_factory):
-    """A smoke run trained by `ramavt train` with a checkpoint (parameters only) after every one of its 4 chunks."""
-    out = tmp_path_factory.mktemp("curve") / "smoke"
-    cli.main(["train", "--preset", "smoke", "--no-progress", "--out", str(out), "--run.eval-episodes", "0",
-              "--run.checkpoint-every-chunks", "1", "--run.keep-checkpoints", "100", "--run.no-checkpoint-replay"])
-    return out
+def smoke_run(every_chunk_run):
+    return every_chunk_run  # conftest.py
 
 
 @pytest.fixture(scope="module")

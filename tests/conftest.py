@@ -1,0 +1,15 @@
+"""Fixtures shared by several test modules."""
+
+import pytest
+
+from ramavt_jax import cli
+
+
+@pytest.fixture(scope="session")
+def every_chunk_run(tmp_path_factory):
+    """A smoke run trained by `ramavt train` with a checkpoint (parameters only) after every one of its 4 chunks;
+    read, never written, by the tests that use it."""
+    out = tmp_path_factory.mktemp("every_chunk") / "smoke"
+    cli.main(["train", "--preset", "smoke", "--no-progress", "--out", str(out), "--run.eval-episodes", "0",
+              "--run.checkpoint-every-chunks", "1", "--run.keep-checkpoints", "100", "--run.no-checkpoint-replay"])
+    return out
