@@ -5,7 +5,7 @@ import pytest
 from ramavt_jax import cli
 
 
-@pytest.fixture(scope="session")
+@pytest.fixture(scope="package")
 def every_chunk_run(tmp_path_factory):
     """A smoke run trained by `ramavt train` with a checkpoint (parameters only) after every one of its 4 chunks;
     read, never written, by the tests that use it."""
