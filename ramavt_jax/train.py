@@ -77,6 +77,10 @@ class Trainer:
         learner = config.learner
         self.td = learner.td
         # learning rate of gradient step k (a float when constant: the optimiser state then has no step count)
+        # the target net's step towards the online net at gradient step k (LearnerConfig.polyak_tau_start)
+        hold, end = learner.polyak_tau_decay
+        self.polyak_tau = (lambda k: learner.polyak_tau) if learner.polyak_tau_start is None else optax.linear_schedule(
+            learner.polyak_tau_start, learner.polyak_tau, transition_steps=max(end - hold, 1), transition_begin=hold)
         self.learning_rate = (learner.lr if learner.lr_final is None else optax.cosine_decay_schedule(
             learner.lr, max(config.total_updates, 1), alpha=learner.lr_final / learner.lr))
         lr_tx = optax.adam(self.learning_rate, eps=learner.adam_eps)
@@ -126,16 +130,6 @@ class Trainer:
         c = self.config.acting
         frac = jnp.clip(env_steps / max(c.eps_decay_steps, 1), 0.0, 1.0) if c.eps_decay_steps else 1.0
         return c.eps_start + (c.eps_end - c.eps_start) * frac
-
-    def polyak_tau(self, updates: jax.Array):
-        """The target net's step towards the online net at gradient step ``updates`` (LearnerConfig.polyak_tau_start):
-        a float when constant, else [] float32."""
-        c = self.config.learner
-        if c.polyak_tau_start is None:
-            return c.polyak_tau
-        hold, end = c.polyak_tau_decay
-        frac = jnp.clip((updates - hold) / max(end - hold, 1), 0.0, 1.0)
-        return c.polyak_tau_start + (c.polyak_tau - c.polyak_tau_start) * frac
 
     def q_values(self, params, obs, reset, state, actions=None):
         """Online/target forward: obs [B, T, H, W, C], reset [B, T], actions [B, T] (the actions taken; used by

@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ramavt_jax.evaluation import curve
 from ramavt_jax.figures import pyplot, save_figure
 
 
@@ -24,9 +25,9 @@ def arm_points(result: dict) -> tuple[list[int], np.ndarray]:
     return chunks, np.array([[r[c] for c in chunks] for r in per_run])
 
 
-def first_above(chunks: list[int], aer: np.ndarray, threshold: float) -> list[int | None]:
-    """Per seed, the first chunk whose AER is above ``threshold`` (None: none of them)."""
-    return [next((c for c, a in zip(chunks, row) if a > threshold), None) for row in aer]
+def first_above(result: dict, threshold: float) -> list[int | None]:
+    """Per run of one `curve.json`, the first chunk whose AER is above ``threshold`` (None: none of them)."""
+    return [(curve.first_above(run["points"], threshold) or {}).get("step") for run in result["runs"]]
 
 
 def main(argv=None) -> None:
@@ -52,7 +53,7 @@ def main(argv=None) -> None:
         chunks, aer = arm_points(result)
         (line,) = ax.plot(chunks, aer.mean(0), marker=".", lw=1.5, label=f"{name} ({len(aer)} seeds)")
         ax.fill_between(chunks, aer.min(0), aer.max(0), color=line.get_color(), alpha=0.15, lw=0)
-        crossings = ", ".join("-" if c is None else str(c) for c in first_above(chunks, aer, depth))
+        crossings = ", ".join("-" if c is None else str(c) for c in first_above(result, depth))
         means = ", ".join(f"{c}: {m:+.1f}" for c, m in zip(chunks, aer.mean(0)))
         print(f"| {name} | {len(aer)} | {crossings} | {means} |")
     ax.axhline(depth, color="tab:gray", ls="--", lw=1, label="depth tracker")
