@@ -318,8 +318,9 @@ def _quick() -> TrainConfig:
     """The README main job (a few minutes on an idle 2-core CPU): 32x32 depth, a small RAMAVT whose first two blocks
     are patch layers (4x4 then 2x2 patches: no im2col copies, 1.7x faster learner updates than 3x3 convs with
     max-pools; a 4x4 final map = 16 attention tokens) that sees absolute depth and image position and feeds the
-    previous action to its LSTM; 'target lost' bootstrapped, an auxiliary tracking-error loss, replay ratio 2; the
-    trained policy acts with the Polyak-averaged target params. Measurements: RESULTS.md, docs/experiments.md."""
+    previous action to its LSTM; 'target lost' bootstrapped, an auxiliary tracking-error loss, replay ratio 2, gradients
+    clipped at global norm 1 (late collapses: one seed in ten fell to +349 at norm 10); the trained policy acts with
+    the Polyak-averaged target params. Measurements: RESULTS.md, docs/experiments.md."""
     return TrainConfig(
         env=env_lib.EnvConfig(camera=CameraConfig(resolution=32), autoreset="next_step"),
         network=NetworkConfig(variant="ramavt", channels=(16, 32, 32), kernels=(4, 2, 3), strides=(4, 2, 1),
@@ -330,7 +331,7 @@ def _quick() -> TrainConfig:
         replay=ReplayConfig(capacity_steps=64_000, burn_in=10, train_len=20, batch_size=32),
         learner=LearnerConfig(learning_starts=10_240, replay_ratio=2.0, lr=1e-3, gamma=0.97, n_step=5,
                               reward_scale=0.1, target_update="polyak", polyak_tau=0.01, bootstrap_lost=True,
-                              aux_weight=1.0),
+                              aux_weight=1.0, max_grad_norm=1.0),
         run=RunConfig(total_env_steps=768_000, iterations_per_chunk=25, eval_episodes=32, checkpoint_every_chunks=5,
                       policy_params="target"),
     )
@@ -338,13 +339,13 @@ def _quick() -> TrainConfig:
 
 def _long() -> TrainConfig:
     """The quick preset's network with 3x3 convs and max-pools in place of its patch layers, without the
-    previous-action input, 1.15M env steps, exploration decaying over 400k steps and a 128k-step replay
-    (RESULTS.md): the shipped agent's config."""
+    previous-action input, 1.15M env steps, exploration decaying over 400k steps, a 128k-step replay and gradients
+    clipped at norm 10 (RESULTS.md): the shipped agent's config, as it was trained."""
     quick = _quick()
     stem = dict(kernels=(3, 3, 3), strides=(2, 1, 1), pools=(True, True, False))  # 3x3 convs + max-pools
     return quick.override(network=dataclasses.replace(quick.network, prev_action=False, **stem),
                           total_env_steps=1_152_000, eps_decay_steps=400_000, capacity_steps=128_000,
-                          checkpoint_every_chunks=6)
+                          checkpoint_every_chunks=6, max_grad_norm=10.0)
 
 
 def _sizes() -> TrainConfig:
@@ -352,9 +353,9 @@ def _sizes() -> TrainConfig:
     log-uniformly in [0.15, 1] (small targets need the practice; large ones are held farther and flown faster, so
     they look like the catalogue's) on 1.15M env steps, which size randomisation needs (docs/experiments.md: 60 % of the
     ceiling on the resized validation models against the quick preset's 22 %, and 27 AER below it on the
-    catalogue's own sizes)."""
+    catalogue's own sizes); gradients clipped at norm 10, as measured there."""
     return _quick().override(env_params={"size_scale_min": 0.15, "size_scale_max": 1.0},
-                             total_env_steps=1_152_000)
+                             total_env_steps=1_152_000, max_grad_norm=10.0)
 
 
 def _paper() -> TrainConfig:
