@@ -204,6 +204,13 @@ ARMS["polyak-sched"] = lambda c: ARMS["patch-768k"](c).override(polyak_tau_start
 # from about 0.4 to 2.3 over the collapse: gradients clipped at a global norm of 1 instead of 10 ('clip-1' is the quick
 # preset now; arm_config checks it).
 ARMS["clip-1"] = lambda c: ARMS["patch-768k"](c).override(max_grad_norm=1.0)
+# Each one change to 'clip-1' (the quick preset): 1.15M env steps ('patch-1152k' gained nothing on 'patch-768k', but
+# late collapses may have eaten the extra steps; the quick budget of 6 min leaves room for them), and the faster
+# target average of 'polyak-002' (a chunk earlier above the depth tracker, lower at the end before the clip).
+ARMS["clip-1152k"] = lambda c: ARMS["clip-1"](c).override(total_env_steps=1_152_000)
+ARMS["clip-polyak-002"] = lambda c: ARMS["clip-1"](c).override(polyak_tau=0.02)
+# The sizes preset ('size-small-1152k') with the quick preset's clip: one change to it.
+ARMS["size-small-clip-1"] = lambda c: ARMS["size-small-1152k"](c).override(max_grad_norm=1.0)
 ARMS["res64"] = lambda c: _net(ARMS["patch-768k"](c), kernels=(8, 2, 3), strides=(8, 2, 1)).override(
     env=dataclasses.replace(c.env, camera=dataclasses.replace(c.env.camera, resolution=64)))
 
