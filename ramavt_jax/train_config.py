@@ -352,7 +352,7 @@ def _sizes() -> TrainConfig:
     """The quick preset for targets of other sizes: each training episode's target resized by a factor drawn
     log-uniformly in [0.15, 1] (small targets need the practice; large ones are held farther and flown faster, so
     they look like the catalogue's) on 1.15M env steps, which size randomisation needs (docs/experiments.md: 60 % of the
-    ceiling on the resized validation models against the quick preset's 22 %, and 27 AER below it on the
+    ceiling on the resized validation models against the quick preset's 22 % at norm 10, and 27 AER below it on the
     catalogue's own sizes); gradients clipped at norm 10, as measured there."""
     return _quick().override(env_params={"size_scale_min": 0.15, "size_scale_max": 1.0},
                              total_env_steps=1_152_000, max_grad_norm=10.0)

@@ -49,8 +49,9 @@ def _episodes(result: dict) -> tuple:
 
 
 def load_arm(spec: str) -> Arm:
-    """One RESULTS_JSON:ARM argument."""
-    path, _, arm = spec.rpartition(":")
+    """One RESULTS_JSON:ARM argument (ARM may hold a colon itself: 'pretrained:ramavt_depth')."""
+    path, sep, arm = spec.partition(".json:")
+    path += ".json" if sep else ""
     result = json.loads(Path(path).read_text())
     summary = seeds.summarise_arms(result)["arms"]
     key = f"{arm} (seeds)" if f"{arm} (seeds)" in summary else arm

@@ -40,8 +40,8 @@ def _obs(cfg, mode: str):
 # One change per arm against 'base', the quick preset as it was before the learning fixes (a 2x2 final map, an
 # encoder blind to depth scale and position, 'target lost' as a terminal state, no previous action); 'all' combines
 # the first three changes, 'prev' is 'all' + the previous action into the LSTM, and 'prev-aux' ('prev' + the
-# auxiliary tracking-error loss) with twice the learning rate ('aux-lr2') is the quick preset of today (arm_config
-# checks that).
+# auxiliary tracking-error loss) with twice the learning rate ('aux-lr2') was the quick preset before the patch
+# layers ('patch', below); 'clip-1' is the quick preset now (arm_config checks that).
 _LR = 5e-4  # the quick preset's learning rate before 'aux-lr2': every arm's, unless it changes it
 
 

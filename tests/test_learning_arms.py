@@ -110,3 +110,15 @@ def test_arm_table_refuses_arms_flown_under_other_speed_rules(capsys):
                     "--ceiling", str(ROOT / "results" / "val" / "mpc_h12" / "results.json")])
     rows = [line for line in capsys.readouterr().out.splitlines() if line.startswith("| ") and "| seeds |" not in line]
     assert [r.split(" | ")[0] for r in rows] == ["| quick_now", "| patch2_768k", "| size_small_1152k"]
+
+
+def test_arm_table_reads_arm_names_with_a_colon(capsys):
+    """'pretrained:ramavt_depth' names the shipped agent's row: the path ends at '.json:', not at the last colon."""
+    import arm_table
+
+    test = ROOT / "results" / "test" / "results.json"
+    arm = arm_table.load_arm(f"{test}:pretrained:ramavt_depth")
+    assert arm.name == "pretrained:ramavt_depth" and arm.scores.shape == (1, 6)
+    arm_table.main([f"{test}:depth tracker", f"{test}:pretrained:ramavt_depth", "--ceiling", str(test)])
+    rows = [line for line in capsys.readouterr().out.splitlines() if line.startswith("| ") and "| seeds |" not in line]
+    assert [r.split(" | ")[0] for r in rows] == ["| depth tracker", "| pretrained:ramavt_depth"]
