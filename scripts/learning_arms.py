@@ -41,7 +41,7 @@ def _obs(cfg, mode: str):
 # encoder blind to depth scale and position, 'target lost' as a terminal state, no previous action); 'all' combines
 # the first three changes, 'prev' is 'all' + the previous action into the LSTM, and 'prev-aux' ('prev' + the
 # auxiliary tracking-error loss) with twice the learning rate ('aux-lr2') was the quick preset before the patch
-# layers ('patch', below); 'clip-1' is the quick preset now (arm_config checks that).
+# layers ('patch', below); 'clip-1152k' is the quick preset now (arm_config checks that).
 _LR = 5e-4  # the quick preset's learning rate before 'aux-lr2': every arm's, unless it changes it
 
 
@@ -201,12 +201,13 @@ ARMS["burn-5"] = lambda c: ARMS["patch-768k"](c).override(burn_in=5)
 # updates (about 10 chunks), then linearly to the preset's 0.01 by update 2000.
 ARMS["polyak-sched"] = lambda c: ARMS["patch-768k"](c).override(polyak_tau_start=0.02, polyak_tau_decay=(1000, 2000))
 # Runs of the preset (and of several arms) collapse late in one seed in five or ten, with the gradient norm rising
-# from about 0.4 to 2.3 over the collapse: gradients clipped at a global norm of 1 instead of 10 ('clip-1' is the quick
-# preset now; arm_config checks it).
+# from about 0.4 to 2.3 over the collapse: gradients clipped at a global norm of 1 instead of 10 (the quick preset
+# from 4345e80 until 'clip-1152k').
 ARMS["clip-1"] = lambda c: ARMS["patch-768k"](c).override(max_grad_norm=1.0)
-# Each one change to 'clip-1' (the quick preset): 1.15M env steps ('patch-1152k' gained nothing on 'patch-768k', but
-# late collapses may have eaten the extra steps; the quick budget of 6 min leaves room for them), and the faster
-# target average of 'polyak-002' (a chunk earlier above the depth tracker, lower at the end before the clip).
+# Each one change to 'clip-1' (the quick preset then): 1.15M env steps ('patch-1152k' gained nothing on 'patch-768k',
+# but late collapses may have eaten the extra steps; the quick budget of 6 min leaves room for them; 'clip-1152k' is
+# the quick preset now), and the faster target average of 'polyak-002' (a chunk earlier above the depth tracker,
+# lower at the end before the clip).
 ARMS["clip-1152k"] = lambda c: ARMS["clip-1"](c).override(total_env_steps=1_152_000)
 ARMS["clip-polyak-002"] = lambda c: ARMS["clip-1"](c).override(polyak_tau=0.02)
 # The sizes preset ('size-small-1152k') with the quick preset's clip: one change to it.
@@ -217,8 +218,8 @@ ARMS["res64"] = lambda c: _net(ARMS["patch-768k"](c), kernels=(8, 2, 3), strides
 
 def arm_config(name: str, preset: str = "quick", **overrides):
     base = train_config.preset(preset, eval_episodes=0, **overrides)
-    if preset == "quick" and ARMS["clip-1"](base) != base:
-        raise SystemExit("the quick preset is no longer 'clip-1' of these arms: update ARMS")
+    if preset == "quick" and ARMS["clip-1152k"](base) != base:
+        raise SystemExit("the quick preset is no longer 'clip-1152k' of these arms: update ARMS")
     if preset == "quick" and not overrides and ARMS["long-lr2"](base) != train_config.preset("long", eval_episodes=0):
         raise SystemExit("the long preset is no longer 'long-lr2' of these arms: update ARMS")
     return ARMS[name](base)
