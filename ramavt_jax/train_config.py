@@ -340,7 +340,7 @@ def _quick() -> TrainConfig:
 def _long() -> TrainConfig:
     """The quick preset's network with 3x3 convs and max-pools in place of its patch layers, without the
     previous-action input, 1.15M env steps, exploration decaying over 400k steps, a 128k-step replay and gradients
-    clipped at norm 10 (RESULTS.md): the shipped agent's config, as it was trained."""
+    clipped at norm 10 (RESULTS.md): the earlier shipped agent's (ramavt_depth_long), as trained."""
     quick = _quick()
     stem = dict(kernels=(3, 3, 3), strides=(2, 1, 1), pools=(True, True, False))  # 3x3 convs + max-pools
     return quick.override(network=dataclasses.replace(quick.network, prev_action=False, **stem),
