@@ -278,7 +278,8 @@ def test_the_shipped_agents_row_names_how_it_was_trained():
                            "perturbation_values": rollouts.PERTURBATION_VALUES, "speed_steps": 0, "tables": []},
               "machine": tables_lib.machine_info(), "rows": [row], "wall_s": 1.0}
     line = next(x for x in tables_lib.to_markdown(result).splitlines() if x.startswith(f"- {entry.name}"))
-    assert "None" not in line and "ramavt train --preset long" in line and "target params" in line
+    command = pretrained.load().info["command"]
+    assert "None" not in line and f"`{command}`" in line and "target params" in line
 
 
 @pytest.mark.parametrize("name", ["quick", "paper", "smoke"])
@@ -294,14 +295,18 @@ def test_config_json_round_trips_to_the_same_train_config(name):
     assert set(json.loads(text)["config"]) == {"env", "env_params", "network", "acting", "replay", "learner", "run"}
 
 
-def test_the_shipped_config_json_loads_as_the_long_preset():
-    """The shipped agent's config.json reads back into the config it was trained with."""
+def test_the_shipped_config_jsons_load_as_the_presets_they_were_trained_with():
+    """Each shipped agent's config.json reads back into the config it was trained with: the quick preset (without its
+    end-of-training evaluation) for the shipped agent, the long preset for the earlier one."""
     from ramavt_jax.train_config import TrainConfig, preset
 
-    shipped = json.loads((Path(pretrained.AGENTS_DIR) / pretrained.DEFAULT_AGENT / "config.json").read_text())
+    def shipped(name):
+        record = json.loads((Path(pretrained.AGENTS_DIR) / name / "config.json").read_text())
+        return TrainConfig.from_dict(record["config"])
+
+    assert shipped(pretrained.DEFAULT_AGENT) == preset("quick", eval_episodes=0)
     long = preset("long", eval_episodes=0)  # it was trained with the im2col conv, the default before the hybrid one
-    assert TrainConfig.from_dict(shipped["config"]) == long.override(
-        network=dataclasses.replace(long.network, conv_impl="im2col"))
+    assert shipped("ramavt_depth_long") == long.override(network=dataclasses.replace(long.network, conv_impl="im2col"))
 
 
 def test_seed_params_picks_one_seed_of_the_named_set():
