@@ -6,7 +6,7 @@ what it was trained on), ``params.npz`` (the online network's parameters, one ar
 
     agent = pretrained.load()                 # the default agent: RAMAVT, depth
     policy = agent.policy                     # a baselines.Policy, acting greedily (evaluate / render it)
-    pretrained.export("runs/long/seed_0", "ramavt_depth", command="ramavt train --preset long ...")
+    pretrained.export("runs/clip_1152k/seed_0", "ramavt_depth", command="ramavt train --preset quick --seeds 5 ...")
 """
 
 from __future__ import annotations
