@@ -77,12 +77,12 @@ class Trainer:
         learner = config.learner
         self.td = learner.td
         # learning rate of gradient step k (a float when constant: the optimiser state then has no step count)
+        self.learning_rate = (learner.lr if learner.lr_final is None else optax.cosine_decay_schedule(
+            learner.lr, max(config.total_updates, 1), alpha=learner.lr_final / learner.lr))
         # the target net's step towards the online net at gradient step k (LearnerConfig.polyak_tau_start)
         hold, end = learner.polyak_tau_decay
         self.polyak_tau = (lambda k: learner.polyak_tau) if learner.polyak_tau_start is None else optax.linear_schedule(
             learner.polyak_tau_start, learner.polyak_tau, transition_steps=max(end - hold, 1), transition_begin=hold)
-        self.learning_rate = (learner.lr if learner.lr_final is None else optax.cosine_decay_schedule(
-            learner.lr, max(config.total_updates, 1), alpha=learner.lr_final / learner.lr))
         lr_tx = optax.adam(self.learning_rate, eps=learner.adam_eps)
         self.optimizer = (optax.chain(optax.clip_by_global_norm(learner.max_grad_norm), lr_tx)
                           if learner.max_grad_norm > 0 else lr_tx)
