@@ -167,8 +167,44 @@ def with_coordinates(x: jax.Array) -> jax.Array:
     return jnp.concatenate([with_hit_mask(x), jnp.broadcast_to(planes, (*x.shape[:3], 2))], axis=-1)
 
 
+# Depth observations are depth / far with far = 20 m (the default camera): 0.25 is the 5 m stand-off, and 20 turns
+# observation units into metres (NetworkConfig.depth_centre / depth_gain say why the raw units are too small).
+STATS_DEPTH_CENTRE, STATS_DEPTH_GAIN = 0.25, 20.0
+NUM_SILHOUETTE_STATS = 8
+
+
+def silhouette_stats(x: jax.Array) -> jax.Array:
+    """[N, H, W, C] raw frames (depth last: C = 1 'depth' or 4 'rgbd') -> [N, 8] float32 statistics of the hit
+    pixels: sqrt(count) (a linear size, px); centroid column and row and their standard deviations (px from the
+    image centre); mean, nearest and standard deviation of depth (mean and nearest in metres from the stand-off,
+    STATS_DEPTH_*; the spread in metres). Every statistic is 0 in a frame without a hit pixel."""
+    if x.shape[-1] not in (1, 4):
+        raise ValueError(f"silhouette_stats needs a depth channel (1 'depth' or 4 'rgbd' channels), got {x.shape[-1]}")
+    x = x.astype(jnp.float32)
+    hit = hit_mask(x)[..., 0]  # [N, H, W]
+    depth = x[..., -1]
+    h, w = hit.shape[1:]
+    planes = coordinate_planes(h, w) * jnp.array([w / 2.0, h / 2.0])  # [H, W, 2] px from the centre
+    count = jnp.sum(hit, axis=(1, 2))  # [N]
+    seen = count > 0
+    weight = hit / jnp.maximum(count, 1.0)[:, None, None]  # [N, H, W], sums to 1 on a frame with hits
+
+    def mean_std(values):  # values [N, H, W] or [H, W] -> mean [N], std [N] over the hit pixels
+        mean = jnp.sum(weight * values, axis=(1, 2))
+        var = jnp.sum(weight * (values - mean[:, None, None]) ** 2, axis=(1, 2))
+        return mean, jnp.sqrt(var + 1e-12)
+
+    (col, col_std), (row, row_std) = mean_std(planes[..., 0]), mean_std(planes[..., 1])
+    metres = (depth - STATS_DEPTH_CENTRE) * STATS_DEPTH_GAIN
+    depth_mean, depth_std = mean_std(metres)
+    nearest = jnp.min(jnp.where(hit > 0, metres, jnp.inf), axis=(1, 2))
+    stats = jnp.stack([jnp.sqrt(count), col, row, col_std, row_std, depth_mean, nearest, depth_std], axis=-1)
+    return jnp.where(seen[:, None], stats, 0.0)
+
+
 class Encoder(nn.Module):
-    """Conv backbone (+ MHA gate): [N, H, W, C] -> [N, h * w * C_last (+ C_1 with pooled_skip)].
+    """Conv backbone (+ MHA gate): [N, H, W, C] -> [N, h * w * C_last (+ C_1 with pooled_skip) (+ 8 with
+    silhouette_stats)].
     Sows block outputs to 'intermediates'."""
 
     config: NetworkConfig
@@ -177,6 +213,7 @@ class Encoder(nn.Module):
     def __call__(self, x: jax.Array, train: bool = False) -> jax.Array:
         cfg = self.config
         dtype = cfg.jnp_dtype
+        stats = silhouette_stats(x).astype(dtype) if cfg.silhouette_stats else None
         x = x.astype(dtype)
         planes = None
         if cfg.coord_channels:  # the hit mask joins the frame; the coordinate planes go to the first conv apart
@@ -205,8 +242,8 @@ class Encoder(nn.Module):
         if cfg.use_mha:
             x = AttentionGate(cfg.attention_heads, dtype=dtype, name="attention")(x)
             self.sow("intermediates", "mha", x)
-        x = x.reshape(x.shape[0], -1)
-        return x if skip is None else jnp.concatenate([x, skip], axis=-1)
+        extras = [f for f in (skip, stats) if f is not None]
+        return jnp.concatenate([x.reshape(x.shape[0], -1), *extras], axis=-1)
 
 
 class QNetwork(nn.Module):

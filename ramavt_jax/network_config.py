@@ -50,6 +50,11 @@ class NetworkConfig:
     # gain 20 give metres from the stand-off. 0 and 1: the observation as it is.
     depth_centre: float = 0.0
     depth_gain: float = 1.0
+    # Append eight exact statistics of the target's silhouette in the current frame to the encoder's output (see
+    # network.silhouette_stats): its size, centroid and spread in pixels, and its mean, nearest and spread of depth
+    # in metres from the stand-off. Convs with patch strides see the silhouette at 4-pixel granularity, and depth
+    # within a target only as a small offset; these carry both at full precision, as the classical tracker reads them.
+    silhouette_stats: bool = False
     prev_action: bool = False  # R2D2's LSTM input: the previous action (one-hot; a 'none' entry at episode starts)
     # A linear head of this many outputs on the LSTM output, sown as intermediates 'aux' (apply with
     # mutable=["intermediates"]): the trainer fits it to the true tracking error (LearnerConfig.aux_weight). 0 = none.

@@ -498,3 +498,49 @@ def test_hybrid_conv_vmapped_over_kernels_equals_each_kernel(backend, monkeypatc
     for i in range(3):
         for b, l in zip(batched, looped[i]):
             np.testing.assert_allclose(b[i], l, atol=1e-5)
+
+
+def _stats_by_hand(frame: np.ndarray) -> np.ndarray:
+    """[H, W, C] -> [8]: silhouette_stats of one frame, with numpy loops over the hit pixels."""
+    h, w = frame.shape[:2]
+    rows, cols = np.nonzero(frame.max(axis=-1) > 0)
+    if rows.size == 0:
+        return np.zeros(8)
+    col_px = (-1 + 2 * cols / (w - 1)) * w / 2  # the coordinate planes' [-1, 1], scaled to pixels
+    row_px = (-1 + 2 * rows / (h - 1)) * h / 2
+    metres = (frame[rows, cols, -1] - 0.25) * 20.0
+    return np.array([np.sqrt(rows.size), col_px.mean(), row_px.mean(), col_px.std(), row_px.std(), metres.mean(),
+                     metres.min(), metres.std()])
+
+
+def test_silhouette_stats_match_a_by_hand_reference():
+    """Size, centroid, spread and depth statistics of random silhouettes (and of an empty frame: all 0) equal a
+    numpy reference; 'rgbd' frames read the depth from their last channel."""
+    from ramavt_jax.network import silhouette_stats
+
+    rng = np.random.default_rng(0)
+    depth = rng.uniform(0.1, 0.6, (4, 16, 12, 1)) * (rng.uniform(size=(4, 16, 12, 1)) > 0.8)
+    depth[2] = 0.0  # target out of view
+    depth[3] = 0.0
+    depth[3, 5, 7, 0] = 0.3  # one hit pixel: no spread
+    got = np.asarray(silhouette_stats(jnp.asarray(depth, jnp.float32)))
+    np.testing.assert_allclose(got, np.stack([_stats_by_hand(f) for f in depth]), atol=1e-4)
+    rgbd = np.concatenate([rng.uniform(size=depth.shape[:3] + (3,)) * (depth > 0), depth], axis=-1)
+    np.testing.assert_allclose(np.asarray(silhouette_stats(jnp.asarray(rgbd, jnp.float32))), got, atol=1e-5)
+    with pytest.raises(ValueError, match="needs a depth channel"):
+        silhouette_stats(jnp.zeros((1, 8, 8, 3)))
+
+
+def test_encoder_appends_the_silhouette_stats_last():
+    """silhouette_stats adds 8 features at the end of the encoder's output, exactly the statistics, and the rest of
+    the output is the encoder's without them (same parameters)."""
+    from ramavt_jax.network import Encoder, silhouette_stats
+
+    cfg = small("ramavt", coord_channels=True, pooled_skip=True, silhouette_stats=True)
+    plain = dataclasses.replace(cfg, silhouette_stats=False)
+    obs = _silhouette(0.3).repeat(2, axis=0).at[1].set(0.0)
+    params = {"params": init_params(cfg, jax.random.key(0), obs.shape[1:])["params"]["encoder"]}
+    with_stats, without = Encoder(cfg).apply(params, obs), Encoder(plain).apply(params, obs)
+    assert with_stats.shape == (2, without.shape[1] + 8)
+    np.testing.assert_allclose(with_stats[:, :-8], without, atol=1e-6)
+    np.testing.assert_allclose(with_stats[:, -8:], silhouette_stats(obs), atol=1e-6)
