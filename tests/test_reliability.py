@@ -174,6 +174,9 @@ def test_a_config_json_written_before_a_field_was_added_reads_as_that_field_s_ol
     (tmp_path / "config.json").write_text(json.dumps({"seed": 0, "config": no_schedule}))
     learner = TrainConfig.from_dict(run_folder.read_config(tmp_path)["config"]).learner
     assert (learner.polyak_tau_start, learner.polyak_tau_decay) == (None, (1000, 2000))  # a constant tau, as trained
+    no_stats = _without(config_json, "network", "silhouette_stats")
+    (tmp_path / "config.json").write_text(json.dumps({"seed": 0, "config": no_stats}))
+    assert TrainConfig.from_dict(run_folder.read_config(tmp_path)["config"]).network.silhouette_stats is False
     (tmp_path / "config.json").write_text(json.dumps({"seed": 0, "config": _without(older, "network", "lstm")}))
     with pytest.raises(run_folder.RunFolderError, match="lacks network.lstm"):
         run_folder.read_config(tmp_path)
