@@ -216,6 +216,9 @@ ARMS["size-small-clip-1"] = lambda c: ARMS["size-small-1152k"](c).override(max_g
 # position_error.py): exact statistics of the silhouette (size, centroid, spread; mean, nearest and spread of depth)
 # beside the conv features, one change to the quick preset.
 ARMS["stats"] = lambda c: _net(ARMS["clip-1152k"](c), silhouette_stats=True)
+# The same statistics for the sizes preset ('size-small-1152k'): a small target covers a few pixels, which patch layers
+# see at 4-pixel granularity.
+ARMS["size-stats"] = lambda c: _net(ARMS["size-small-1152k"](c), silhouette_stats=True)
 ARMS["res64"] = lambda c: _net(ARMS["patch-768k"](c), kernels=(8, 2, 3), strides=(8, 2, 1)).override(
     env=dataclasses.replace(c.env, camera=dataclasses.replace(c.env.camera, resolution=64)))
 

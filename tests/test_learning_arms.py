@@ -62,6 +62,7 @@ def _changes(arm: str, reference: str) -> dict:
         ("clip-polyak-002", "clip-1", {"learner.polyak_tau": 0.02}),
         ("size-small-clip-1", "size-small-1152k", {"learner.max_grad_norm": 1.0}),
         ("stats", "clip-1152k", {"network.silhouette_stats": True}),
+        ("size-stats", "size-small-1152k", {"network.silhouette_stats": True}),
         ("polyak-sched", "patch-768k", {"learner.polyak_tau_start": 0.02}),  # the decay steps: defaults
         ("res64", "patch-768k", {"env.camera.resolution": 64, "network.kernels": (8, 2, 3),
                                  "network.strides": (8, 2, 1)}),  # one change: the image, its patch kept 4x4 tokens
