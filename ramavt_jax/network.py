@@ -168,16 +168,18 @@ def with_coordinates(x: jax.Array) -> jax.Array:
 
 
 # Depth observations are depth / far with far = 20 m (the default camera): 0.25 is the 5 m stand-off, and 20 turns
-# observation units into metres (NetworkConfig.depth_centre / depth_gain say why the raw units are too small).
+# observation units into metres (NetworkConfig.depth_centre / depth_gain say why the raw units are too small). A
+# resized target is rendered in stand-off units (env: depths divided by its scale k), so these read metres / k.
 STATS_DEPTH_CENTRE, STATS_DEPTH_GAIN = 0.25, 20.0
-NUM_SILHOUETTE_STATS = 8
 
 
 def silhouette_stats(x: jax.Array) -> jax.Array:
-    """[N, H, W, C] raw frames (depth last: C = 1 'depth' or 4 'rgbd') -> [N, 8] float32 statistics of the hit
-    pixels: sqrt(count) (a linear size, px); centroid column and row and their standard deviations (px from the
-    image centre); mean, nearest and standard deviation of depth (mean and nearest in metres from the stand-off,
-    STATS_DEPTH_*; the spread in metres). Every statistic is 0 in a frame without a hit pixel."""
+    """[N, H, W, C] single raw frames (depth last: C = 1 'depth' or 4 'rgbd'; not frame stacks) -> [N, 8] float32
+    statistics of the hit pixels: sqrt(count) (a linear size, px); centroid column and row and their standard
+    deviations (the coordinate planes' [-1, 1] times half the image size: px from the centre, to within
+    W / (W - 1)); mean, nearest and standard deviation of depth (STATS_DEPTH_*: metres from the 5 m stand-off, in
+    stand-off units for a resized target). The statistics have the observation's precision (a uint8 replay stores
+    depth in 20 m / 255 steps). Every statistic is 0 in a frame without a hit pixel."""
     if x.shape[-1] not in (1, 4):
         raise ValueError(f"silhouette_stats needs a depth channel (1 'depth' or 4 'rgbd' channels), got {x.shape[-1]}")
     x = x.astype(jnp.float32)

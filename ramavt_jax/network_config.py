@@ -50,10 +50,11 @@ class NetworkConfig:
     # gain 20 give metres from the stand-off. 0 and 1: the observation as it is.
     depth_centre: float = 0.0
     depth_gain: float = 1.0
-    # Append eight exact statistics of the target's silhouette in the current frame to the encoder's output (see
+    # Append eight statistics of the target's silhouette in the current frame to the encoder's output (see
     # network.silhouette_stats): its size, centroid and spread in pixels, and its mean, nearest and spread of depth
     # in metres from the stand-off. Convs with patch strides see the silhouette at 4-pixel granularity, and depth
-    # within a target only as a small offset; these carry both at full precision, as the classical tracker reads them.
+    # within a target only as a small offset; these carry both at the observation's precision, as the classical
+    # tracker reads them. Recurrent variants only ('drlavt' stacks frames before the encoder).
     silhouette_stats: bool = False
     prev_action: bool = False  # R2D2's LSTM input: the previous action (one-hot; a 'none' entry at episode starts)
     # A linear head of this many outputs on the LSTM output, sown as intermediates 'aux' (apply with
@@ -110,6 +111,9 @@ class NetworkConfig:
         if self.rescales_depth and not self.coord_channels:
             fail("depth_centre / depth_gain need coord_channels=True: once centred, a target pixel at depth_centre "
                  "reads 0 like the background, and only the hit mask tells them apart")
+        if self.silhouette_stats and not self.recurrent:
+            fail("silhouette_stats needs a recurrent variant (one frame per encoder input), not 'drlavt', whose "
+                 "encoder sees a stack of frames")
         if self.prev_action and not self.recurrent:
             fail("prev_action needs a recurrent variant (the previous action is an LSTM input), not 'drlavt'")
         if self.use_mha and self.channels[-1] % self.attention_heads != 0:

@@ -213,7 +213,7 @@ ARMS["clip-polyak-002"] = lambda c: ARMS["clip-1"](c).override(polyak_tau=0.02)
 # The sizes preset ('size-small-1152k') with the quick preset's clip: one change to it.
 ARMS["size-small-clip-1"] = lambda c: ARMS["size-small-1152k"](c).override(max_grad_norm=1.0)
 # The agent's error is mostly along the boresight and across the image by about half a pixel (scripts/
-# position_error.py): exact statistics of the silhouette (size, centroid, spread; mean, nearest and spread of depth)
+# position_error.py): statistics of the silhouette (size, centroid, spread; mean, nearest and spread of depth)
 # beside the conv features, one change to the quick preset.
 ARMS["stats"] = lambda c: _net(ARMS["clip-1152k"](c), silhouette_stats=True)
 # The same statistics for the sizes preset ('size-small-1152k'): a small target covers a few pixels, which patch layers

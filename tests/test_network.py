@@ -531,6 +531,11 @@ def test_silhouette_stats_match_a_by_hand_reference():
         silhouette_stats(jnp.zeros((1, 8, 8, 3)))
 
 
+def test_silhouette_stats_need_one_frame_per_encoder_input():
+    with pytest.raises(ValueError, match="silhouette_stats needs a recurrent variant"):
+        small("drlavt", silhouette_stats=True)
+
+
 def test_encoder_appends_the_silhouette_stats_last():
     """silhouette_stats adds 8 features at the end of the encoder's output, exactly the statistics, and the rest of
     the output is the encoder's without them (same parameters)."""
