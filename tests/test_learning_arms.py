@@ -63,6 +63,7 @@ def _changes(arm: str, reference: str) -> dict:
         ("size-small-clip-1", "size-small-1152k", {"learner.max_grad_norm": 1.0}),
         ("stats", "clip-1152k", {"network.silhouette_stats": True}),
         ("size-stats", "size-small-1152k", {"network.silhouette_stats": True}),
+        ("clip-dw1", "clip-1152k", {"env_params": (("dist_weight", 1.0),)}),
         ("polyak-sched", "patch-768k", {"learner.polyak_tau_start": 0.02}),  # the decay steps: defaults
         ("res64", "patch-768k", {"env.camera.resolution": 64, "network.kernels": (8, 2, 3),
                                  "network.strides": (8, 2, 1)}),  # one change: the image, its patch kept 4x4 tokens
