@@ -64,6 +64,7 @@ def _changes(arm: str, reference: str) -> dict:
         ("stats", "clip-1152k", {"network.silhouette_stats": True}),
         ("size-stats", "size-small-1152k", {"network.silhouette_stats": True}),
         ("clip-dw1", "clip-1152k", {"env_params": (("dist_weight", 1.0),)}),
+        ("clip-1536k", "clip-1152k", {"run.total_env_steps": 1_536_000}),
         ("clip-res64", "clip-1152k", {"env.camera.resolution": 64, "network.kernels": (8, 2, 3),
                                       "network.strides": (8, 2, 1)}),
         ("polyak-sched", "patch-768k", {"learner.polyak_tau_start": 0.02}),  # the decay steps: defaults
