@@ -37,6 +37,12 @@ def _obs(cfg, mode: str):
     return dataclasses.replace(cfg, env=dataclasses.replace(cfg.env, obs_mode=mode))
 
 
+def _res64(cfg):
+    """64x64 depth with an 8x8 first patch, so the attention keeps the 4x4 token grid of 32x32 with a 4x4 patch."""
+    return _net(cfg, kernels=(8, 2, 3), strides=(8, 2, 1)).override(
+        env=dataclasses.replace(cfg.env, camera=dataclasses.replace(cfg.env.camera, resolution=64)))
+
+
 # One change per arm against 'base', the quick preset as it was before the learning fixes (a 2x2 final map, an
 # encoder blind to depth scale and position, 'target lost' as a terminal state, no previous action); 'all' combines
 # the first three changes, 'prev' is 'all' + the previous action into the LSTM, and 'prev-aux' ('prev' + the
@@ -225,13 +231,11 @@ ARMS["clip-1536k"] = lambda c: ARMS["clip-1152k"](c).override(total_env_steps=1_
 ARMS["clip-dw1"] = lambda c: ARMS["clip-1152k"](c).override(env_params=(("dist_weight", 1.0),))
 # 64x64 depth on the quick preset ('res64' was one change to 'patch-768k', at norm 10, with one seed far below the
 # others): more pixels across the target, the first patch 8x8 so the attention keeps its 4x4 token grid.
-ARMS["clip-res64"] = lambda c: _net(ARMS["clip-1152k"](c), kernels=(8, 2, 3), strides=(8, 2, 1)).override(
-    env=dataclasses.replace(c.env, camera=dataclasses.replace(c.env.camera, resolution=64)))
+ARMS["clip-res64"] = lambda c: _res64(ARMS["clip-1152k"](c))
 # The same statistics for the sizes preset ('size-small-1152k'): a small target covers a few pixels, which patch layers
 # see at 4-pixel granularity.
 ARMS["size-stats"] = lambda c: _net(ARMS["size-small-1152k"](c), silhouette_stats=True)
-ARMS["res64"] = lambda c: _net(ARMS["patch-768k"](c), kernels=(8, 2, 3), strides=(8, 2, 1)).override(
-    env=dataclasses.replace(c.env, camera=dataclasses.replace(c.env.camera, resolution=64)))
+ARMS["res64"] = lambda c: _res64(ARMS["patch-768k"](c))
 
 
 def arm_config(name: str, preset: str = "quick", **overrides):
