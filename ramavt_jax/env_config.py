@@ -116,6 +116,13 @@ class EnvParams:
     size_scale_min: jax.Array = 1.0
     size_scale_max: jax.Array = 1.0
     size_scale_prob: jax.Array = 1.0  # share of episodes resized; the others keep the model's own size
+    # Shape randomisation (training): in a share stretch_prob of the episodes the target is stretched along its
+    # principal axes (targets.stretched), with log factors drawn uniformly in [-ln stretch_max, ln stretch_max] per
+    # axis and then centred, so that the volume is kept (size is size_scale's concern): each factor lies in
+    # [stretch_max ** -4/3, stretch_max ** 4/3]. stretch_max 1 is off (the default); evaluation keeps the models'
+    # own shapes (evaluation.rollouts.EVAL_FIELDS).
+    stretch_max: jax.Array = 1.0
+    stretch_prob: jax.Array = 1.0
     init_xy_std: jax.Array = 1.0  # m
     init_z_min: jax.Array = 2.0  # m
     init_z_max: jax.Array = 12.0  # m
@@ -165,6 +172,8 @@ def validate_params(params: EnvParams, config: EnvConfig) -> EnvParams:
     check("size_scale_min", lambda v: v > 0, "> 0")
     check("size_scale_max", lambda v: v >= np.asarray(params.size_scale_min), ">= size_scale_min")
     check("size_scale_prob", lambda v: (v >= 0) & (v <= 1), "in [0, 1]")
+    check("stretch_max", lambda v: v >= 1, ">= 1 (1: off)")
+    check("stretch_prob", lambda v: (v >= 0) & (v <= 1), "in [0, 1]")
     check("init_z_max", lambda v: v > np.asarray(params.init_z_min), "> init_z_min")
     check("init_z_min", lambda v: v > config.camera.near, f"> camera.near ({config.camera.near})")
     check("blur_frames", lambda v: (v >= 1) & (v <= config.frame_history), f"in [1, EnvConfig.frame_history={config.frame_history}]")

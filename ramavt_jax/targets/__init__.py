@@ -306,6 +306,45 @@ def scaled(target: TargetModel, factor: jax.Array) -> TargetModel:
     return target.replace(**{k: getattr(target, k) * factor for k in _LENGTH_FIELDS})
 
 
+def geom_bound_radius(geom_type: jax.Array, geom_size: jax.Array) -> jax.Array:
+    """[..., G] Radius of the smallest sphere about each geom's centre that encloses it, as MuJoCo's geom_rbound:
+    sphere r, capsule r + h, ellipsoid max(a, b, c), cylinder sqrt(r^2 + h^2), box |half-extents|."""
+    r, h = geom_size[..., 0], geom_size[..., 1]
+    return jnp.select(
+        [geom_type == SPHERE, geom_type == CAPSULE, geom_type == ELLIPSOID, geom_type == CYLINDER],
+        [r, r + h, jnp.max(geom_size, axis=-1), jnp.hypot(r, h)],
+        jnp.linalg.norm(geom_size, axis=-1),
+    )
+
+
+def stretched(target: TargetModel, factors: jax.Array) -> TargetModel:
+    """The same target stretched along its principal axes by `factors` [3] (may be traced): a point p of the body
+    becomes diag(factors) p. Mass is kept, and the inertia is the stretched body's (its principal axes stay the
+    body axes): with the second moments M_i = (I_j + I_k - I_i) / 2, each M_i is multiplied by factors_i^2.
+
+    Each geom is stretched along its own axes by the length of diag(factors) applied to that axis; a sphere becomes
+    an ellipsoid. This is exact for geoms whose axes are body axes (boxes, ellipsoids, spheres; cylinders and
+    capsules whose two radial axes stretch alike). A geom at another angle stays a primitive of the same kind and
+    orientation, so it is an approximation of the stretched body (a stretched box at an angle would be a
+    parallelepiped); cylinders and capsules take the geometric mean of their two radial factors. geom_rbound and
+    bound_radius are recomputed from the stretched geoms, so they bound what is rendered."""
+    factors = jnp.asarray(factors, jnp.float32)
+    along_axes = jnp.linalg.norm(factors[:, None] * target.geom_mat, axis=-2)  # [..., G, 3] per geom axis
+    radial = jnp.sqrt(along_axes[..., 0] * along_axes[..., 1])
+    round_ = (target.geom_type == CYLINDER) | (target.geom_type == CAPSULE)
+    size_factors = jnp.where(round_[..., None], jnp.stack([radial, along_axes[..., 2], radial], -1), along_axes)
+    is_sphere = target.geom_type == SPHERE
+    geom_size = jnp.where(is_sphere[..., None], target.geom_size[..., :1], target.geom_size) * size_factors
+    geom_type = jnp.where(is_sphere, ELLIPSOID, target.geom_type)
+    geom_pos = target.geom_pos * factors
+    geom_rbound = jnp.where(target.geom_mask, geom_bound_radius(geom_type, geom_size), target.geom_rbound)
+    reach = jnp.where(target.geom_mask, jnp.linalg.norm(geom_pos, axis=-1) + geom_rbound, 0.0)
+    second_moments = (jnp.sum(target.inertia, axis=-1, keepdims=True) / 2 - target.inertia) * factors**2
+    inertia = jnp.sum(second_moments, axis=-1, keepdims=True) - second_moments
+    return target.replace(geom_type=geom_type, geom_size=geom_size, geom_pos=geom_pos, geom_rbound=geom_rbound,
+                          bound_radius=jnp.max(reach, axis=-1), inertia=inertia)
+
+
 SPLITS: tuple[str, ...] = ("train", "val", "test", "all", "val-sizes")
 
 

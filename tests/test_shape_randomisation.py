@@ -1,0 +1,163 @@
+"""Shape randomisation: `targets.stretched` against MuJoCo's reading of a stretched MJCF, the renderer's bounds
+after a stretch, and the env's draw (`TrackingEnv.stretch_factors`), which keeps the volume and the episode's other
+draws and is for training only."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from ramavt_jax import env, render, rotations, targets
+from ramavt_jax.evaluation import rollouts
+
+pytest.importorskip("mujoco")
+
+NUM_ENVS = 32
+
+
+def _model(body: str) -> str:
+    return f'<mujoco><option gravity="0 0 0"/><worldbody><body name="target"><freejoint/>{body}</body></worldbody></mujoco>'
+
+
+def _symmetric_body(s=(1.0, 1.0, 1.0)) -> str:
+    """A body symmetric under each axis reflection with its geoms along the axes (so its principal frame is the
+    file's, up to signs), every length stretched by s as a by-hand reference: a sphere is written as an ellipsoid
+    when stretched, a cylinder along z needs s_x == s_y."""
+    sx, sy, sz = s
+    sphere = ('<geom type="sphere" size="0.2" pos="{x} 0 0"/>' if s == (1.0, 1.0, 1.0) else
+              f'<geom type="ellipsoid" size="{0.2 * sx} {0.2 * sy} {0.2 * sz}" pos="{{x}} 0 0"/>')
+    return "".join([
+        f'<geom type="box" size="{0.3 * sx} {0.2 * sy} {0.15 * sz}" density="300"/>',
+        sphere.format(x=0.9 * sx), sphere.format(x=-0.9 * sx),
+        f'<geom type="ellipsoid" size="{0.1 * sx} {0.2 * sy} {0.15 * sz}" pos="0 {0.5 * sy} 0"/>',
+        f'<geom type="ellipsoid" size="{0.1 * sx} {0.2 * sy} {0.15 * sz}" pos="0 {-0.5 * sy} 0"/>',
+        f'<geom type="cylinder" size="{0.08 * sx} {0.4 * sz}" density="800"/>',
+    ])
+
+
+@pytest.fixture(scope="module")
+def folder(tmp_path_factory):
+    return tmp_path_factory.mktemp("stretch")
+
+
+def test_stretched_matches_mujoco_on_a_stretched_file(folder):
+    """Geoms, bounds, mass and inertia of a stretched target equal the loader's reading of the file stretched by
+    hand, where MuJoCo computes mass and inertia (factors with product 1 keep the mass)."""
+    a = 1.2
+    factors = (a, a, 1 / a**2)
+    (folder / "plain.xml").write_text(_model(_symmetric_body()))
+    (folder / "stretched.xml").write_text(_model(_symmetric_body(factors)))
+    plain, want = targets.load(folder / "plain.xml"), targets.load(folder / "stretched.xml")
+    for model in (plain, want):  # a precondition: the loader keeps the file's axes in order
+        assert np.all(np.diff(np.asarray(model.inertia)) > 0.05 * np.asarray(model.inertia).max()), model.inertia
+    got = targets.stretched(plain, jnp.asarray(factors))
+    np.testing.assert_array_equal(np.asarray(got.geom_type), np.asarray(want.geom_type))
+    for name in ("geom_size", "geom_rbound", "bound_radius", "inertia", "mass"):
+        np.testing.assert_allclose(np.asarray(getattr(got, name)), np.asarray(getattr(want, name)), rtol=2e-5,
+                                   atol=1e-6, err_msg=name)
+    for name in ("geom_pos", "geom_mat"):  # the principal axes' signs are MuJoCo's eigensolver's choice
+        np.testing.assert_allclose(np.abs(np.asarray(getattr(got, name))), np.abs(np.asarray(getattr(want, name))),
+                                   atol=1e-6, err_msg=name)
+    assert not np.allclose(np.asarray(got.inertia), np.asarray(plain.inertia), rtol=1e-2)
+
+
+def _render(target, tile=render.renderer.DEFAULT_TILE):
+    cam = render.CameraConfig(resolution=48)
+    rng = np.random.default_rng(0)
+    q = rng.normal(size=(6, 4))
+    poses = jax.vmap(lambda v: rotations.quat_to_mat(v / jnp.linalg.norm(v)))(jnp.asarray(q, jnp.float32))
+    positions = jnp.asarray([[0.0, 0.0, z] for z in (3.0, 4.0, 5.0, 6.0, 7.0, 8.0)]) + jnp.asarray(
+        rng.uniform(-0.6, 0.6, (6, 3)), jnp.float32)
+    batch = jax.tree.map(lambda x: jnp.broadcast_to(x, (6,) + x.shape), target)
+    return render.render_batch(batch, positions, poses, cam, render.default_lighting(),
+                               shade=False, tile=tile)
+
+
+def test_stretch_by_ones_renders_the_same_target():
+    """Factors of 1 on a model with geoms at every angle render the model itself (spheres drawn as ellipsoids)."""
+    model = targets.load("Satellite-v0")
+    np.testing.assert_allclose(np.asarray(_render(targets.stretched(model, jnp.ones(3))).depth),
+                               np.asarray(_render(model).depth), atol=1e-5)
+
+
+@pytest.mark.parametrize("name", ["Station-v0", "Asteroid-v1"])
+def test_stretched_bounds_enclose_what_is_rendered(name):
+    """The recomputed geom_rbound and bound_radius bound the stretched geoms: the tiled renderer, which skips the
+    tiles outside each geom's bounding sphere, draws what the same target draws with bounds far too large."""
+    target = targets.stretched(targets.load(name), jnp.asarray([1.4, 0.85, 1 / (1.4 * 0.85)]))
+    loose = target.replace(geom_rbound=target.geom_rbound * 3.0, bound_radius=target.bound_radius * 3.0)
+    got, want = _render(target, tile=2), _render(loose, tile=2)  # small tiles: a tight culling
+    assert np.asarray(want.hit).sum() > 100
+    np.testing.assert_array_equal(np.asarray(got.hit), np.asarray(want.hit))
+    np.testing.assert_allclose(np.asarray(got.depth), np.asarray(want.depth), atol=1e-5)
+    reach = np.linalg.norm(np.asarray(target.geom_pos), axis=-1) + np.asarray(target.geom_rbound)
+    assert float(target.bound_radius) == pytest.approx(reach[np.asarray(target.geom_mask)].max(), rel=1e-6)
+
+
+# ------------------------------------------------------------------------------------------------ the env's draw
+@pytest.fixture(scope="module")
+def stretch_env():
+    return env.TrackingEnv(env.EnvConfig(camera=render.CameraConfig(resolution=16),
+                                         targets=("Satellite-v0", "Asteroid-v0")))
+
+
+@pytest.fixture(scope="module")
+def vstate(stretch_env):
+    return jax.jit(jax.vmap(stretch_env.initial_state, in_axes=(0, None)))
+
+
+def _params(tracking_env, **overrides):
+    """Default params with fields replaced by Python floats, checked: one compiled reset serves every variant."""
+    return env.validate_params(tracking_env.default_params().replace(**overrides), tracking_env.config)
+
+
+def test_stretch_draw_keeps_the_volume_and_the_other_draws(stretch_env, vstate):
+    keys = jax.random.split(jax.random.key(3), NUM_ENVS)
+    plain = vstate(keys, _params(stretch_env, stretch_max=1.0))
+    off = vstate(keys, _params(stretch_env, stretch_max=1.5, stretch_prob=0.0))
+    default = vstate(keys, stretch_env.default_params())
+    for a, b, c in zip(jax.tree.leaves(plain), jax.tree.leaves(off), jax.tree.leaves(default)):  # bit for bit
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(c))
+
+    p = _params(stretch_env, stretch_max=1.5, stretch_prob=0.5)
+    factors, on = jax.vmap(stretch_env.stretch_factors, in_axes=(0, None))(keys, p)
+    factors, on = np.asarray(factors), np.asarray(on)
+    np.testing.assert_allclose(np.prod(factors, axis=1), 1.0, rtol=1e-5)
+    assert np.all((factors > 1.5 ** (-4 / 3) * 0.9999) & (factors < 1.5 ** (4 / 3) * 1.0001))
+    assert factors.min() < 0.8 and factors.max() > 1.25
+    assert 0.2 < on.mean() < 0.8, on.mean()
+
+    state = vstate(keys, p)
+    mass_kept = np.asarray(state.target.mass) == np.asarray(plain.target.mass)
+    assert mass_kept.all()
+    same_inertia = np.all(np.asarray(state.target.inertia) == np.asarray(plain.target.inertia), axis=1)
+    np.testing.assert_array_equal(same_inertia, ~on)
+    own = jax.vmap(targets.select, in_axes=(None, 0))(p.catalogue, state.target_index)
+    want = jax.vmap(targets.stretched)(own, jnp.asarray(factors))
+    np.testing.assert_allclose(np.asarray(state.target.inertia)[on], np.asarray(want.inertia)[on], rtol=1e-6)
+    for name in ("target_index", "target_vel", "target_quat", "target_omega"):
+        np.testing.assert_array_equal(np.asarray(getattr(state, name)), np.asarray(getattr(plain, name)))
+
+
+def test_stretched_episodes_render_and_step(stretch_env):
+    """A stretched episode resets and steps under jit like any other (the sphere-to-ellipsoid change included)."""
+    p = _params(stretch_env, stretch_max=1.6)
+    keys = jax.random.split(jax.random.key(4), 4)
+    obs, state = jax.jit(jax.vmap(stretch_env.reset, in_axes=(0, None)))(keys, p)
+    assert obs.shape == (4,) + stretch_env.observation_shape and np.isfinite(np.asarray(obs)).all()
+    step = jax.jit(jax.vmap(stretch_env.step, in_axes=(0, 0, 0, None)))
+    obs, state, reward, *_ = step(keys, state, jnp.zeros(4, jnp.int32), p)
+    assert np.isfinite(np.asarray(obs)).all() and np.isfinite(np.asarray(reward)).all()
+
+
+def test_shape_randomisation_is_for_training_only_and_checked(stretch_env):
+    from ramavt_jax.train_config import preset
+
+    cfg = preset("smoke", env_params=(("stretch_max", 1.5), ("stretch_prob", 0.5), ("target_spin_std", 0.2)))
+    assert rollouts.run_env_overrides(cfg.env_params) == {"target_spin_std": 0.2}
+    assert float(stretch_env.eval_params().stretch_max) == 1.0
+    with pytest.raises(ValueError, match=r"EnvParams.stretch_max must be >= 1 \(1: off\)"):
+        stretch_env.default_params(stretch_max=0.8)
+    with pytest.raises(ValueError, match=r"EnvParams.stretch_prob must be in \[0, 1\]"):
+        stretch_env.default_params(stretch_prob=2.0)
