@@ -119,8 +119,9 @@ class EnvParams:
     # Shape randomisation (training): in a share stretch_prob of the episodes the target is stretched along its
     # principal axes (targets.stretched), with log factors drawn uniformly in [-ln stretch_max, ln stretch_max] per
     # axis and then centred, so that the volume is kept (size is size_scale's concern): each factor lies in
-    # [stretch_max ** -4/3, stretch_max ** 4/3]. stretch_max 1 is off (the default); evaluation keeps the models'
-    # own shapes (evaluation.rollouts.EVAL_FIELDS).
+    # [stretch_max ** (-4/3), stretch_max ** (4/3)]. The stand-off rule applies to the stretched bounding radius (a
+    # catalogue model stretched past 2.5 m is held farther). stretch_max 1 is off (the default); evaluation keeps
+    # the models' own shapes (evaluation.rollouts.EVAL_FIELDS).
     stretch_max: jax.Array = 1.0
     stretch_prob: jax.Array = 1.0
     init_xy_std: jax.Array = 1.0  # m

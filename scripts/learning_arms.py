@@ -241,10 +241,10 @@ ARMS["clip-res64"] = lambda c: _res64(ARMS["clip-1152k"](c))
 # see at 4-pixel granularity.
 ARMS["size-stats"] = lambda c: _net(ARMS["size-small-1152k"](c), silhouette_stats=True)
 ARMS["res64"] = lambda c: _res64(ARMS["patch-768k"](c))
-# The gap to the ceiling is largest on the panelled shapes (the satellite and the station), and the agent does not
-# learn where the centre of mass sits behind the visible surface: more training shapes, each catalogue model
-# stretched along its principal axes in half the episodes (factors up to 1.5 ** (4/3) per axis, volume kept), one
-# change to the quick preset and to the sizes preset.
+# The gap to the ceiling is largest on the panelled shapes (the validation satellite and station), and linear probes
+# find no trace of the satellite's tracking error in the agent's memory (docs/experiments.md): more training shapes,
+# each catalogue model stretched along its principal axes in half the episodes (factors up to 1.5 ** (4/3) per
+# axis, volume kept), one change to the quick preset and to the sizes preset.
 _STRETCH = {"stretch_max": 1.5, "stretch_prob": 0.5}
 ARMS["stretch"] = lambda c: _env(ARMS["clip-1152k"](c), **_STRETCH)
 ARMS["size-stretch"] = lambda c: _env(ARMS["size-small-1152k"](c), **_STRETCH)

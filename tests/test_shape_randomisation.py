@@ -19,20 +19,33 @@ def _model(body: str) -> str:
     return f'<mujoco><option gravity="0 0 0"/><worldbody><body name="target"><freejoint/>{body}</body></worldbody></mujoco>'
 
 
+TURN_Z = ' euler="0 0 90"'  # 90 degrees (MJCF's default unit) about z: the geom's x is the body's y
+
+
 def _symmetric_body(s=(1.0, 1.0, 1.0)) -> str:
-    """A body symmetric under each axis reflection with its geoms along the axes (so its principal frame is the
-    file's, up to signs), every length stretched by s as a by-hand reference: a sphere is written as an ellipsoid
-    when stretched, a cylinder along z needs s_x == s_y."""
+    """A body symmetric under each axis reflection (so its principal frame is the file's, up to signs) with every
+    length stretched by s, as a by-hand reference: its spheres (one turned, which changes only its geom frame) are
+    written as ellipsoids once stretched, and a box turned about z stretches its own x by s_y."""
     sx, sy, sz = s
-    sphere = ('<geom type="sphere" size="0.2" pos="{x} 0 0"/>' if s == (1.0, 1.0, 1.0) else
+    sphere = ('<geom type="sphere" size="0.2" pos="{x} 0 0" euler="30 50 70"/>' if s == (1.0, 1.0, 1.0) else
               f'<geom type="ellipsoid" size="{0.2 * sx} {0.2 * sy} {0.2 * sz}" pos="{{x}} 0 0"/>')
     return "".join([
         f'<geom type="box" size="{0.3 * sx} {0.2 * sy} {0.15 * sz}" density="300"/>',
         sphere.format(x=0.9 * sx), sphere.format(x=-0.9 * sx),
         f'<geom type="ellipsoid" size="{0.1 * sx} {0.2 * sy} {0.15 * sz}" pos="0 {0.5 * sy} 0"/>',
         f'<geom type="ellipsoid" size="{0.1 * sx} {0.2 * sy} {0.15 * sz}" pos="0 {-0.5 * sy} 0"/>',
-        f'<geom type="cylinder" size="{0.08 * sx} {0.4 * sz}" density="800"/>',
+        f'<geom type="box" size="{0.04 * sy} {0.3 * sx} {0.05 * sz}" pos="0 0 {0.3 * sz}"{TURN_Z}/>',
+        f'<geom type="box" size="{0.04 * sy} {0.3 * sx} {0.05 * sz}" pos="0 0 {-0.3 * sz}"{TURN_Z}/>',
     ])
+
+
+def _round_body(s=(1.0, 1.0, 1.0)) -> str:
+    """A disc (a cylinder along z), a heavy bar along x and two capsules along z at +-y, stretched by s (s_x == s_y)
+    by hand; the bar and the capsules put the principal moments in the file's axis order."""
+    sx, _, sz = s
+    caps = "".join(f'<geom type="capsule" size="{0.1 * sx} {0.3 * sz}" pos="0 {y * sx} 0"/>' for y in (0.7, -0.7))
+    return (f'<geom type="cylinder" size="{0.3 * sx} {0.05 * sz}" density="300"/>'
+            f'<geom type="box" size="{0.8 * sx} {0.05 * sx} {0.05 * sz}" density="20000"/>' + caps)
 
 
 @pytest.fixture(scope="module")
@@ -40,17 +53,16 @@ def folder(tmp_path_factory):
     return tmp_path_factory.mktemp("stretch")
 
 
-def test_stretched_matches_mujoco_on_a_stretched_file(folder):
-    """Geoms, bounds, mass and inertia of a stretched target equal the loader's reading of the file stretched by
-    hand, where MuJoCo computes mass and inertia (factors with product 1 keep the mass)."""
-    a = 1.2
-    factors = (a, a, 1 / a**2)
-    (folder / "plain.xml").write_text(_model(_symmetric_body()))
-    (folder / "stretched.xml").write_text(_model(_symmetric_body(factors)))
-    plain, want = targets.load(folder / "plain.xml"), targets.load(folder / "stretched.xml")
-    for model in (plain, want):  # a precondition: the loader keeps the file's axes in order
-        assert np.all(np.diff(np.asarray(model.inertia)) > 0.05 * np.asarray(model.inertia).max()), model.inertia
-    got = targets.stretched(plain, jnp.asarray(factors))
+def _load(folder, name: str, body: str) -> targets.TargetModel:
+    (folder / f"{name}.xml").write_text(_model(body))
+    model = targets.load(folder / f"{name}.xml")
+    # A precondition: distinct moments in the file's axis order, so the loader's principal frame is the file's.
+    assert np.all(np.diff(np.asarray(model.inertia)) > 0.02 * np.asarray(model.inertia).max()), (name, model.inertia)
+    np.testing.assert_allclose(np.abs(np.asarray(model.geom_mat[0])), np.eye(3), atol=1e-6)
+    return model
+
+
+def _assert_same_target(got, want):
     np.testing.assert_array_equal(np.asarray(got.geom_type), np.asarray(want.geom_type))
     for name in ("geom_size", "geom_rbound", "bound_radius", "inertia", "mass"):
         np.testing.assert_allclose(np.asarray(getattr(got, name)), np.asarray(getattr(want, name)), rtol=2e-5,
@@ -58,7 +70,30 @@ def test_stretched_matches_mujoco_on_a_stretched_file(folder):
     for name in ("geom_pos", "geom_mat"):  # the principal axes' signs are MuJoCo's eigensolver's choice
         np.testing.assert_allclose(np.abs(np.asarray(getattr(got, name))), np.abs(np.asarray(getattr(want, name))),
                                    atol=1e-6, err_msg=name)
+
+
+def test_stretched_matches_mujoco_on_a_stretched_file(folder):
+    """Geoms, bounds, mass and inertia of a stretched target equal the loader's reading of the file stretched by
+    hand, where MuJoCo computes mass and inertia (factors with product 1 keep the mass): three different factors,
+    spheres (one turned) and boxes turned about z."""
+    factors = (1.25, 0.9, 1 / (1.25 * 0.9))
+    plain = _load(folder, "plain", _symmetric_body())
+    got = targets.stretched(plain, jnp.asarray(factors))
+    _assert_same_target(got, _load(folder, "stretched", _symmetric_body(factors)))
     assert not np.allclose(np.asarray(got.inertia), np.asarray(plain.inertia), rtol=1e-2)
+
+
+def test_stretched_cylinders_match_and_capsule_tips_land_where_stretched(folder):
+    """A cylinder along a body axis with equal radial factors stretches exactly. A capsule keeps hemispherical caps:
+    its radius takes the radial factor and its tips land where the stretch puts them."""
+    a = 1.2
+    factors = (a, a, 1 / a**2)
+    got = targets.stretched(_load(folder, "round", _round_body()), jnp.asarray(factors))
+    want = _load(folder, "round_stretched", _round_body(factors))  # its capsules only keep the axes in order
+    np.testing.assert_allclose(np.asarray(got.geom_size[:2]), np.asarray(want.geom_size[:2]), rtol=1e-5)
+    capsules = np.asarray(got.geom_size[2:])
+    np.testing.assert_allclose(capsules[:, 0], 0.1 * a, rtol=1e-6)
+    np.testing.assert_allclose(capsules[:, 0] + capsules[:, 1], 0.4 / a**2, rtol=1e-5)  # the tip: (h + r) s_z
 
 
 def _render(target, tile=render.renderer.DEFAULT_TILE):
@@ -74,8 +109,10 @@ def _render(target, tile=render.renderer.DEFAULT_TILE):
 
 
 def test_stretch_by_ones_renders_the_same_target():
-    """Factors of 1 on a model with geoms at every angle render the model itself (spheres drawn as ellipsoids)."""
-    model = targets.load("Satellite-v0")
+    """Factors of 1 on a model with geoms at every angle (spheres among them, drawn as ellipsoids) render the
+    model itself."""
+    model = targets.load("Station-v0")
+    assert np.any(np.asarray(model.geom_type) == targets.SPHERE)
     np.testing.assert_allclose(np.asarray(_render(targets.stretched(model, jnp.ones(3))).depth),
                                np.asarray(_render(model).depth), atol=1e-5)
 
@@ -119,6 +156,9 @@ def test_stretch_draw_keeps_the_volume_and_the_other_draws(stretch_env, vstate):
     for a, b, c in zip(jax.tree.leaves(plain), jax.tree.leaves(off), jax.tree.leaves(default)):  # bit for bit
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
         np.testing.assert_array_equal(np.asarray(a), np.asarray(c))
+    own = jax.vmap(targets.select, in_axes=(None, 0))(stretch_env.default_params().catalogue, plain.target_index)
+    for a, b in zip(jax.tree.leaves(own), jax.tree.leaves(plain.target)):  # the models themselves, spheres and all
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
 
     p = _params(stretch_env, stretch_max=1.5, stretch_prob=0.5)
     factors, on = jax.vmap(stretch_env.stretch_factors, in_axes=(0, None))(keys, p)

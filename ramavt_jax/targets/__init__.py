@@ -318,31 +318,38 @@ def geom_bound_radius(geom_type: jax.Array, geom_size: jax.Array) -> jax.Array:
 
 
 def stretched(target: TargetModel, factors: jax.Array) -> TargetModel:
-    """The same target stretched along its principal axes by `factors` [3] (may be traced): a point p of the body
-    becomes diag(factors) p. Mass is kept, and the inertia is the stretched body's (its principal axes stay the
-    body axes): with the second moments M_i = (I_j + I_k - I_i) / 2, each M_i is multiplied by factors_i^2.
+    """The same target stretched along its principal axes by `factors` [3] (one target; vmap for a batch; may be
+    traced): a point p of the body becomes diag(factors) p. Mass is kept, and the inertia is the stretched body's
+    (its principal axes stay the body axes): with the second moments M_i = (I_j + I_k - I_i) / 2, each M_i is
+    multiplied by factors_i^2.
 
-    Each geom is stretched along its own axes by the length of diag(factors) applied to that axis; a sphere becomes
-    an ellipsoid. This is exact for geoms whose axes are body axes (boxes, ellipsoids, spheres; cylinders and
-    capsules whose two radial axes stretch alike). A geom at another angle stays a primitive of the same kind and
-    orientation, so it is an approximation of the stretched body (a stretched box at an angle would be a
-    parallelepiped); cylinders and capsules take the geometric mean of their two radial factors. geom_rbound and
-    bound_radius are recomputed from the stretched geoms, so they bound what is rendered."""
+    Geoms stay MuJoCo primitives. A sphere becomes an ellipsoid along the body axes, exact at any angle. Boxes and
+    ellipsoids are stretched along their own axes by the length of diag(factors) applied to each axis: exact when
+    their axes are body axes (in any order). A cylinder's radius takes the geometric mean of its two radial factors
+    (exact when they are equal); a capsule's too, with its half-length set so that its tips land where the stretch
+    puts them (its caps stay hemispheres, so it is exact only for a uniform stretch). A geom at another angle keeps
+    its kind and orientation: an approximation (a stretched box at an angle would be a parallelepiped).
+    geom_rbound and bound_radius are recomputed from the stretched geoms, so they bound what is rendered."""
     factors = jnp.asarray(factors, jnp.float32)
-    along_axes = jnp.linalg.norm(factors[:, None] * target.geom_mat, axis=-2)  # [..., G, 3] per geom axis
-    radial = jnp.sqrt(along_axes[..., 0] * along_axes[..., 1])
-    round_ = (target.geom_type == CYLINDER) | (target.geom_type == CAPSULE)
-    size_factors = jnp.where(round_[..., None], jnp.stack([radial, along_axes[..., 2], radial], -1), along_axes)
-    is_sphere = target.geom_type == SPHERE
-    geom_size = jnp.where(is_sphere[..., None], target.geom_size[..., :1], target.geom_size) * size_factors
+    along_axes = jnp.linalg.norm(factors[:, None] * target.geom_mat, axis=-2)  # [G, 3] per geom axis
+    radial = jnp.sqrt(along_axes[:, 0] * along_axes[:, 1])
+    is_sphere, is_capsule = target.geom_type == SPHERE, target.geom_type == CAPSULE
+    round_ = (target.geom_type == CYLINDER) | is_capsule
+    size_factors = jnp.where(round_[:, None], jnp.stack([radial, along_axes[:, 2], radial], -1), along_axes)
+    size_factors = jnp.where(is_sphere[:, None], factors, size_factors)
+    geom_size = jnp.where(is_sphere[:, None], target.geom_size[:, :1], target.geom_size) * size_factors
+    radius, half_length = target.geom_size[:, 0], target.geom_size[:, 1]
+    tip = jnp.maximum((half_length + radius) * along_axes[:, 2] - radius * radial, 0.0)  # a capsule's new half-length
+    geom_size = geom_size.at[:, 1].set(jnp.where(is_capsule, tip, geom_size[:, 1]))
+    geom_mat = jnp.where(is_sphere[:, None, None], jnp.eye(3, dtype=target.geom_mat.dtype), target.geom_mat)
     geom_type = jnp.where(is_sphere, ELLIPSOID, target.geom_type)
     geom_pos = target.geom_pos * factors
     geom_rbound = jnp.where(target.geom_mask, geom_bound_radius(geom_type, geom_size), target.geom_rbound)
     reach = jnp.where(target.geom_mask, jnp.linalg.norm(geom_pos, axis=-1) + geom_rbound, 0.0)
-    second_moments = (jnp.sum(target.inertia, axis=-1, keepdims=True) / 2 - target.inertia) * factors**2
-    inertia = jnp.sum(second_moments, axis=-1, keepdims=True) - second_moments
-    return target.replace(geom_type=geom_type, geom_size=geom_size, geom_pos=geom_pos, geom_rbound=geom_rbound,
-                          bound_radius=jnp.max(reach, axis=-1), inertia=inertia)
+    second_moments = (jnp.sum(target.inertia) / 2 - target.inertia) * factors**2
+    inertia = jnp.sum(second_moments) - second_moments
+    return target.replace(geom_type=geom_type, geom_size=geom_size, geom_pos=geom_pos, geom_mat=geom_mat,
+                          geom_rbound=geom_rbound, bound_radius=jnp.max(reach), inertia=inertia)
 
 
 SPLITS: tuple[str, ...] = ("train", "val", "test", "all", "val-sizes")
