@@ -183,6 +183,7 @@ def sequence_td_loss(
     truncated: jax.Array,  # [B, T] bool
     mask: jax.Array,  # [B, T] bool or 0/1
     cfg: TDConfig,
+    weights: jax.Array | None = None,  # [B]
 ) -> tuple[jax.Array, dict[str, jax.Array]]:
     """Masked (double-)Q n-step TD loss over a batch of sequences.
 
@@ -200,9 +201,11 @@ def sequence_td_loss(
         transitions).  Masked transitions still serve as later steps of other transitions' n-step returns only
         if no episode end lies in between, which next-step autoreset guarantees for crossings.
       cfg: :class:`TDConfig`.
+      weights: ``[B]`` importance weights of the windows (prioritised replay), multiplying each window's
+        elementwise losses; None for 1.
 
     Returns:
-      ``(loss, aux)``: ``loss`` is the mean of the elementwise loss over unmasked transitions (0 if none);
+      ``(loss, aux)``: ``loss`` is the mean of the (weighted) elementwise loss over unmasked transitions (0 if none);
       ``aux`` holds ``td_error``, ``q_taken`` and ``target``, each ``[B, T]`` (``td_error = target - q_taken``,
       unmasked values, for logging and priorities).
     """
@@ -230,8 +233,19 @@ def sequence_td_loss(
     td_error = target - q_taken
     mask_f = mask.astype(q_taken.dtype)
     per_step = _elementwise_loss(td_error, cfg.huber_delta) * mask_f
+    if weights is not None:
+        per_step = per_step * weights[:, None]
     loss = per_step.sum() / jnp.maximum(mask_f.sum(), 1.0)
     return loss, {"td_error": td_error, "q_taken": q_taken, "target": target}
+
+
+def sequence_priority(td_error: jax.Array, mask: jax.Array, max_share: float) -> jax.Array:
+    """``[B]`` priority of each window from its ``[B, T]`` TD errors over the transitions in ``mask``: ``max_share``
+    times the largest magnitude plus the rest times the mean one (R2D2's mix; 0 for a window with no trained
+    transition)."""
+    magnitude = jnp.abs(td_error) * mask
+    count = mask.astype(magnitude.dtype).sum(-1)
+    return max_share * magnitude.max(-1) + (1 - max_share) * magnitude.sum(-1) / jnp.maximum(count, 1.0)
 
 
 @struct.dataclass
@@ -245,6 +259,7 @@ class TDBatch:
       terminated: ``[B, T]`` bool, obs t+1 is terminal.
       truncated: ``[B, T]`` bool, the time limit ended the episode at obs t+1.
       mask: ``[B, T]`` bool, transition t contributes to the loss.
+      weight: ``[B]`` importance weight of each window (prioritised replay); None for 1.
     """
 
     q_target: jax.Array
@@ -253,9 +268,10 @@ class TDBatch:
     terminated: jax.Array
     truncated: jax.Array
     mask: jax.Array
+    weight: jax.Array | None = None
 
 
 def td_loss(q_online: jax.Array, batch: TDBatch, cfg: TDConfig) -> tuple[jax.Array, dict[str, jax.Array]]:
     """:func:`sequence_td_loss` of ``q_online`` (``[B, T+1, A]``) against a :class:`TDBatch`."""
     return sequence_td_loss(q_online, batch.q_target, batch.action, batch.reward, batch.terminated, batch.truncated,
-                            batch.mask, cfg)
+                            batch.mask, cfg, batch.weight)

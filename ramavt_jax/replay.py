@@ -84,6 +84,14 @@ class ReplayConfig:
         are cast back to the example's dtype.
       min_fill_steps: env steps (total over envs) stored before :meth:`SequenceReplay.can_sample` is true; at
         least ``sequence_length`` per env is always required.
+      priority_exponent: 0 samples windows uniformly (the default). Above 0, prioritised sequence replay (as R2D2,
+        which uses 0.9): a window is drawn with probability proportional to its priority to this power (flashbax's
+        prioritised trajectory buffer), where the learner sets a window's priority from its TD errors
+        (``priority_max_share`` max + the rest mean of their magnitudes) and new windows get the largest priority
+        so far.
+      importance_exponent: beta of the importance weights ``(P_i) ** -beta / max_j (P_j) ** -beta`` over the batch
+        that correct the loss for prioritised sampling (R2D2: 0.6); unused when sampling is uniform.
+      priority_max_share: eta of a window's priority ``eta max |td| + (1 - eta) mean |td|`` (R2D2: 0.9).
     """
 
     capacity_steps: int = 64_000
@@ -94,8 +102,15 @@ class ReplayConfig:
     obs_dtype: str = "uint8"
     state_dtype: str = "float32"
     min_fill_steps: int = 0
+    priority_exponent: float = 0.0
+    importance_exponent: float = 0.6
+    priority_max_share: float = 0.9
 
     def __post_init__(self):
+        for name in ("priority_exponent", "importance_exponent", "priority_max_share"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, float, np.number)) or not 0 <= value <= 1:
+                raise ValueError(f"ReplayConfig.{name} must be a number in [0, 1], got {value!r}")
         for name in ("capacity_steps", "burn_in", "train_len", "period", "batch_size", "min_fill_steps"):
             value = getattr(self, name)
             if not isinstance(value, (int, np.integer)) or isinstance(value, bool):
@@ -119,6 +134,10 @@ class ReplayConfig:
                 f"ReplayConfig.min_fill_steps must be in [0, capacity_steps={self.capacity_steps}], "
                 f"got {self.min_fill_steps}"
             )
+
+    @property
+    def prioritised(self) -> bool:
+        return self.priority_exponent > 0
 
     @property
     def sequence_length(self) -> int:
@@ -228,6 +247,9 @@ class SequenceBatch:
       loss_mask: ``[B, L-1]`` bool, transition t trains (see :func:`loss_mask`).
       start_state: the stored recurrent state before obs 0, in the network's layout: leaves ``[layers, B, units]``.
       privileged: ``[B, L, K]`` the stored privileged state per obs (None when not stored).
+      indices: ``[B]`` int32 the windows' items in a prioritised buffer (for
+        :meth:`SequenceReplay.set_priorities`; None when sampling is uniform).
+      weights: ``[B]`` float32 importance weights of the windows, at most 1 (None when sampling is uniform).
       burn_in: static number of leading steps that only warm up the carry (``loss_mask`` is False there).
     """
 
@@ -240,6 +262,8 @@ class SequenceBatch:
     loss_mask: jax.Array
     start_state: Any
     privileged: jax.Array | None = None
+    indices: jax.Array | None = None
+    weights: jax.Array | None = None
     burn_in: int = struct.field(pytree_node=False, default=0)
 
 
@@ -332,10 +356,32 @@ class SequenceReplay:
         """``batch_size`` windows of ``sequence_length`` consecutive steps of one env each, as a
         :class:`SequenceBatch` (obs float32 in [0, 1], the start state in the example's dtypes).  Only valid when
         :meth:`can_sample`: flashbax silently returns empty (zero) data from an under-filled buffer."""
-        window = self.buffer.sample(state, key).experience
+        sample = self.buffer.sample(state, key)
+        window = sample.experience
         state_out = jax.tree.map(lambda x, e: x.astype(e.dtype), window.recurrent_state, self.example.recurrent_state)
         window = window.replace(obs=dequantise_obs(window.obs), recurrent_state=state_out)
-        return sequence_batch(window, self.config.burn_in)
+        batch = sequence_batch(window, self.config.burn_in)
+        if not self.config.prioritised:
+            return batch
+        # log-space: a window's probability may be tiny; the batch's largest weight is 1
+        log_w = -self.config.importance_exponent * jnp.log(jnp.maximum(sample.probabilities, 1e-30))
+        return batch.replace(indices=sample.indices, weights=jnp.exp(log_w - jnp.max(log_w)))
+
+    def set_priorities(self, state, indices: jax.Array, priorities: jax.Array):
+        """The buffer state with the windows ``indices`` [B] (from :meth:`sample`) given ``priorities`` [B] >= 0
+        (raised to ``priority_exponent`` by flashbax); unchanged when sampling is uniform."""
+        if not self.config.prioritised:
+            return state
+        return self.buffer.set_priorities(state, indices, jnp.maximum(priorities, 1e-6))
+
+    def sampling_state(self, state):
+        """The part of the buffer state that learning changes: the sum tree of a prioritised buffer, else None
+        (carry it, not the whole buffer, through a loop of updates)."""
+        return state.sum_tree_state if self.config.prioritised else None
+
+    def with_sampling_state(self, state, sampling):
+        """``state`` with its :meth:`sampling_state` replaced."""
+        return state.replace(sum_tree_state=sampling) if self.config.prioritised else state
 
     def can_sample(self, state) -> jax.Array:
         """``[]`` bool: every env row holds at least ``max(sequence_length, ceil(min_fill_steps / num_envs))`` steps."""
@@ -361,14 +407,15 @@ def make_replay(config: ReplayConfig, num_envs: int, example_transition: Transit
         raise ValueError(f"example_transition.obs must be one [H, W, C] observation, got shape "
                          f"{tuple(example_transition.obs.shape)}")
     min_len = max(config.sequence_length, math.ceil(config.min_fill_steps / num_envs))
-    buffer = fbx.make_trajectory_buffer(
-        add_batch_size=num_envs,
-        sample_batch_size=config.batch_size,
-        sample_sequence_length=config.sequence_length,
-        period=config.period,
-        min_length_time_axis=min_len,
-        max_length_time_axis=per_env,
-    )
+    sizes = dict(add_batch_size=num_envs, sample_batch_size=config.batch_size,
+                 sample_sequence_length=config.sequence_length, period=config.period, min_length_time_axis=min_len,
+                 max_length_time_axis=per_env)
+    if config.prioritised:
+        device = "cpu" if jax.default_backend() == "cpu" else "gpu"  # flashbax's sum-tree update for that device
+        buffer = fbx.make_prioritised_trajectory_buffer(**sizes, priority_exponent=config.priority_exponent,
+                                                        device=device)
+    else:
+        buffer = fbx.make_trajectory_buffer(**sizes)
     return SequenceReplay(config=config, num_envs=num_envs, steps_per_env=per_env, example=example_transition,
                           buffer=buffer)
 

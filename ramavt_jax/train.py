@@ -34,7 +34,7 @@ from ramavt_jax import env as env_lib
 from ramavt_jax import replay as replay_lib
 from ramavt_jax.augment import augment_batch
 from ramavt_jax.greedy import unbatch_state
-from ramavt_jax.losses import TDBatch, td_loss
+from ramavt_jax.losses import TDBatch, sequence_priority, td_loss
 from ramavt_jax.network import init_params, initial_state, make_network, record_action
 from ramavt_jax.train_config import TrainConfig
 from ramavt_jax.train_state import (ActorState, ChunkMetrics, EpisodeStats, LearnerState, LearnStats, PreparedBatch,
@@ -216,7 +216,7 @@ class Trainer:
             terminated, truncated = jnp.zeros_like(terminated), truncated | terminated
         td = TDBatch(q_target=sg(q_target[:, burn:]), action=batch.action[:, burn:],
                      reward=sg(batch.reward[:, burn:] * c.learner.reward_scale), terminated=terminated,
-                     truncated=truncated, mask=batch.loss_mask[:, burn:])
+                     truncated=truncated, mask=batch.loss_mask[:, burn:], weight=batch.weights)
         privileged = None if batch.privileged is None else batch.privileged[:, burn:]
         return PreparedBatch(obs=obs[:, burn:], reset=batch.reset[:, burn:], state=sg(state), td=td,
                              privileged=privileged)
@@ -234,7 +234,8 @@ class Trainer:
             miss = jnp.square(sown["intermediates"]["aux"][0][:, :-1] - prepared.privileged[:, :-1]).sum(-1)
             aux_loss = masked_mean(miss)
             loss = loss + self.config.learner.aux_weight * aux_loss
-        aux = dict(aux, q_mean=masked_mean(aux["q_taken"]), aux_loss=aux_loss)
+        priority = sequence_priority(jax.lax.stop_gradient(aux["td_error"]), mask, self.config.replay.priority_max_share)
+        aux = dict(aux, q_mean=masked_mean(aux["q_taken"]), aux_loss=aux_loss, priority=priority)
         return loss, aux
 
     def loss(self, params, target_params, batch: replay_lib.SequenceBatch, key: jax.Array):
@@ -243,7 +244,8 @@ class Trainer:
         return self.trained_loss(params, self.prepare(params, target_params, batch, key))
 
     def update(self, learner: LearnerState, replay_state, key: jax.Array):
-        """One gradient step on a fresh sample. Returns (learner, LearnStats)."""
+        """One gradient step on a fresh sample. Returns (learner, replay_state, LearnStats): the replay state holds
+        the sampled windows' new priorities when sampling is prioritised (ReplayConfig.priority_exponent)."""
         c = self.config.learner
         k_sample, k_aug = jax.random.split(key)
         batch = self._shard_batch(self.replay.sample(replay_state, k_sample))
@@ -261,24 +263,33 @@ class Trainer:
         else:
             target = optax.periodic_update(params, learner.target_params, n, c.target_period)
         new = LearnerState(params=params, target_params=target, opt_state=opt_state, updates=n)
-        return new, LearnStats(loss=loss, aux_loss=aux["aux_loss"], q_mean=aux["q_mean"],
+        if batch.indices is not None:
+            replay_state = self.replay.set_priorities(replay_state, batch.indices, aux["priority"])
+        return new, replay_state, LearnStats(loss=loss, aux_loss=aux["aux_loss"], q_mean=aux["q_mean"],
                                grad_norm=optax.tree.norm(grads), updates=jnp.ones((), jnp.int32))
 
     def learn(self, learner: LearnerState, replay_state, env_steps: jax.Array, key: jax.Array):
-        """``updates_per_iteration`` steps if the replay is ready, else none. Returns (learner, summed LearnStats)."""
-        c = self.config
-        ready = (env_steps >= c.learner.learning_starts) & self.replay.can_sample(replay_state)
+        """``updates_per_iteration`` steps if the replay is ready, else none. Returns (learner, replay_state,
+        summed LearnStats); only a prioritised buffer's sum tree changes (SequenceReplay.sampling_state), so only it
+        is carried through the updates."""
+        c, replay = self.config, self.replay
+        ready = (env_steps >= c.learner.learning_starts) & replay.can_sample(replay_state)
 
-        def do(learner):
-            learner, stats = jax.lax.scan(lambda l, k: self.update(l, replay_state, k), learner,
-                                          jax.random.split(key, c.updates_per_iteration))
-            return learner, jax.tree.map(jnp.sum, stats)
+        def one_update(carry, k):
+            learner, sampling = carry
+            learner, state, stats = self.update(learner, replay.with_sampling_state(replay_state, sampling), k)
+            return (learner, replay.sampling_state(state)), stats
 
-        def skip(learner):
+        def do(carry):
+            carry, stats = jax.lax.scan(one_update, carry, jax.random.split(key, c.updates_per_iteration))
+            return carry, jax.tree.map(jnp.sum, stats)
+
+        def skip(carry):
             z = jnp.zeros(())
-            return learner, LearnStats(loss=z, aux_loss=z, q_mean=z, grad_norm=z, updates=jnp.zeros((), jnp.int32))
+            return carry, LearnStats(loss=z, aux_loss=z, q_mean=z, grad_norm=z, updates=jnp.zeros((), jnp.int32))
 
-        return jax.lax.cond(ready, do, skip, learner)
+        (learner, sampling), stats = jax.lax.cond(ready, do, skip, (learner, replay.sampling_state(replay_state)))
+        return learner, replay.with_sampling_state(replay_state, sampling), stats
 
     def iteration(self, runner: RunnerState) -> tuple[RunnerState, ChunkMetrics]:
         key, k_act, k_learn = jax.random.split(runner.key, 3)
@@ -287,7 +298,7 @@ class Trainer:
         chunk = distributed.constrain_envs(chunk, self.mesh)
         replay_state = self.replay.add(runner.replay, chunk)
         env_steps = runner.env_steps + self.config.env_steps_per_iteration
-        learner, learned = self.learn(runner.learner, replay_state, env_steps, k_learn)
+        learner, replay_state, learned = self.learn(runner.learner, replay_state, env_steps, k_learn)
         metrics = ChunkMetrics(episodes=stats.episodes, episode_length_sum=stats.length_sum,
                                episode_return_sum=stats.return_sum, loss_sum=learned.loss,
                                aux_loss_sum=learned.aux_loss, q_sum=learned.q_mean,

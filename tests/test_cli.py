@@ -291,3 +291,17 @@ def test_final_evaluation_acts_with_the_configured_params(tmp_path, monkeypatch,
     monkeypatch.setattr(experiment, "evaluate_run", lambda config, d, seed, params, log: seen.update(params=params))
     experiment.train_and_evaluate(preset("smoke", policy_params=which), tmp_path, seed=0, progress=False)
     np.testing.assert_array_equal(seen["params"]["w"], np.full(2, 7.0 if which == "target" else 1.0))
+
+
+def test_env_params_add_to_a_presets_pairs(monkeypatch):
+    """Under a preset that sets EnvParams pairs (`sizes`), --env-params parses as under any other and adds to them
+    name by name."""
+    from ramavt_jax.cli import train as cli_train
+
+    seen = {}
+    monkeypatch.setattr(cli_train, "train_and_evaluate", lambda config, out, **kw: seen.update(config=config))
+    monkeypatch.setattr(cli_train, "_print_summary", lambda *a: None)
+    cli.main(["train", "--preset", "sizes", "--env-params", "stretch_max=1.5", "size_scale_max=0.8", "--out", "x"])
+    assert dict(seen["config"].env_params) == {"size_scale_min": 0.15, "size_scale_max": 0.8, "stretch_max": 1.5}
+    cli.main(["train", "--preset", "sizes", "--out", "x"])
+    assert dict(seen["config"].env_params) == {"size_scale_min": 0.15, "size_scale_max": 1.0}

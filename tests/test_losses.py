@@ -189,3 +189,18 @@ def test_bad_config():
         TDConfig(gamma=1.5)
     with pytest.raises(ValueError, match="huber_delta"):
         TDConfig(huber_delta=0.0)
+
+
+def test_importance_weights_scale_each_window():
+    """Window weights (prioritised replay) multiply that window's elementwise losses; the mean stays over the
+    unmasked transitions. Two copies of the shared window: by hand, td = [2.5, -0.5] in each."""
+    cfg = TDConfig(gamma=0.5, n_step=1, double_q=False)
+    two = lambda a: np.concatenate([a, a])  # noqa: E731
+    args = [jnp.asarray(two(a)) for a in (Q_ONLINE, Q_TARGET, ACTIONS, REWARDS, FALSE2, FALSE2, ONES2)]
+    plain, _ = sequence_td_loss(*args, cfg)
+    ones, _ = sequence_td_loss(*args, cfg, jnp.ones(2))
+    weighted, aux = sequence_td_loss(*args, cfg, jnp.asarray([1.0, 0.25]))
+    np.testing.assert_allclose(ones, plain, rtol=1e-7)
+    np.testing.assert_allclose(plain, 1.625, rtol=1e-6)
+    np.testing.assert_allclose(weighted, (1.0 + 0.25) * 0.5 * (6.25 + 0.25) / 4, rtol=1e-6)
+    np.testing.assert_allclose(aux["td_error"], [[2.5, -0.5], [2.5, -0.5]])  # the errors are not weighted

@@ -328,3 +328,66 @@ def test_min_fill_steps():
     replay = make_replay(cfg, N_ENVS, EXAMPLE)
     assert not bool(replay.can_sample(fill(replay, replay.init(), 1, 8)))  # 8 < 10 per env
     assert bool(replay.can_sample(fill(replay, replay.init(), 2, 8)))
+
+
+# ------------------------------------------------------------------------------------------- prioritised sequences
+def _prioritised(**kw):
+    cfg = ReplayConfig(capacity_steps=N_ENVS * 60, burn_in=0, train_len=5, period=1, batch_size=64,
+                       priority_exponent=0.9, **kw)
+    replay = make_replay(cfg, N_ENVS, EXAMPLE)
+    return replay, fill(replay, replay.init(), num_chunks=2, t_chunk=20)  # 40 steps per env, no wrap
+
+
+def test_uniform_sampling_has_no_priorities(filled):
+    replay, state, batch = filled
+    assert batch.indices is None and batch.weights is None
+    assert replay.sampling_state(state) is None
+    assert replay.set_priorities(state, jnp.zeros(2, jnp.int32), jnp.ones(2)) is state
+
+
+def test_prioritised_windows_are_contiguous_and_start_equally_likely():
+    """New windows get the same (largest) priority, so the first samples are uniform over the admissible starts,
+    with weights of 1, and every window is still consecutive steps of one env."""
+    replay, state = _prioritised()
+    batch = replay.sample(state, jax.random.key(1))
+    env, g = decode(batch)
+    assert np.all(np.diff(g, axis=1) == 1) and np.all(env == env[:, :1])
+    np.testing.assert_allclose(np.asarray(batch.weights), 1.0, rtol=1e-5)
+    assert batch.indices.shape == (64,)
+
+
+def test_set_priorities_steer_sampling_and_weights():
+    """A window given 100x the others' priority is drawn about 100 ** 0.9 times as often as each of them, and its
+    importance weight is (P_hot / P_other) ** -beta of theirs (theirs is the batch's largest, 1)."""
+    replay, state = _prioritised(importance_exponent=0.6)
+    first = replay.sample(state, jax.random.key(2))
+    items = np.unique(np.asarray(first.indices))
+    hot = int(items[0])
+    prios = np.where(items == hot, 100.0, 1.0)
+    state = replay.set_priorities(state, jnp.asarray(items), jnp.asarray(prios, jnp.float32))
+    draws = np.concatenate([np.asarray(replay.sample(state, k).indices) for k in jax.random.split(jax.random.key(3), 40)])
+    share = np.mean(draws == hot)
+    others = np.mean(draws == items[1])
+    assert share > 20 * max(others, 1 / len(draws)), (share, others)
+    batch = replay.sample(state, jax.random.key(4))
+    idx, w = np.asarray(batch.indices), np.asarray(batch.weights)
+    assert (idx == hot).any() and (idx != hot).any()  # a third of the draws are the hot window
+    np.testing.assert_allclose(w[idx == hot], (100.0**0.9) ** -0.6, rtol=1e-4)  # the others' weight is 1
+    np.testing.assert_allclose(w[idx != hot], 1.0, rtol=1e-5)
+
+
+def test_sequence_priority_mixes_max_and_mean():
+    from ramavt_jax.losses import sequence_priority
+
+    td = jnp.asarray([[1.0, -3.0, 2.0, 10.0], [0.5, 0.5, -0.5, 0.0], [4.0, 4.0, 4.0, 4.0]])
+    mask = jnp.asarray([[1, 1, 1, 0], [1, 1, 1, 1], [0, 0, 0, 0]], bool)
+    got = np.asarray(sequence_priority(td, mask, 0.9))
+    np.testing.assert_allclose(got, [0.9 * 3 + 0.1 * 2.0, 0.9 * 0.5 + 0.1 * 0.375, 0.0], rtol=1e-6)
+
+
+@pytest.mark.parametrize("kwargs", [dict(priority_exponent=1.5), dict(importance_exponent=-0.1),
+                                    dict(priority_max_share=2.0), dict(priority_exponent=True)])
+def test_bad_priority_config(kwargs):
+    name = next(iter(kwargs))
+    with pytest.raises(ValueError, match=f"ReplayConfig.{name} must be a number in \\[0, 1\\]"):
+        ReplayConfig(**kwargs)

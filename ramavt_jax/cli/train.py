@@ -9,6 +9,7 @@ from __future__ import annotations
 import ast
 import dataclasses
 import json
+import typing
 from pathlib import Path
 from typing import Literal
 
@@ -43,9 +44,19 @@ def _name_value_pairs(args: list[str]) -> tuple:
     return tuple(pairs)
 
 
+def _is_pairs_type(type_) -> bool:
+    """TrainConfig.env_params's type as tyro sees it: the bare `tuple` of its annotation, or, under a preset that
+    sets some pairs (`sizes`), the type tyro narrows it to from that default, tuple[tuple[str, float], ...]."""
+    if type_ is tuple:
+        return True
+    args = [a for a in typing.get_args(type_) if a is not Ellipsis]
+    return typing.get_origin(type_) is tuple and bool(args) and all(
+        typing.get_origin(a) is tuple and typing.get_args(a)[:1] == (str,) for a in args)
+
+
 @FLAG_TYPES.primitive_rule
 def _pairs_rule(info: constructors.PrimitiveTypeInfo) -> constructors.PrimitiveConstructorSpec | None:
-    if info.type is not tuple:
+    if not _is_pairs_type(info.type):
         return None
     return constructors.PrimitiveConstructorSpec(
         nargs="*", metavar="NAME=VALUE", instance_from_str=_name_value_pairs, is_instance=lambda x: isinstance(x, tuple),
@@ -141,6 +152,9 @@ def make_train_cmd(preset_name: str, clock_start: float | None = None):
         """
         positive("--seeds", seeds)
         positive("--devices", devices, minimum=0)
+        # --env-params adds to the preset's pairs, name by name (`--preset sizes --env-params stretch_max=1.5` keeps
+        # its size randomisation); set a preset's pair to EnvParams' default to undo it
+        config = config.override(env_params={**dict(default.env_params), **dict(config.env_params)})
         distributed.initialize(coordinator_address, num_processes, process_id)
         summary = train_and_evaluate(config, out, seed=seed, seeds=seeds, resume=resume, progress=progress,
                                      devices=devices, clock_start=clock_start)

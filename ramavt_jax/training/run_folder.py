@@ -41,7 +41,8 @@ RESUMABLE_FIELDS = ("run.total_env_steps", "run.eval_episodes", "run.eval_max_st
 # runs were trained with: a config.json without such a field reads as its default. Any other missing field means a
 # file cut short or edited, and is refused.
 ADDED_FIELDS = ("network.depth_centre", "network.depth_gain", "learner.polyak_tau_start",
-                "learner.polyak_tau_decay", "network.silhouette_stats")
+                "learner.polyak_tau_decay", "network.silhouette_stats", "replay.priority_exponent",
+                "replay.importance_exponent", "replay.priority_max_share")
 _SEED_DIR = re.compile(r"seed_\d+")
 
 
