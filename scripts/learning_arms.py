@@ -248,6 +248,9 @@ ARMS["res64"] = lambda c: _res64(ARMS["patch-768k"](c))
 _STRETCH = {"stretch_max": 1.5, "stretch_prob": 0.5}
 ARMS["stretch"] = lambda c: _env(ARMS["clip-1152k"](c), **_STRETCH)
 ARMS["size-stretch"] = lambda c: _env(ARMS["size-small-1152k"](c), **_STRETCH)
+# Prioritised sequence replay with R2D2's settings (priority exponent 0.9, importance exponent 0.6, priorities
+# 0.9 max + 0.1 mean |TD error|), one change to the quick preset.
+ARMS["per"] = lambda c: ARMS["clip-1152k"](c).override(priority_exponent=0.9)
 
 
 def arm_config(name: str, preset: str = "quick", **overrides):

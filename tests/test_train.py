@@ -446,3 +446,19 @@ def test_bootstrap_lost_turns_terminations_into_bootstrapped_ends(trainer, learn
     for k in ("reward", "action", "mask", "q_target"):
         np.testing.assert_array_equal(np.asarray(getattr(booted, k)), np.asarray(getattr(plain, k)))
     assert float(trainer.trained_loss(params, plain_prep)[0]) != float(boot.trained_loss(params, boot_prep)[0])
+
+
+# ------------------------------------------------------------------------------------------ prioritised replay
+def test_prioritised_training_sets_the_sampled_windows_priorities():
+    """With ReplayConfig.priority_exponent > 0 the learner writes each sampled window's priority (from its TD errors)
+    into the buffer's sum tree: after two chunks the stored priorities are no longer the one that new windows get,
+    and the loss stays finite."""
+    from flashbax.buffers import sum_tree
+
+    cfg = SMOKE.override(total_env_steps=640, priority_exponent=0.9)
+    out = jax.jit(T.make_train(cfg))(jax.random.PRNGKey(3))
+    tree = out["runner_state"].replay.sum_tree_state
+    assert int(out["runner_state"].learner.updates) > 0 and np.isfinite(np.asarray(out["metrics"].loss_sum)).all()
+    stored = np.asarray(jax.vmap(lambda i: sum_tree.get(tree, i))(jnp.arange(tree.capacity)))
+    written = stored[stored > 0]
+    assert len(np.unique(np.round(written, 6))) > 2, np.unique(written)  # new windows share one; updates differ
