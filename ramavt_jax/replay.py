@@ -87,8 +87,9 @@ class ReplayConfig:
       priority_exponent: 0 samples windows uniformly (the default). Above 0, prioritised sequence replay (as R2D2,
         which uses 0.9): a window is drawn with probability proportional to its priority to this power (flashbax's
         prioritised trajectory buffer), where the learner sets a window's priority from its TD errors
-        (``priority_max_share`` max + the rest mean of their magnitudes) and new windows get the largest priority
-        so far.
+        (``priority_max_share`` max + the rest mean of their magnitudes). A new window enters at flashbax's
+        max(1, whole part of the largest powered priority so far): flashbax 0.1.3 rounds it down, so with TD errors
+        below 1 new windows enter at 1, above the windows already trained on, and are drawn first.
       importance_exponent: beta of the importance weights ``(P_i) ** -beta / max_j (P_j) ** -beta`` over the batch
         that correct the loss for prioritised sampling (R2D2: 0.6); unused when sampling is uniform.
       priority_max_share: eta of a window's priority ``eta max |td| + (1 - eta) mean |td|`` (R2D2: 0.9).
@@ -159,6 +160,10 @@ class ReplayConfig:
                 f"(each env gets its own row of capacity_steps // num_envs steps); try {lo} or {lo + num_envs}"
             )
         per_env = self.capacity_steps // num_envs
+        if self.prioritised and per_env % self.period:
+            raise ValueError(
+                f"ReplayConfig.period={self.period} must divide the {per_env} steps per env of a prioritised buffer "
+                f"(flashbax's window grid; capacity_steps={self.capacity_steps}, num_envs={num_envs})")
         if per_env < self.sequence_length:
             raise ValueError(
                 f"ReplayConfig.capacity_steps={self.capacity_steps} gives {per_env} steps per env with "
@@ -363,16 +368,21 @@ class SequenceReplay:
         batch = sequence_batch(window, self.config.burn_in)
         if not self.config.prioritised:
             return batch
-        # log-space: a window's probability may be tiny; the batch's largest weight is 1
-        log_w = -self.config.importance_exponent * jnp.log(jnp.maximum(sample.probabilities, 1e-30))
-        return batch.replace(indices=sample.indices, weights=jnp.exp(log_w - jnp.max(log_w)))
+        # The float32 sum tree can drift so that a draw lands on a window of priority 0 (not yet filled, crossing the
+        # write head, or padding): such a window gets weight 0, and keeps priority 0 (set_priorities).
+        valid = sample.probabilities > 0
+        log_w = -self.config.importance_exponent * jnp.log(jnp.where(valid, sample.probabilities, 1.0))
+        top = jnp.max(jnp.where(valid, log_w, -jnp.inf))  # in log space: the batch's largest valid weight is 1
+        return batch.replace(indices=sample.indices, weights=jnp.where(valid, jnp.exp(log_w - top), 0.0))
 
-    def set_priorities(self, state, indices: jax.Array, priorities: jax.Array):
-        """The buffer state with the windows ``indices`` [B] (from :meth:`sample`) given ``priorities`` [B] >= 0
-        (raised to ``priority_exponent`` by flashbax); unchanged when sampling is uniform."""
+    def set_priorities(self, state, batch: SequenceBatch, priorities: jax.Array):
+        """The buffer state with the windows of ``batch`` (from :meth:`sample`) given ``priorities`` [B] >= 0 (raised
+        to ``priority_exponent`` by flashbax; at least 1e-6, so that a window stays drawable), and the windows the
+        sum tree holds at priority 0 (weight 0) left there; unchanged when sampling is uniform."""
         if not self.config.prioritised:
             return state
-        return self.buffer.set_priorities(state, indices, jnp.maximum(priorities, 1e-6))
+        valid = batch.weights > 0
+        return self.buffer.set_priorities(state, batch.indices, jnp.where(valid, jnp.maximum(priorities, 1e-6), 0.0))
 
     def sampling_state(self, state):
         """The part of the buffer state that learning changes: the sum tree of a prioritised buffer, else None

@@ -264,7 +264,7 @@ class Trainer:
             target = optax.periodic_update(params, learner.target_params, n, c.target_period)
         new = LearnerState(params=params, target_params=target, opt_state=opt_state, updates=n)
         if batch.indices is not None:
-            replay_state = self.replay.set_priorities(replay_state, batch.indices, aux["priority"])
+            replay_state = self.replay.set_priorities(replay_state, batch, aux["priority"])
         return new, replay_state, LearnStats(loss=loss, aux_loss=aux["aux_loss"], q_mean=aux["q_mean"],
                                grad_norm=optax.tree.norm(grads), updates=jnp.ones((), jnp.int32))
 

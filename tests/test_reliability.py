@@ -316,3 +316,15 @@ def test_the_video_trajectory_view_holds_a_far_target():
     assert view_limits(frames([[0.5, 0, 5], [-1, 0, 7]])) == (6.0, 15.0, 6.0)  # the usual view
     half, far, err = view_limits(frames([[0, 0, 5], [30, 0, 100]]))
     assert half >= 30 and far >= 100 and err >= 95
+
+
+def test_env_params_order_does_not_block_a_resume():
+    """A run written with its EnvParams pairs in command-line order resumes under the sorted pairs TrainConfig makes
+    now; a changed value still differs."""
+    from ramavt_jax.training.run_folder import config_differences
+
+    saved = {"env_params": [["size_scale_min", 0.15], ["size_scale_max", 1.0]], "learner": {"lr": 1e-3}}
+    now = {"env_params": [["size_scale_max", 1.0], ["size_scale_min", 0.15]], "learner": {"lr": 1e-3}}
+    assert config_differences(saved, now) == {}
+    changed = {"env_params": [["size_scale_max", 0.8], ["size_scale_min", 0.15]], "learner": {"lr": 1e-3}}
+    assert config_differences(saved, changed) != {}

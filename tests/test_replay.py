@@ -332,6 +332,7 @@ def test_min_fill_steps():
 
 # ------------------------------------------------------------------------------------------- prioritised sequences
 def _prioritised(**kw):
+    """A prioritised buffer of 3 envs x 60 steps holding 40 steps per env (windows of 6 steps)."""
     cfg = ReplayConfig(capacity_steps=N_ENVS * 60, burn_in=0, train_len=5, period=1, batch_size=64,
                        priority_exponent=0.9, **kw)
     replay = make_replay(cfg, N_ENVS, EXAMPLE)
@@ -342,7 +343,7 @@ def test_uniform_sampling_has_no_priorities(filled):
     replay, state, batch = filled
     assert batch.indices is None and batch.weights is None
     assert replay.sampling_state(state) is None
-    assert replay.set_priorities(state, jnp.zeros(2, jnp.int32), jnp.ones(2)) is state
+    assert replay.set_priorities(state, batch, jnp.ones(2)) is state
 
 
 def test_prioritised_windows_are_contiguous_and_start_equally_likely():
@@ -357,6 +358,8 @@ def test_prioritised_windows_are_contiguous_and_start_equally_likely():
 
 
 def test_set_priorities_steer_sampling_and_weights():
+    from flashbax.buffers import sum_tree
+
     """A window given 100x the others' priority is drawn about 100 ** 0.9 times as often as each of them, and its
     importance weight is (P_hot / P_other) ** -beta of theirs (theirs is the batch's largest, 1)."""
     replay, state = _prioritised(importance_exponent=0.6)
@@ -364,7 +367,10 @@ def test_set_priorities_steer_sampling_and_weights():
     items = np.unique(np.asarray(first.indices))
     hot = int(items[0])
     prios = np.where(items == hot, 100.0, 1.0)
-    state = replay.set_priorities(state, jnp.asarray(items), jnp.asarray(prios, jnp.float32))
+    picked = first.replace(indices=jnp.asarray(items), weights=jnp.ones(len(items)))
+    state = replay.set_priorities(state, picked, jnp.asarray(prios, jnp.float32))
+    stored = np.asarray(jax.vmap(lambda i: sum_tree.get(state.sum_tree_state, i))(jnp.asarray(items)))
+    np.testing.assert_allclose(stored, prios**0.9, rtol=1e-5)  # flashbax raises them to the exponent, once
     draws = np.concatenate([np.asarray(replay.sample(state, k).indices) for k in jax.random.split(jax.random.key(3), 40)])
     share = np.mean(draws == hot)
     others = np.mean(draws == items[1])
@@ -391,3 +397,33 @@ def test_bad_priority_config(kwargs):
     name = next(iter(kwargs))
     with pytest.raises(ValueError, match=f"ReplayConfig.{name} must be a number in \\[0, 1\\]"):
         ReplayConfig(**kwargs)
+
+
+def test_windows_of_priority_zero_get_weight_zero_and_stay_at_zero():
+    """A draw that lands on a window of priority 0 (the float32 sum tree's drift; flashbax issue 52) must not train
+    (weight 0; the others' largest weight stays 1) nor become drawable (set_priorities leaves it at 0)."""
+    import dataclasses
+
+    from flashbax.buffers import sum_tree
+
+    replay, state = _prioritised()
+
+    class DriftedBuffer:  # the real buffer, whose sampled first window comes back with probability 0
+        def __getattr__(self, name):
+            return getattr(replay.buffer, name)
+
+        def sample(self, state, key):
+            out = replay.buffer.sample(state, key)
+            return out.replace(probabilities=out.probabilities.at[0].set(0.0))
+
+    drifted = dataclasses.replace(replay, buffer=DriftedBuffer())
+    batch = drifted.sample(state, jax.random.key(5))
+    lone = int(batch.indices[0])
+    assert float(batch.weights[0]) == 0.0 and float(jnp.max(batch.weights)) == pytest.approx(1.0)
+    zeroed = replay.buffer.set_priorities(state, batch.indices[:1], jnp.zeros(1))  # as the drifted tree had it
+    assert float(sum_tree.get(zeroed.sum_tree_state, lone)) == 0.0
+    others = batch.indices != lone
+    after = replay.set_priorities(zeroed, batch.replace(weights=jnp.where(others, batch.weights, 0.0)),
+                                  jnp.full(batch.indices.shape, 3.0))
+    assert float(sum_tree.get(after.sum_tree_state, lone)) == 0.0
+    assert float(sum_tree.get(after.sum_tree_state, int(batch.indices[others][0]))) == pytest.approx(3.0**0.9)

@@ -140,12 +140,21 @@ def _flatten(d: Any, prefix: str = "") -> dict:
     return out
 
 
+def _sorted_pairs(config: dict) -> dict:
+    """A config dict with its env_params pairs in name order: their order means nothing (TrainConfig sorts them;
+    runs written before it did may hold them in command-line order)."""
+    pairs = config.get("env_params")
+    if not isinstance(pairs, (list, tuple)):
+        return config
+    return {**config, "env_params": sorted(([*p] for p in pairs), key=lambda p: str(p[0]))}
+
+
 def config_differences(saved: dict, current: dict, defaults: dict | None = None) -> dict[str, tuple]:
     """{dotted field: (saved value, current value)} for every field that differs between two config dicts. A field
     the saved config lacks (written before the field existed) counts as its value in ``defaults`` (a config dict
     of the defaults), so a new field left at its default does not block a resume."""
-    a, b = _flatten(saved), _flatten(current)
-    d = _flatten(defaults or {})
+    a, b = _flatten(_sorted_pairs(saved)), _flatten(_sorted_pairs(current))
+    d = _flatten(_sorted_pairs(defaults or {}))
     a.update({k: d[k] for k in d if k not in a})
     return {k: (a.get(k), b.get(k)) for k in sorted(set(a) | set(b)) if a.get(k) != b.get(k)}
 
