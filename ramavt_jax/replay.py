@@ -1,10 +1,12 @@
-"""Sequence replay with stored recurrent state (R2D2), a thin wrapper around flashbax's trajectory buffer.
+"""Sequence replay with stored recurrent state (R2D2), a thin wrapper around flashbax's trajectory buffer (uniform
+sampling) or its prioritised trajectory buffer (``ReplayConfig.priority_exponent`` > 0).
 
 Storage layout
 --------------
 The buffer is ``num_envs`` rows of a circular time axis of ``capacity_steps // num_envs`` steps.  Each added
 chunk ``[num_envs, T_chunk, ...]`` continues every row in time; sampling returns windows of
-``sequence_length`` consecutive steps of one row (one env), never mixing envs and never crossing the write head.
+``sequence_length`` consecutive steps of one row (one env), never mixing envs and never crossing the write head
+(a prioritised buffer's drifted sum tree may draw such a window, at importance weight 0: see SequenceReplay.sample).
 
 Time-step convention (next-step autoreset)
 ------------------------------------------
@@ -89,7 +91,8 @@ class ReplayConfig:
         prioritised trajectory buffer), where the learner sets a window's priority from its TD errors
         (``priority_max_share`` max + the rest mean of their magnitudes). A new window enters at flashbax's
         max(1, whole part of the largest powered priority so far): flashbax 0.1.3 rounds it down, so with TD errors
-        below 1 new windows enter at 1, above the windows already trained on, and are drawn first.
+        below 1 new windows enter at 1, above the windows already trained on, and are drawn more often until
+        trained on.
       importance_exponent: beta of the importance weights ``(P_i) ** -beta / max_j (P_j) ** -beta`` over the batch
         that correct the loss for prioritised sampling (R2D2: 0.6); unused when sampling is uniform.
       priority_max_share: eta of a window's priority ``eta max |td| + (1 - eta) mean |td|`` (R2D2: 0.9).
@@ -359,8 +362,9 @@ class SequenceReplay:
 
     def sample(self, state, key: jax.Array) -> SequenceBatch:
         """``batch_size`` windows of ``sequence_length`` consecutive steps of one env each, as a
-        :class:`SequenceBatch` (obs float32 in [0, 1], the start state in the example's dtypes).  Only valid when
-        :meth:`can_sample`: flashbax silently returns empty (zero) data from an under-filled buffer."""
+        :class:`SequenceBatch` (obs float32 in [0, 1], the start state in the example's dtypes; from a prioritised
+        buffer also the windows' ``indices`` and importance ``weights`` [B]).  Only valid when :meth:`can_sample`:
+        flashbax silently returns empty (zero) data from an under-filled buffer."""
         sample = self.buffer.sample(state, key)
         window = sample.experience
         state_out = jax.tree.map(lambda x, e: x.astype(e.dtype), window.recurrent_state, self.example.recurrent_state)

@@ -141,8 +141,9 @@ def _flatten(d: Any, prefix: str = "") -> dict:
 
 
 def _sorted_pairs(config: dict) -> dict:
-    """A config dict with its env_params pairs in name order: their order means nothing (TrainConfig sorts them;
-    runs written before it did may hold them in command-line order)."""
+    """A config dict with its env_params pairs in name order: their order means nothing to the env, and `ramavt
+    train` writes them sorted (a dict of overrides is sorted by TrainConfig) while earlier runs hold them in
+    command-line order."""
     pairs = config.get("env_params")
     if not isinstance(pairs, (list, tuple)):
         return config
