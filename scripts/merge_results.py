@@ -4,6 +4,9 @@
 
     python scripts/merge_results.py results/val/arms/ten-seeds/preset10.json preset10 \
         results/val/arms/patch-768k/results.json results/val/arms/quick-s5/results.json
+
+A result that holds several arms' runs is read as RESULTS_JSON:ARM, its rows of that run folder only
+(``results/val/sizes/clip1/results.json:clip_1152k``: the rows named ``clip_1152k/seed_<k>``).
 """
 
 from __future__ import annotations
@@ -11,6 +14,21 @@ from __future__ import annotations
 import argparse
 import json
 from pathlib import Path
+
+
+def only_arm(result: dict, arm: str) -> dict:
+    """``result`` with only the checkpoint rows of run folder ``arm`` (rows named ``<arm>/seed_<k>``)."""
+    rows = [r for r in result["rows"] if r.get("kind") == "checkpoint" and r["name"].rsplit("/", 1)[0] == arm]
+    if not rows:
+        raise SystemExit(f"the result has no checkpoint rows of {arm!r}")
+    return dict(result, rows=rows)
+
+
+def read(spec: str) -> dict:
+    """One RESULTS_JSON or RESULTS_JSON:ARM argument."""
+    path, sep, arm = spec.partition(".json:")
+    result = json.loads(Path(path + ".json" if sep else path).read_text())
+    return only_arm(result, arm) if sep else result
 
 
 def merge(name: str, results: list[dict]) -> dict:
@@ -42,9 +60,9 @@ def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("out", type=Path)
     parser.add_argument("name")
-    parser.add_argument("results", type=Path, nargs="+")
+    parser.add_argument("results", nargs="+", help="RESULTS_JSON or RESULTS_JSON:ARM")
     args = parser.parse_args(argv)
-    merged = merge(args.name, [json.loads(p.read_text()) for p in args.results])
+    merged = merge(args.name, [read(spec) for spec in args.results])
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(merged))
     print(f"{args.out}: {len(merged['rows'])} runs as arm {args.name}")

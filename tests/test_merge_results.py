@@ -45,3 +45,17 @@ def test_other_episodes_and_repeated_seeds_are_refused(tmp_path):
         merge_results.merge("z", [_result("x", [0], 1.0), _result("y", [1], 1.0, eval_params={"dist_weight": 0.5})])
     with pytest.raises(SystemExit, match="training seed 0 is in more than one result"):
         merge_results.merge("z", [_result("x", [0], 1.0), _result("y", [0], 1.0)])
+
+
+def test_one_arm_of_a_result_of_several(tmp_path):
+    """RESULTS_JSON:ARM takes only that run folder's rows of a result that evaluated several arms' runs."""
+    both = _result("x", [0, 1], 100.0)
+    both["rows"] += _result("y", [0, 1], 300.0)["rows"]
+    (tmp_path / "both.json").write_text(json.dumps(both))
+    (tmp_path / "more.json").write_text(json.dumps(_result("y_s5", [5], 400.0)))
+    out = tmp_path / "merged.json"
+    merge_results.main([str(out), "y3", f"{tmp_path / 'both.json'}:y", str(tmp_path / "more.json")])
+    grouped = seeds.arms(json.loads(out.read_text()))
+    assert [r["overall"]["return_mean"] for r in grouped["y3 (seeds)"]] == [300.0, 301.0, 405.0]
+    with pytest.raises(SystemExit, match="no checkpoint rows of 'z'"):
+        merge_results.read(f"{tmp_path / 'both.json'}:z")
