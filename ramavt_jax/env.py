@@ -28,7 +28,7 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from ramavt_jax import dynamics, render
+from ramavt_jax import dynamics, randomisation, render
 from ramavt_jax import targets as targets_lib
 from ramavt_jax.render import CameraConfig, Lighting
 
@@ -145,9 +145,6 @@ def _param_array(name: str, value) -> jax.Array:
 class TrackingEnv:
     """Static env object; all methods are pure functions of their arguments (jit/vmap them freely)."""
 
-    SIZE_KEY = 0x5126  # fold_in data of the size-randomisation draws (size_factor: SIZE_KEY and SIZE_KEY + 1)
-    STRETCH_KEY = 0x5714  # ... and of the shape-randomisation draws (stretch_factors: STRETCH_KEY and + 1)
-
     def __init__(self, config: EnvConfig = EnvConfig()):
         self.config = config
 
@@ -192,14 +189,14 @@ class TrackingEnv:
 
     def initial_state(self, key: jax.Array, params: EnvParams) -> EnvState:
         """Initial distribution (original values): target at x,y ~ N(0, 1), z ~ U[2, 12) m in the camera frame,
-        times the stand-off scale k of the episode's target (standoff_scale, after the shape randomisation of
-        `stretch` and the size factor of size_factor),
+        times the stand-off scale k of the episode's target (standoff_scale, after the shape and size draws of
+        randomisation.stretch and randomisation.size_factor),
         velocity N(0, 0.2) m/s, random orientation, spin N(0, 0.1) rad/s per body axis; chaser at rest at the origin.
         The frame history is zeros (``reset`` fills it with the first observation)."""
         k_tgt, k_xy, k_z, k_vel, k_quat, k_spin, k_acc = jax.random.split(key, 7)
         index = jax.random.categorical(k_tgt, jnp.log(params.target_probs))
-        target = self.stretch(key, targets_lib.select(params.catalogue, index), params)
-        target = targets_lib.scaled(target, self.size_factor(key, params))
+        target = randomisation.stretch(key, targets_lib.select(params.catalogue, index), params)
+        target = targets_lib.scaled(target, randomisation.size_factor(key, params))
         scale = standoff_scale(target, params)
         xy = params.init_xy_std * jax.random.normal(k_xy, (2,))
         z = jax.random.uniform(k_z, (), minval=params.init_z_min, maxval=params.init_z_max)
@@ -227,31 +224,6 @@ class TrackingEnv:
             done=jnp.zeros((), bool),
             scale=scale,
         )
-
-    def size_factor(self, key: jax.Array, params: EnvParams) -> jax.Array:
-        """[] Factor on the episode's target geometry: in a share size_scale_prob of the episodes log-uniform in
-        [size_scale_min, size_scale_max], else 1 (exactly 1.0 by default), from keys folded in from initial_state's
-        (the episode's other draws do not depend on them). Mass and inertia are kept: torque-free rotation does not
-        change under a uniform scale of the inertia (Euler's equations are homogeneous in it)."""
-        low, high = jnp.log(params.size_scale_min), jnp.log(params.size_scale_max)
-        factor = jnp.exp(jax.random.uniform(jax.random.fold_in(key, self.SIZE_KEY), (), minval=low, maxval=high))
-        resized = jax.random.uniform(jax.random.fold_in(key, self.SIZE_KEY + 1), ()) < params.size_scale_prob
-        return jnp.where(resized, factor, 1.0)
-
-    def stretch_factors(self, key: jax.Array, params: EnvParams) -> tuple[jax.Array, jax.Array]:
-        """([3] factors along the principal axes, [] whether this episode is stretched): log factors uniform in
-        [-ln stretch_max, ln stretch_max], centred so that their product is 1, in a share stretch_prob of the
-        episodes; from keys folded in from initial_state's (the episode's other draws do not depend on them)."""
-        u = jax.random.uniform(jax.random.fold_in(key, self.STRETCH_KEY), (3,), minval=-1.0, maxval=1.0)
-        factors = jnp.exp((u - jnp.mean(u)) * jnp.log(params.stretch_max))
-        on = (jax.random.uniform(jax.random.fold_in(key, self.STRETCH_KEY + 1), ()) < params.stretch_prob) & (
-            params.stretch_max > 1.0)
-        return factors, on
-
-    def stretch(self, key: jax.Array, target: targets_lib.TargetModel, params: EnvParams) -> targets_lib.TargetModel:
-        """The episode's target, stretched (targets.stretched) when stretch_factors says so, else exactly itself."""
-        factors, on = self.stretch_factors(key, params)
-        return jax.tree.map(lambda s, t: jnp.where(on, s, t), targets_lib.stretched(target, factors), target)
 
     # ----------------------------------------------------------------------------------------- step
     def transition(self, key: jax.Array, state: EnvState, action: jax.Array, params: EnvParams) -> EnvState:

@@ -19,7 +19,7 @@ from ramavt_jax.augment import AugmentConfig
 from ramavt_jax.losses import TDConfig
 from ramavt_jax.network import NetworkConfig
 from ramavt_jax.render import CameraConfig
-from ramavt_jax.replay import ReplayConfig
+from ramavt_jax.replay_config import ReplayConfig
 from ramavt_jax.value_checks import check_finite, check_floats, check_ints
 
 __all__ = ["ActingConfig", "ReplayConfig", "LearnerConfig", "RunConfig", "TrainConfig", "PRESETS", "preset"]

@@ -1,5 +1,5 @@
 """Shape randomisation: `targets.stretched` against MuJoCo's reading of a stretched MJCF, the renderer's bounds
-after a stretch, and the env's draw (`TrackingEnv.stretch_factors`), which keeps the volume and the episode's other
+after a stretch, and the env's draw (`randomisation.stretch_factors`), which keeps the volume and the episode's other
 draws and is for training only."""
 
 import jax
@@ -7,7 +7,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from ramavt_jax import env, render, rotations, targets
+from ramavt_jax import env, randomisation, render, rotations, targets
 from ramavt_jax.evaluation import rollouts
 
 pytest.importorskip("mujoco")
@@ -161,7 +161,7 @@ def test_stretch_draw_keeps_the_volume_and_the_other_draws(stretch_env, vstate):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
 
     p = _params(stretch_env, stretch_max=1.5, stretch_prob=0.5)
-    factors, on = jax.vmap(stretch_env.stretch_factors, in_axes=(0, None))(keys, p)
+    factors, on = jax.vmap(randomisation.stretch_factors, in_axes=(0, None))(keys, p)
     factors, on = np.asarray(factors), np.asarray(on)
     np.testing.assert_allclose(np.prod(factors, axis=1), 1.0, rtol=1e-5)
     assert np.all((factors > 1.5 ** (-4 / 3) * 0.9999) & (factors < 1.5 ** (4 / 3) * 1.0001))

@@ -19,9 +19,8 @@ from ramavt_jax.baselines import Policy
 from ramavt_jax.evaluation import statistics
 from ramavt_jax.training import memory as memplan
 
-# EnvParams fields whose evaluation values (env.eval_params) replace a run's training values: no size randomisation
-# (each target at its own size), no shape randomisation (its own shape), one command speed rule for every row of a
-# table (`--speed-standoff-power`)
+# EnvParams fields whose evaluation values (env.eval_params) replace a run's training values: each target at its own
+# size and shape (no randomisation), one command speed rule for every row of a table (`--speed-standoff-power`)
 EVAL_FIELDS = ("dist_weight", "lost_patience", "size_scale_min", "size_scale_max", "size_scale_prob", "stretch_max",
                "stretch_prob", "speed_standoff_power", "small_standoff_power")
 

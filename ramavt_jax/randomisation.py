@@ -1,0 +1,42 @@
+"""Domain randomisation of an episode's target (training): its size (`size_factor`) and its shape (`stretch`).
+
+Each draw folds its own data into the episode's key, so the episode's other draws (target, pose, velocities) do not
+depend on these, and with the defaults (off) an episode is bit for bit the one without them.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+
+from ramavt_jax import targets as targets_lib
+from ramavt_jax.env_config import EnvParams
+
+SIZE_KEY = 0x5126  # fold_in data of the size draws (SIZE_KEY and SIZE_KEY + 1)
+STRETCH_KEY = 0x5714  # fold_in data of the shape draws (STRETCH_KEY and STRETCH_KEY + 1)
+
+
+def size_factor(key: jax.Array, params: EnvParams) -> jax.Array:
+    """[] Factor on the episode's target geometry: in a share size_scale_prob of the episodes log-uniform in
+    [size_scale_min, size_scale_max], else 1 (exactly 1.0 by default). Mass and inertia are kept: torque-free
+    rotation does not change under a uniform scale of the inertia (Euler's equations are homogeneous in it)."""
+    low, high = jnp.log(params.size_scale_min), jnp.log(params.size_scale_max)
+    factor = jnp.exp(jax.random.uniform(jax.random.fold_in(key, SIZE_KEY), (), minval=low, maxval=high))
+    resized = jax.random.uniform(jax.random.fold_in(key, SIZE_KEY + 1), ()) < params.size_scale_prob
+    return jnp.where(resized, factor, 1.0)
+
+
+def stretch_factors(key: jax.Array, params: EnvParams) -> tuple[jax.Array, jax.Array]:
+    """([3] factors along the principal axes, [] whether this episode is stretched): log factors uniform in
+    [-ln stretch_max, ln stretch_max], centred so that their product is 1, in a share stretch_prob of the
+    episodes (never when stretch_max is 1)."""
+    u = jax.random.uniform(jax.random.fold_in(key, STRETCH_KEY), (3,), minval=-1.0, maxval=1.0)
+    factors = jnp.exp((u - jnp.mean(u)) * jnp.log(params.stretch_max))
+    drawn = jax.random.uniform(jax.random.fold_in(key, STRETCH_KEY + 1), ()) < params.stretch_prob
+    return factors, drawn & (params.stretch_max > 1.0)
+
+
+def stretch(key: jax.Array, target: targets_lib.TargetModel, params: EnvParams) -> targets_lib.TargetModel:
+    """The episode's target, stretched (targets.stretched) when stretch_factors says so, else exactly itself."""
+    factors, on = stretch_factors(key, params)
+    return jax.tree.map(lambda s, t: jnp.where(on, s, t), targets_lib.stretched(target, factors), target)
