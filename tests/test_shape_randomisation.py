@@ -180,6 +180,7 @@ def test_stretch_draw_keeps_the_volume_and_the_other_draws(stretch_env, vstate):
         np.testing.assert_array_equal(np.asarray(getattr(state, name)), np.asarray(getattr(plain, name)))
 
 
+@pytest.mark.slow  # 30 s of compiling reset and step for one more env; the draw's test covers initial_state
 def test_stretched_episodes_render_and_step(stretch_env):
     """A stretched episode resets and steps under jit like any other (the sphere-to-ellipsoid change included)."""
     p = _params(stretch_env, stretch_max=1.6)

@@ -127,7 +127,7 @@ def test_polyak_tau_start_holds_then_moves_linearly_to_polyak_tau(learner):
     for updates, tau in ((0, 0.05), (1500, 0.03)):
         state = T.LearnerState(params=params, target_params=target, opt_state=trainer.optimizer.init(params),
                                updates=jnp.int32(updates))
-        new, _ = update(state, replay, jax.random.PRNGKey(1))
+        new, _, _ = update(state, replay, jax.random.PRNGKey(1))
         moved = [(np.asarray(t1) - np.asarray(t0), np.asarray(p1) - np.asarray(t0)) for t1, t0, p1 in
                  zip(jax.tree.leaves(new.target_params), jax.tree.leaves(target), jax.tree.leaves(new.params))]
         step, gap = max(moved, key=lambda m: np.abs(m[1]).max())
