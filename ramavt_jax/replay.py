@@ -48,7 +48,7 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from ramavt_jax.replay_config import ReplayConfig
+from ramavt_jax.replay_config import OBS_DTYPES, STATE_DTYPES, ReplayConfig
 
 __all__ = [
     "ReplayConfig",
@@ -64,8 +64,8 @@ __all__ = [
     "dequantise_obs",
 ]
 
-_OBS_DTYPES = {"uint8": jnp.uint8, "float16": jnp.float16, "float32": jnp.float32}
-_STATE_DTYPES = {"float32": jnp.float32, "bfloat16": jnp.bfloat16, "float16": jnp.float16}
+_OBS_DTYPES = {name: jnp.dtype(name) for name in OBS_DTYPES}  # the names ReplayConfig accepts, as dtypes
+_STATE_DTYPES = {name: jnp.dtype(name) for name in STATE_DTYPES}
 
 
 @struct.dataclass

@@ -6,8 +6,8 @@ import dataclasses
 
 import numpy as np
 
-OBS_DTYPES = ("uint8", "float16", "float32")  # storage dtypes of observations (replay._OBS_DTYPES)
-STATE_DTYPES = ("float32", "bfloat16", "float16")  # storage dtypes of the recurrent state (replay._STATE_DTYPES)
+OBS_DTYPES = ("uint8", "float16", "float32")  # storage dtypes of observations
+STATE_DTYPES = ("float32", "bfloat16", "float16")  # storage dtypes of the recurrent state
 
 
 @dataclasses.dataclass(frozen=True)

@@ -224,7 +224,7 @@ class Trainer:
     def trained_loss(self, params, prepared: PreparedBatch):
         """TD loss over the trained part of the window, plus aux_weight times the auxiliary head's squared error
         (gradient w.r.t. params only). Returns (loss, aux); aux holds q_mean, aux_loss (unweighted, 0 without) and
-        each window's replay priority [B] (losses.sequence_priority; used by a prioritised replay only)."""
+        with a prioritised replay each window's priority [B] (losses.sequence_priority)."""
         (q_online, _), sown = self.net.apply({"params": params}, prepared.obs, prepared.reset, prepared.state,
                                              actions=prepared.td.action, mutable=["intermediates"])
         loss, aux = td_loss(q_online, prepared.td, self.td)
@@ -235,9 +235,10 @@ class Trainer:
             miss = jnp.square(sown["intermediates"]["aux"][0][:, :-1] - prepared.privileged[:, :-1]).sum(-1)
             aux_loss = masked_mean(miss)
             loss = loss + self.config.learner.aux_weight * aux_loss
-        td_error = jax.lax.stop_gradient(aux["td_error"])
-        priority = sequence_priority(td_error, mask, self.config.replay.priority_max_share)
-        aux = dict(aux, q_mean=masked_mean(aux["q_taken"]), aux_loss=aux_loss, priority=priority)
+        aux = dict(aux, q_mean=masked_mean(aux["q_taken"]), aux_loss=aux_loss)
+        if self.config.replay.prioritised:  # uniform sampling needs no priorities
+            td_error = jax.lax.stop_gradient(aux["td_error"])
+            aux["priority"] = sequence_priority(td_error, mask, self.config.replay.priority_max_share)
         return loss, aux
 
     def loss(self, params, target_params, batch: replay_lib.SequenceBatch, key: jax.Array):
