@@ -40,8 +40,9 @@ def greedy_policy(network: NetworkConfig, params, obs_shape: tuple, name: str = 
         return GreedyState(net_state=unbatch_state(s), first=jnp.ones((), bool))
 
     def act(key, pstate: GreedyState, obs, env_state, env_params):
+        standoff = env_state.scale[None, None] if network.standoff_input else None  # the commanded k, [1, 1]
         q, new = net.apply({"params": params}, obs[None, None], pstate.first[None, None],
-                           batch_state(pstate.net_state))
+                           batch_state(pstate.net_state), standoff=standoff)
         action = jnp.argmax(q[0, 0]).astype(jnp.int32)
         new = unbatch_state(record_action(new, action[None]))
         return action, GreedyState(net_state=new, first=jnp.zeros((), bool))

@@ -249,9 +249,11 @@ class Encoder(nn.Module):
 
 
 class QNetwork(nn.Module):
-    """Q-network. __call__(obs [B, T, H, W, C], reset [B, T] bool, state, actions [B, T] | None) -> (q [B, T, A]
-    float32, state). ``actions`` (taken at each step) matter only with ``prev_action``: the returned state's
-    prev_action is then ``actions[:, T - 1]``, else unchanged (acting code records its pick: record_action)."""
+    """Q-network. __call__(obs [B, T, H, W, C], reset [B, T] bool, state, actions [B, T] | None, standoff [B, T] |
+    None) -> (q [B, T, A] float32, state). ``actions`` (taken at each step) matter only with ``prev_action``: the
+    returned state's prev_action is then ``actions[:, T - 1]``, else unchanged (acting code records its pick:
+    record_action). ``standoff`` (the stand-off scale k of each step's episode) matters only with
+    ``standoff_input``; None there means k = 1, a catalogue target's."""
 
     config: NetworkConfig
 
@@ -260,7 +262,7 @@ class QNetwork(nn.Module):
 
     @nn.compact
     def __call__(self, obs: jax.Array, reset: jax.Array, state: RecurrentState, train: bool = False,
-                 actions: jax.Array | None = None):
+                 actions: jax.Array | None = None, standoff: jax.Array | None = None):
         cfg = self.config
         if obs.ndim != 5 or reset.shape != obs.shape[:2]:
             raise ValueError(f"QNetwork: expected obs [B, T, H, W, C] and reset [B, T], got {obs.shape} and {reset.shape}")
@@ -279,6 +281,8 @@ class QNetwork(nn.Module):
                 x = jnp.concatenate([x, previous_actions(cfg, reset, state, actions)], axis=-1)
                 taken = actions is not None and actions.shape[1] == t  # the last step's action is known
                 prev_action = actions[:, -1:].T.astype(jnp.int32) if taken else state.prev_action
+            if cfg.standoff_input:
+                x = jnp.concatenate([x, standoff_feature(standoff, reset.shape, dtype)], axis=-1)
             y, (h, c) = LSTMStack(cfg.lstm, cfg.lstm_layers, dtype=dtype, name="lstm")(x, reset, (state.h, state.c))
             if cfg.aux_outputs:  # [B, T, aux_outputs], read by auxiliary losses only
                 self.sow("intermediates", "aux", nn.Dense(cfg.aux_outputs, dtype=dtype, name="aux_head")(y))
@@ -291,6 +295,15 @@ class QNetwork(nn.Module):
             q = q_outputs(cfg, x)
             new_state = RecurrentState(h=state.h, c=state.c, frames=frames.astype(state.frames.dtype))
         return q.reshape(b, t, cfg.num_actions).astype(jnp.float32), new_state
+
+
+def standoff_feature(standoff: jax.Array | None, shape: tuple[int, int], dtype) -> jax.Array:
+    """[B, T, 1] ln k of each step's stand-off scale (standoff [B, T]; None: k = 1 everywhere)."""
+    if standoff is None:
+        return jnp.zeros((*shape, 1), dtype)
+    if standoff.shape != tuple(shape):
+        raise ValueError(f"QNetwork: standoff must be [B, T] = {tuple(shape)}, got {standoff.shape}")
+    return jnp.log(standoff)[..., None].astype(dtype)
 
 
 def q_outputs(cfg: NetworkConfig, y: jax.Array) -> jax.Array:

@@ -57,6 +57,11 @@ class NetworkConfig:
     # tracker reads them. Recurrent variants only ('drlavt' stacks frames before the encoder).
     silhouette_stats: bool = False
     prev_action: bool = False  # R2D2's LSTM input: the previous action (one-hot; a 'none' entry at episode starts)
+    # The episode's stand-off scale k (EnvParams.standoff_per_radius; 1 for every catalogue target) as ln k beside
+    # the encoder's features at the LSTM's input. The image of a target at scale k is the image of the target scaled
+    # by 1/k at 1/k of the distance: k cannot be read from a frame, only from how fast the view moves, and a command
+    # moves the view of a small target 1/k times as far. Recurrent variants only; the caller passes k per step.
+    standoff_input: bool = False
     # A linear head of this many outputs on the LSTM output, sown as intermediates 'aux' (apply with
     # mutable=["intermediates"]): the trainer fits it to the true tracking error (LearnerConfig.aux_weight). 0 = none.
     aux_outputs: int = 0
@@ -116,6 +121,8 @@ class NetworkConfig:
                  "encoder sees a stack of frames")
         if self.prev_action and not self.recurrent:
             fail("prev_action needs a recurrent variant (the previous action is an LSTM input), not 'drlavt'")
+        if self.standoff_input and not self.recurrent:
+            fail("standoff_input needs a recurrent variant (the stand-off scale is an LSTM input), not 'drlavt'")
         if self.use_mha and self.channels[-1] % self.attention_heads != 0:
             fail(
                 f"attention_heads={self.attention_heads} must divide the last block's channels "

@@ -86,6 +86,8 @@ class Transition:
         trainer stores the network's own ``RecurrentState`` (LSTM ``h``, ``c``; no frame history).
       privileged: ``[K]`` float32 simulator state at obs t for auxiliary training losses only (the trainer's true
         tracking error); ``None`` = not stored.
+      standoff: ``[]`` float32 stand-off scale k of obs t's episode, for networks that read it
+        (NetworkConfig.standoff_input); ``None`` = not stored.
     """
 
     obs: jax.Array
@@ -96,6 +98,7 @@ class Transition:
     is_first: jax.Array
     recurrent_state: Any
     privileged: jax.Array | None = None
+    standoff: jax.Array | None = None
 
 
 def quantise_obs(obs: jax.Array, dtype: str) -> jax.Array:
@@ -148,6 +151,7 @@ class SequenceBatch:
       loss_mask: ``[B, L-1]`` bool, transition t trains (see :func:`loss_mask`).
       start_state: the stored recurrent state before obs 0, in the network's layout: leaves ``[layers, B, units]``.
       privileged: ``[B, L, K]`` the stored privileged state per obs (None when not stored).
+      standoff: ``[B, L]`` the stored stand-off scale per obs (None when not stored).
       indices: ``[B]`` int32 the windows' items in a prioritised buffer (for
         :meth:`SequenceReplay.set_priorities`; None when sampling is uniform).
       weights: ``[B]`` float32 importance weights of the windows, at most 1 (None when sampling is uniform).
@@ -163,6 +167,7 @@ class SequenceBatch:
     loss_mask: jax.Array
     start_state: Any
     privileged: jax.Array | None = None
+    standoff: jax.Array | None = None
     indices: jax.Array | None = None
     weights: jax.Array | None = None
     burn_in: int = struct.field(pytree_node=False, default=0)
@@ -197,7 +202,7 @@ def sequence_batch(window: Transition, burn_in: int) -> SequenceBatch:
         obs=window.obs, reset=window.is_first.astype(bool), action=transition(window.action),
         reward=transition(window.reward), terminated=transition(window.terminated),
         truncated=transition(window.truncated), loss_mask=loss_mask(window.is_first, burn_in), start_state=start,
-        privileged=window.privileged, burn_in=burn_in)
+        privileged=window.privileged, standoff=window.standoff, burn_in=burn_in)
 
 
 def _storage_example(example: Transition, config: ReplayConfig) -> Transition:
@@ -212,6 +217,7 @@ def _storage_example(example: Transition, config: ReplayConfig) -> Transition:
         is_first=jnp.zeros((), bool),
         recurrent_state=jax.tree.map(lambda x: jnp.zeros(x.shape, state_dtype), example.recurrent_state),
         privileged=None if example.privileged is None else jnp.zeros(example.privileged.shape, jnp.float32),
+        standoff=None if example.standoff is None else jnp.zeros((), jnp.float32),
     )
 
 

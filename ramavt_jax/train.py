@@ -97,7 +97,8 @@ class Trainer:
             obs=jnp.zeros(self.obs_shape), action=jnp.zeros((), jnp.int32), reward=jnp.zeros(()),
             terminated=jnp.zeros((), bool), truncated=jnp.zeros((), bool), is_first=jnp.zeros((), bool),
             recurrent_state=unbatch_state(s).replace(frames=None),
-            privileged=jnp.zeros((3,)) if self.config.learner.aux_weight else None)
+            privileged=jnp.zeros((3,)) if self.config.learner.aux_weight else None,
+            standoff=jnp.ones(()) if self.config.network.standoff_input else None)
 
     def _per_device(self, batched_fn):
         """Run a function of per-env arrays ([N, ...] in and out) on each device's own envs (``jax.shard_map``).
@@ -131,10 +132,10 @@ class Trainer:
         frac = jnp.clip(env_steps / max(c.eps_decay_steps, 1), 0.0, 1.0) if c.eps_decay_steps else 1.0
         return c.eps_start + (c.eps_end - c.eps_start) * frac
 
-    def q_values(self, params, obs, reset, state, actions=None):
+    def q_values(self, params, obs, reset, state, actions=None, standoff=None):
         """Online/target forward: obs [B, T, H, W, C], reset [B, T], actions [B, T] (the actions taken; used by
-        prev_action networks) -> (q [B, T, A], state)."""
-        return self.net.apply({"params": params}, obs, reset, state, actions=actions)
+        prev_action networks), standoff [B, T] (used by standoff_input networks) -> (q [B, T, A], state)."""
+        return self.net.apply({"params": params}, obs, reset, state, actions=actions, standoff=standoff)
 
     # ---------------------------------------------------------------- init
     def init(self, key: jax.Array) -> RunnerState:
@@ -156,7 +157,9 @@ class Trainer:
         """One epsilon-greedy step of all envs: (actor, Transition [N, ...] (state [layers, N, units]), stats)."""
         c = self.config.acting
         k_eps, k_rand, k_env = jax.random.split(key, 3)
-        q, net_state = self.q_values(params, actor.obs[:, None], actor.is_first[:, None], actor.net_state)
+        standoff = actor.env_state.scale if self.config.network.standoff_input else None  # [N]
+        q, net_state = self.q_values(params, actor.obs[:, None], actor.is_first[:, None], actor.net_state,
+                                     standoff=None if standoff is None else standoff[:, None])
         greedy = jnp.argmax(q[:, 0], axis=-1).astype(jnp.int32)
         explore = jax.random.uniform(k_eps, (c.num_envs,)) < epsilon
         action = jnp.where(explore, jax.random.randint(k_rand, (c.num_envs,), 0, env_lib.NUM_ACTIONS), greedy)
@@ -167,7 +170,8 @@ class Trainer:
         transition = replay_lib.Transition(
             obs=actor.obs, action=action, reward=reward, terminated=terminated, truncated=truncated,
             is_first=actor.is_first, recurrent_state=actor.net_state.replace(frames=None),
-            privileged=jax.vmap(self._tracking_error)(actor.env_state) if self.config.learner.aux_weight else None)
+            privileged=jax.vmap(self._tracking_error)(actor.env_state) if self.config.learner.aux_weight else None,
+            standoff=standoff)
         new_actor = ActorState(env_state=env_state, obs=obs, is_first=info["is_first"],
                                net_state=record_action(net_state, action))
         done = terminated | truncated
@@ -207,9 +211,11 @@ class Trainer:
         else:  # the frame history is not stored: rebuilt during burn-in (burn_in >= frame_stack - 1 is validated)
             frames = jnp.repeat(obs[:, :1], c.network.frame_stack - 1, axis=1)
         state = batch.start_state.replace(frames=frames)
-        q_target, _ = self.q_values(target_params, obs, batch.reset, state, batch.action)
+        standoff = batch.standoff  # [B, L] or None
+        q_target, _ = self.q_values(target_params, obs, batch.reset, state, batch.action, standoff)
         if burn:
-            _, state = self.q_values(params, obs[:, :burn], batch.reset[:, :burn], state, batch.action[:, :burn])
+            _, state = self.q_values(params, obs[:, :burn], batch.reset[:, :burn], state, batch.action[:, :burn],
+                                     None if standoff is None else standoff[:, :burn])
         sg = jax.lax.stop_gradient
         terminated, truncated = batch.terminated[:, burn:], batch.truncated[:, burn:]
         if c.learner.bootstrap_lost:  # see LearnerConfig.bootstrap_lost
@@ -219,14 +225,15 @@ class Trainer:
                      truncated=truncated, mask=batch.loss_mask[:, burn:], weight=batch.weights)
         privileged = None if batch.privileged is None else batch.privileged[:, burn:]
         return PreparedBatch(obs=obs[:, burn:], reset=batch.reset[:, burn:], state=sg(state), td=td,
-                             privileged=privileged)
+                             privileged=privileged, standoff=None if standoff is None else standoff[:, burn:])
 
     def trained_loss(self, params, prepared: PreparedBatch):
         """TD loss over the trained part of the window, plus aux_weight times the auxiliary head's squared error
         (gradient w.r.t. params only). Returns (loss, aux); aux holds q_mean, aux_loss (unweighted, 0 without) and
         with a prioritised replay each window's priority [B] (losses.sequence_priority)."""
         (q_online, _), sown = self.net.apply({"params": params}, prepared.obs, prepared.reset, prepared.state,
-                                             actions=prepared.td.action, mutable=["intermediates"])
+                                             actions=prepared.td.action, standoff=prepared.standoff,
+                                             mutable=["intermediates"])
         loss, aux = td_loss(q_online, prepared.td, self.td)
         mask = prepared.td.mask.astype(jnp.float32)
         masked_mean = lambda x: (x * mask).sum() / jnp.maximum(mask.sum(), 1.0)  # noqa: E731 (over [B, T])

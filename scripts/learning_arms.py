@@ -251,6 +251,12 @@ ARMS["size-stretch"] = lambda c: _env(ARMS["size-small-1152k"](c), **_STRETCH)
 # Prioritised sequence replay with R2D2's settings (priority exponent 0.9, importance exponent 0.6, priorities
 # 0.9 max + 0.1 mean |TD error|), one change to the quick preset.
 ARMS["per"] = lambda c: ARMS["clip-1152k"](c).override(priority_exponent=0.9)
+# Targets of other sizes, each one change to the sizes preset: resized up to 4x as well as down to 0.15x (under the
+# stand-off speed rule a large target looks and moves, in stand-off units, like a 2.5 m one held at 5 m, larger than
+# most catalogue targets, and drifts k times slower); and the stand-off scale k as an input, since a frame does not
+# show it (a small target's image is a catalogue-sized target's, but every command moves it 1/k times as far).
+ARMS["size-up"] = lambda c: _env(ARMS["size-small-1152k"](c), size_scale_max=4.0)
+ARMS["size-standoff"] = lambda c: _net(ARMS["size-small-1152k"](c), standoff_input=True)
 
 
 def arm_config(name: str, preset: str = "quick", **overrides):
