@@ -97,7 +97,8 @@ def _filled_replay(trainer: T.Trainer, key: jax.Array):
         truncated=jnp.zeros((n, steps), bool),
         is_first=jax.random.uniform(ks[3], (n, steps)) > 0.99,
         recurrent_state=jax.tree.map(lambda x: jnp.zeros((n, steps, *x.shape)), ex.recurrent_state),
-        privileged=None if ex.privileged is None else jnp.zeros((n, steps, *ex.privileged.shape)))
+        privileged=None if ex.privileged is None else jnp.zeros((n, steps, *ex.privileged.shape)),
+        standoff=None if ex.standoff is None else jnp.ones((n, steps)))
     return trainer.replay.add(trainer.replay.init(), chunk)
 
 

@@ -34,6 +34,8 @@ __all__ = [
     "TDConfig",
     "TDBatch",
     "sequence_td_loss",
+    "quantile_huber",
+    "sequence_quantile_loss",
     "td_loss",
 ]
 
@@ -239,6 +241,62 @@ def sequence_td_loss(
     return loss, {"td_error": td_error, "q_taken": q_taken, "target": target}
 
 
+def quantile_huber(td: jax.Array, taus: jax.Array, kappa: float) -> jax.Array:
+    """QR-DQN's quantile Huber loss per pair: ``td [..., N, M]`` (target sample j minus predicted quantile i, on the
+    last two axes), ``taus [N]`` the predicted quantiles' fractions -> ``[..., N, M]``. The Huber loss divided by
+    kappa, weighted |tau_i - 1(td < 0)|: its minimiser over a quantile is the tau-quantile of the targets."""
+    weight = jnp.abs(taus[:, None] - (td < 0).astype(td.dtype))
+    return weight * _elementwise_loss(td, kappa) / kappa
+
+
+def sequence_quantile_loss(
+    z_online: jax.Array,  # [B, T+1, A, N]
+    z_target: jax.Array,  # [B, T+1, A, N]
+    actions: jax.Array,  # [B, T] int
+    rewards: jax.Array,  # [B, T]
+    terminated: jax.Array,  # [B, T] bool
+    truncated: jax.Array,  # [B, T] bool
+    mask: jax.Array,  # [B, T] bool or 0/1
+    cfg: TDConfig,
+    weights: jax.Array | None = None,  # [B]
+) -> tuple[jax.Array, dict[str, jax.Array]]:
+    """Masked (double-)Q n-step quantile regression loss (QR-DQN, Dabney et al. 2018) over a batch of sequences.
+
+    The networks predict N quantiles of the return per action (fractions ``(2i + 1) / 2N``), Q being their mean. The
+    target of transition t is the n-step return of each of the target net's quantiles at the bootstrap obs, for the
+    action the online net's mean picks there (double-Q) or the target net's (plain), exactly as
+    :func:`sequence_td_loss` builds one expected value (``n_step_targets`` per quantile). Every predicted quantile is
+    regressed on every target quantile with :func:`quantile_huber` (kappa = ``cfg.huber_delta``, 1 when None),
+    summed over the predicted ones and averaged over the targets. The other arguments and ``aux`` are as in
+    :func:`sequence_td_loss`, ``aux`` holding the means (``td_error`` = target mean minus Q of the taken action).
+    Value rescaling and advantage learning are not defined here (TrainConfig refuses them with quantiles).
+    """
+    chex.assert_rank([z_online, z_target], 4)
+    chex.assert_equal_shape([z_online, z_target])
+    B, T = actions.shape
+    chex.assert_shape(z_online, (B, T + 1, None, None))
+    n = z_online.shape[-1]
+    taken = actions[..., None, None].astype(jnp.int32)
+    z_taken = jnp.take_along_axis(z_online[:, :-1], taken, axis=2)[:, :, 0]  # [B, T, N]
+    z_target_t = jax.lax.stop_gradient(z_target[:, 1:])  # [B, T, A, N]
+    q_pick = jax.lax.stop_gradient(z_online[:, 1:] if cfg.double_q else z_target[:, 1:]).mean(-1)  # [B, T, A]
+    boot = jnp.take_along_axis(z_target_t, jnp.argmax(q_pick, -1)[..., None, None], axis=2)[:, :, 0]  # [B, T, N]
+    discount = cfg.gamma * (1.0 - terminated.astype(boot.dtype))
+    stop = terminated.astype(bool) | truncated.astype(bool)
+    per_window = jax.vmap(lambda r, d, z, s: jax.vmap(lambda zq: n_step_targets(r, d, zq, cfg.n_step, s),
+                                                      in_axes=1, out_axes=1)(z))
+    target = jax.lax.stop_gradient(per_window(rewards.astype(boot.dtype), discount, boot, stop))  # [B, T, N]
+    taus = (jnp.arange(n, dtype=z_taken.dtype) + 0.5) / n
+    pairs = quantile_huber(target[:, :, None, :] - z_taken[..., None], taus, cfg.huber_delta or 1.0)
+    mask_f = mask.astype(z_taken.dtype)
+    per_step = pairs.mean(-1).sum(-1) * mask_f  # [B, T]
+    if weights is not None:
+        per_step = per_step * weights[:, None]
+    loss = per_step.sum() / jnp.maximum(mask_f.sum(), 1.0)
+    q_taken, target_mean = z_taken.mean(-1), target.mean(-1)
+    return loss, {"td_error": target_mean - q_taken, "q_taken": q_taken, "target": target_mean}
+
+
 def sequence_priority(td_error: jax.Array, mask: jax.Array, max_share: float) -> jax.Array:
     """``[B]`` priority of each window from its ``[B, T]`` TD errors over the transitions in ``mask``: ``max_share``
     times the largest magnitude plus the rest times the mean one (R2D2's mix; 0 for a window with no trained
@@ -253,7 +311,8 @@ class TDBatch:
     """The inputs of :func:`sequence_td_loss` that take no gradient, for ``B`` windows of ``T`` transitions.
 
     Attributes:
-      q_target: ``[B, T+1, A]`` target-network Q-values for observations 0..T.
+      q_target: ``[B, T+1, A]`` target-network Q-values for observations 0..T, or ``[B, T+1, A, N]`` their N
+        quantiles (a quantile network: :func:`td_loss` then takes the online net's quantiles too).
       action: ``[B, T]`` int action of transition t.
       reward: ``[B, T]`` reward of transition t (already scaled).
       terminated: ``[B, T]`` bool, obs t+1 is terminal.
@@ -272,6 +331,10 @@ class TDBatch:
 
 
 def td_loss(q_online: jax.Array, batch: TDBatch, cfg: TDConfig) -> tuple[jax.Array, dict[str, jax.Array]]:
-    """:func:`sequence_td_loss` of ``q_online`` (``[B, T+1, A]``) against a :class:`TDBatch`."""
+    """:func:`sequence_td_loss` of ``q_online`` (``[B, T+1, A]``) against a :class:`TDBatch`, or with quantiles
+    (``[B, T+1, A, N]`` both) :func:`sequence_quantile_loss`."""
+    if batch.q_target.ndim == 4:
+        return sequence_quantile_loss(q_online, batch.q_target, batch.action, batch.reward, batch.terminated,
+                                      batch.truncated, batch.mask, cfg, batch.weight)
     return sequence_td_loss(q_online, batch.q_target, batch.action, batch.reward, batch.terminated, batch.truncated,
                             batch.mask, cfg, batch.weight)

@@ -252,8 +252,8 @@ class QNetwork(nn.Module):
     """Q-network. __call__(obs [B, T, H, W, C], reset [B, T] bool, state, actions [B, T] | None, standoff [B, T] |
     None) -> (q [B, T, A] float32, state). ``actions`` (taken at each step) matter only with ``prev_action``: the
     returned state's prev_action is then ``actions[:, T - 1]``, else unchanged (acting code records its pick:
-    record_action). ``standoff`` (the stand-off scale k of each step's episode) matters only with
-    ``standoff_input``; None there means k = 1, a catalogue target's."""
+    record_action). ``standoff`` (the stand-off scale k of each step's episode; 1 for catalogue targets) is needed
+    with ``standoff_input`` and ignored without."""
 
     config: NetworkConfig
 
@@ -282,7 +282,7 @@ class QNetwork(nn.Module):
                 taken = actions is not None and actions.shape[1] == t  # the last step's action is known
                 prev_action = actions[:, -1:].T.astype(jnp.int32) if taken else state.prev_action
             if cfg.standoff_input:
-                x = jnp.concatenate([x, standoff_feature(standoff, reset.shape, dtype)], axis=-1)
+                x = jnp.concatenate([x, standoff_feature(standoff, reset.shape)[..., None].astype(dtype)], axis=-1)
             y, (h, c) = LSTMStack(cfg.lstm, cfg.lstm_layers, dtype=dtype, name="lstm")(x, reset, (state.h, state.c))
             if cfg.aux_outputs:  # [B, T, aux_outputs], read by auxiliary losses only
                 self.sow("intermediates", "aux", nn.Dense(cfg.aux_outputs, dtype=dtype, name="aux_head")(y))
@@ -294,23 +294,29 @@ class QNetwork(nn.Module):
                 x = nn.relu(nn.Dense(width, dtype=dtype, kernel_init=he_init, name=f"dense{j}")(x))
             q = q_outputs(cfg, x)
             new_state = RecurrentState(h=state.h, c=state.c, frames=frames.astype(state.frames.dtype))
+        if cfg.quantiles:  # the loss reads the quantiles; acting, the mean
+            q = q.astype(jnp.float32)
+            self.sow("intermediates", "quantiles", q.reshape(b, t, cfg.num_actions, cfg.quantiles))
+            q = q.mean(-1)
         return q.reshape(b, t, cfg.num_actions).astype(jnp.float32), new_state
 
 
-def standoff_feature(standoff: jax.Array | None, shape: tuple[int, int], dtype) -> jax.Array:
-    """[B, T, 1] ln k of each step's stand-off scale (standoff [B, T]; None: k = 1 everywhere)."""
-    if standoff is None:
-        return jnp.zeros((*shape, 1), dtype)
-    if standoff.shape != tuple(shape):
-        raise ValueError(f"QNetwork: standoff must be [B, T] = {tuple(shape)}, got {standoff.shape}")
-    return jnp.log(standoff)[..., None].astype(dtype)
+def standoff_feature(standoff: jax.Array | None, shape: tuple[int, int]) -> jax.Array:
+    """[B, T] ln k of each step's stand-off scale standoff [B, T]; refuses a missing one (k = 1 is passed, not
+    assumed: a caller that forgets it would act on the wrong scale unnoticed)."""
+    if standoff is None or standoff.shape != tuple(shape):
+        raise ValueError(f"QNetwork: a standoff_input network needs standoff [B, T] = {tuple(shape)} (the episodes' "
+                         f"stand-off scales), got {None if standoff is None else standoff.shape}")
+    return jnp.log(standoff)
 
 
 def q_outputs(cfg: NetworkConfig, y: jax.Array) -> jax.Array:
-    """Q-values [..., A] from features y [..., F] (called inside QNetwork's compact call): one linear layer 'q', or
-    with ``cfg.dueling`` a state value 'value' plus the mean-centred outputs of 'q' as advantages. Every sample then
-    trains the shared value, and the small differences between actions (a few cm of distance keeping) are learned
-    apart from it."""
+    """Q-values [..., A] from features y [..., F] (inside QNetwork's compact call): one linear layer 'q'; with
+    ``cfg.quantiles`` N of them per action [..., A, N]; with ``cfg.dueling`` a value 'value' plus the mean-centred
+    outputs of 'q' (every sample trains the value; the few-cm gaps between actions are learned apart from it)."""
+    if cfg.quantiles:  # [..., A, N]
+        z = nn.Dense(cfg.num_actions * cfg.quantiles, dtype=cfg.jnp_dtype, kernel_init=lecun_init, name="q")(y)
+        return z.reshape(*z.shape[:-1], cfg.num_actions, cfg.quantiles)
     q = nn.Dense(cfg.num_actions, dtype=cfg.jnp_dtype, kernel_init=lecun_init, name="q")(y)
     if not cfg.dueling:
         return q
@@ -333,7 +339,7 @@ def _init_jit(config: NetworkConfig, obs_shape: tuple, key: jax.Array) -> dict:
     net = make_network(config)
     obs = jnp.zeros((1, 1, *obs_shape), jnp.float32)
     reset = jnp.ones((1, 1), bool)
-    variables = net.init(key, obs, reset, initial_state(config, 1, obs_shape))
+    variables = net.init(key, obs, reset, initial_state(config, 1, obs_shape), standoff=jnp.ones((1, 1)))
     return {k: v for k, v in variables.items() if k != "intermediates"}
 
 
@@ -352,7 +358,7 @@ def flops_per_frame(config: NetworkConfig, obs_shape: tuple) -> int:
     obs = jax.ShapeDtypeStruct((1, 1, *obs_shape), jnp.float32)
     reset = jax.ShapeDtypeStruct((1, 1), jnp.bool_)
     state = jax.eval_shape(lambda: initial_state(config, 1, obs_shape))
-    fn = jax.jit(lambda v, o, r, s: net.apply(v, o, r, s)[0])
+    fn = jax.jit(lambda v, o, r, s: net.apply(v, o, r, s, standoff=jnp.ones((1, 1)))[0])
     cost = fn.lower(variables, obs, reset, state).compile().cost_analysis()
     if isinstance(cost, (list, tuple)):
         cost = cost[0]
@@ -371,7 +377,8 @@ def attention_maps(params, config: NetworkConfig, obs: jax.Array, variables: dic
     net = make_network(config)
     obs = jnp.asarray(obs, jnp.float32)
     state = initial_state(config, 1, obs.shape)
-    _, mut = net.apply(variables, obs[None, None], jnp.ones((1, 1), bool), state, mutable=["intermediates"])
+    _, mut = net.apply(variables, obs[None, None], jnp.ones((1, 1), bool), state, standoff=jnp.ones((1, 1)),
+                       mutable=["intermediates"])
     inter = mut["intermediates"]["encoder"]
     maps = {}
     for name, (act,) in inter.items():
@@ -381,16 +388,6 @@ def attention_maps(params, config: NetworkConfig, obs: jax.Array, variables: dic
 
 
 __all__ = [
-    "NetworkConfig",
-    "RecurrentState",
-    "QNetwork",
-    "initial_state",
-    "make_network",
-    "init_params",
-    "count_params",
-    "flops_per_frame",
-    "attention_maps",
-    "stack_frames",
-    "with_coordinates",
+    "NetworkConfig", "RecurrentState", "QNetwork", "initial_state", "make_network", "init_params",
+    "count_params", "flops_per_frame", "attention_maps", "stack_frames", "with_coordinates",
 ]
-

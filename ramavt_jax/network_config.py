@@ -66,6 +66,9 @@ class NetworkConfig:
     # mutable=["intermediates"]): the trainer fits it to the true tracking error (LearnerConfig.aux_weight). 0 = none.
     aux_outputs: int = 0
     dueling: bool = False  # Q = V + A - mean(A) (dueling head, Wang et al. 2016; see network.q_outputs)
+    # N quantiles of the return per action (QR-DQN, Dabney et al. 2018; 0 = expected values only): the head outputs
+    # A * N values, sown as intermediates 'quantiles' [B, T, A, N] for the quantile loss; Q is their mean.
+    quantiles: int = 0
 
     def __post_init__(self):
         def fail(msg):
@@ -121,6 +124,11 @@ class NetworkConfig:
                  "encoder sees a stack of frames")
         if self.prev_action and not self.recurrent:
             fail("prev_action needs a recurrent variant (the previous action is an LSTM input), not 'drlavt'")
+        if isinstance(self.quantiles, bool) or not isinstance(self.quantiles, int) or self.quantiles in (1,) or (
+                self.quantiles < 0):
+            fail(f"quantiles must be 0 (expected values) or an integer >= 2, got {self.quantiles!r}")
+        if self.quantiles and self.dueling:
+            fail("quantiles and dueling are not combined (a dueling head of quantiles is not defined here)")
         if self.standoff_input and not self.recurrent:
             fail("standoff_input needs a recurrent variant (the stand-off scale is an LSTM input), not 'drlavt'")
         if self.use_mha and self.channels[-1] % self.attention_heads != 0:

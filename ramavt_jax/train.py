@@ -199,6 +199,15 @@ class Trainer:
         return last.actor, replay_lib.chunk_to_storage(traj), jax.tree.map(jnp.sum, stats), eps[-1]
 
     # ---------------------------------------------------------------- learning
+    def _target_values(self, params, obs, reset, state, actions, standoff):
+        """The target net's values over a window: q [B, L, A], or its quantiles [B, L, A, N] for a quantile network
+        (NetworkConfig.quantiles), which the quantile loss takes."""
+        if not self.config.network.quantiles:
+            return self.q_values(params, obs, reset, state, actions, standoff)[0]
+        _, sown = self.net.apply({"params": params}, obs, reset, state, actions=actions, standoff=standoff,
+                                 mutable=["intermediates"])
+        return sown["intermediates"]["quantiles"][0]
+
     def prepare(self, params, target_params, batch: replay_lib.SequenceBatch, key: jax.Array) -> PreparedBatch:
         """Everything the loss needs that takes no gradient: (augmented) observations, the target net's Q over the
         window and the online net's state after burn-in, both run from the window's stored start state."""
@@ -212,7 +221,7 @@ class Trainer:
             frames = jnp.repeat(obs[:, :1], c.network.frame_stack - 1, axis=1)
         state = batch.start_state.replace(frames=frames)
         standoff = batch.standoff  # [B, L] or None
-        q_target, _ = self.q_values(target_params, obs, batch.reset, state, batch.action, standoff)
+        q_target = self._target_values(target_params, obs, batch.reset, state, batch.action, standoff)
         if burn:
             _, state = self.q_values(params, obs[:, :burn], batch.reset[:, :burn], state, batch.action[:, :burn],
                                      None if standoff is None else standoff[:, :burn])
@@ -234,6 +243,8 @@ class Trainer:
         (q_online, _), sown = self.net.apply({"params": params}, prepared.obs, prepared.reset, prepared.state,
                                              actions=prepared.td.action, standoff=prepared.standoff,
                                              mutable=["intermediates"])
+        if self.config.network.quantiles:  # the quantile loss (losses.sequence_quantile_loss)
+            q_online = sown["intermediates"]["quantiles"][0]
         loss, aux = td_loss(q_online, prepared.td, self.td)
         mask = prepared.td.mask.astype(jnp.float32)
         masked_mean = lambda x: (x * mask).sum() / jnp.maximum(mask.sum(), 1.0)  # noqa: E731 (over [B, T])

@@ -206,6 +206,9 @@ class TrainConfig:
         if (self.learner.aux_weight > 0) != (self.network.aux_outputs == 3):  # the tracking error's x, y, z
             _fail(f"learner.aux_weight > 0 and network.aux_outputs = 3 go together (the head and its loss), got "
                   f"{self.learner.aux_weight} and {self.network.aux_outputs}")
+        if self.network.quantiles and (self.learner.value_rescale or self.learner.advantage_alpha):
+            _fail("network.quantiles (the quantile loss) does not combine with learner.value_rescale or "
+                  "learner.advantage_alpha (both defined on expected values)")
         if self.network.norm == "batch":
             _fail("network.norm='batch' is not supported by the trainer (acting and learning must see the same "
                   "network); use 'layer' or 'none'")

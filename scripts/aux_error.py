@@ -75,8 +75,10 @@ def make_rollout(run: runs.LoadedRun, targets: tuple[str, ...], episodes: int, s
                       jnp.ones((), bool))
 
         def body(c: Carry, k_step):
+            standoff = c.state.scale[None, None] if cfg.network.standoff_input else None  # the episode's k, [1, 1]
             (q, net_state), sown = net.apply({"params": net_params}, c.obs[None, None], c.first[None, None],
-                                             c.net_state, mutable=["intermediates"], capture_intermediates=encoder_only)
+                                             c.net_state, standoff=standoff, mutable=["intermediates"],
+                                             capture_intermediates=encoder_only)
             step = Step(truth=env_lib.relative_position(c.state) / c.state.scale - params.desired_pos,
                         estimate=sown["intermediates"]["aux"][0][0, 0] * params.desired_pos[2],  # stand-off units
                         memory=net_state.h[-1, 0],

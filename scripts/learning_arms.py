@@ -257,6 +257,10 @@ ARMS["per"] = lambda c: ARMS["clip-1152k"](c).override(priority_exponent=0.9)
 # show it (a small target's image is a catalogue-sized target's, but every command moves it 1/k times as far).
 ARMS["size-up"] = lambda c: _env(ARMS["size-small-1152k"](c), size_scale_max=4.0)
 ARMS["size-standoff"] = lambda c: _net(ARMS["size-small-1152k"](c), standoff_input=True)
+# Distributional values (QR-DQN: 32 quantiles of the return per action, the quantile Huber loss at kappa 1, Q their
+# mean), one change to the quick preset: a tumbling target's visible surface moves about its centre, so the return
+# of an action is spread; the quantiles give the shared layers a richer signal than one mean per action.
+ARMS["quantiles"] = lambda c: _net(ARMS["clip-1152k"](c), quantiles=32)
 
 
 def arm_config(name: str, preset: str = "quick", **overrides):

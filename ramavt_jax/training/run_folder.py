@@ -42,7 +42,8 @@ RESUMABLE_FIELDS = ("run.total_env_steps", "run.eval_episodes", "run.eval_max_st
 # file cut short or edited, and is refused.
 ADDED_FIELDS = ("network.depth_centre", "network.depth_gain", "learner.polyak_tau_start",
                 "learner.polyak_tau_decay", "network.silhouette_stats", "replay.priority_exponent",
-                "replay.importance_exponent", "replay.priority_max_share", "network.standoff_input")
+                "replay.importance_exponent", "replay.priority_max_share", "network.standoff_input",
+                "network.quantiles")
 _SEED_DIR = re.compile(r"seed_\d+")
 
 
