@@ -121,6 +121,9 @@ class TDConfig:
       advantage_alpha: advantage learning (Bellemare et al. 2016, "Increasing the action gap"): the target of a
         taken action is lowered by ``alpha * (max_a q_target(s, a) - q_target(s, a_taken))``, which widens the gaps
         between the best action's value and the others' (0 = plain Q-learning targets).
+      quantile_kappa: the Huber threshold of the quantile loss (:func:`sequence_quantile_loss`), in the targets'
+        units. Below it the loss is quadratic and fits expectiles, not quantiles, so it should be small against the
+        gaps between the return's quantiles.
     """
 
     gamma: float = struct.field(pytree_node=False, default=0.99)
@@ -129,6 +132,7 @@ class TDConfig:
     value_rescale: bool = struct.field(pytree_node=False, default=False)
     rescale_eps: float = struct.field(pytree_node=False, default=1e-3)
     huber_delta: float | None = struct.field(pytree_node=False, default=None)
+    quantile_kappa: float = struct.field(pytree_node=False, default=0.05)
     advantage_alpha: float = struct.field(pytree_node=False, default=0.0)
 
     def __post_init__(self):
@@ -140,6 +144,8 @@ class TDConfig:
             raise ValueError(f"TDConfig.huber_delta must be None (squared loss) or > 0, got {self.huber_delta}")
         if not 0.0 <= self.advantage_alpha < 1.0:
             raise ValueError(f"TDConfig.advantage_alpha must be in [0, 1), got {self.advantage_alpha}")
+        if not self.quantile_kappa > 0:
+            raise ValueError(f"TDConfig.quantile_kappa must be > 0, got {self.quantile_kappa}")
         if not self.rescale_eps > 0:
             raise ValueError(f"TDConfig.rescale_eps must be > 0, got {self.rescale_eps}")
 
@@ -266,8 +272,8 @@ def sequence_quantile_loss(
     target of transition t is the n-step return of each of the target net's quantiles at the bootstrap obs, for the
     action the online net's mean picks there (double-Q) or the target net's (plain), exactly as
     :func:`sequence_td_loss` builds one expected value (``n_step_targets`` per quantile). Every predicted quantile is
-    regressed on every target quantile with :func:`quantile_huber` (kappa = ``cfg.huber_delta``, 1 when None),
-    summed over the predicted ones and averaged over the targets. The other arguments and ``aux`` are as in
+    regressed on every target quantile with :func:`quantile_huber` (kappa = ``cfg.quantile_kappa``), averaged over
+    both (QR-DQN sums over the predicted ones: the mean keeps the loss on one quantile's scale, beside other losses). The other arguments and ``aux`` are as in
     :func:`sequence_td_loss`, ``aux`` holding the means (``td_error`` = target mean minus Q of the taken action).
     Value rescaling and advantage learning are not defined here (TrainConfig refuses them with quantiles).
     """
@@ -287,9 +293,9 @@ def sequence_quantile_loss(
                                                       in_axes=1, out_axes=1)(z))
     target = jax.lax.stop_gradient(per_window(rewards.astype(boot.dtype), discount, boot, stop))  # [B, T, N]
     taus = (jnp.arange(n, dtype=z_taken.dtype) + 0.5) / n
-    pairs = quantile_huber(target[:, :, None, :] - z_taken[..., None], taus, cfg.huber_delta or 1.0)
+    pairs = quantile_huber(target[:, :, None, :] - z_taken[..., None], taus, cfg.quantile_kappa)
     mask_f = mask.astype(z_taken.dtype)
-    per_step = pairs.mean(-1).sum(-1) * mask_f  # [B, T]
+    per_step = pairs.mean((-2, -1)) * mask_f  # [B, T]
     if weights is not None:
         per_step = per_step * weights[:, None]
     loss = per_step.sum() / jnp.maximum(mask_f.sum(), 1.0)

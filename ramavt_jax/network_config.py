@@ -124,8 +124,8 @@ class NetworkConfig:
                  "encoder sees a stack of frames")
         if self.prev_action and not self.recurrent:
             fail("prev_action needs a recurrent variant (the previous action is an LSTM input), not 'drlavt'")
-        if isinstance(self.quantiles, bool) or not isinstance(self.quantiles, int) or self.quantiles in (1,) or (
-                self.quantiles < 0):
+        if isinstance(self.quantiles, bool) or not isinstance(self.quantiles, (int, np.integer)) or (
+                self.quantiles == 1 or self.quantiles < 0):
             fail(f"quantiles must be 0 (expected values) or an integer >= 2, got {self.quantiles!r}")
         if self.quantiles and self.dueling:
             fail("quantiles and dueling are not combined (a dueling head of quantiles is not defined here)")

@@ -58,6 +58,7 @@ class LearnerConfig:
     double_q: bool = True  # double-Q targets: the online net picks the action, the target net values it
     value_rescale: bool = False  # R2D2's invertible value rescaling of the targets
     huber_delta: float | None = None  # None = mean squared TD error (the original loss), else the Huber threshold
+    quantile_kappa: float = 0.05  # the quantile loss's Huber threshold, scaled-reward units (losses.TDConfig)
     advantage_alpha: float = 0.0  # advantage learning: widen the action gaps (losses.TDConfig); 0 = off
     # Auxiliary loss weight (0 = off): the aux head (NetworkConfig.aux_outputs = 3) predicts the true tracking error
     # (camera frame, in stand-off distances) at each trained obs: simulator state, stored in the replay, never acted on.
@@ -95,6 +96,7 @@ class LearnerConfig:
                                ("max_grad_norm", self.max_grad_norm >= 0, ">= 0 (0 = no clipping)"),
                                ("aux_weight", self.aux_weight >= 0, ">= 0 (0 = no auxiliary loss)"),
                                ("reward_scale", self.reward_scale > 0, "> 0"),
+                               ("quantile_kappa", self.quantile_kappa > 0, "> 0"),
                                ("replay_ratio", self.replay_ratio > 0, "> 0")):
             if not ok:
                 raise fail(f"{name} must be {rule}, got {getattr(self, name)}")
@@ -117,6 +119,7 @@ class LearnerConfig:
         """The loss's view of these settings (losses.TDConfig)."""
         return TDConfig(gamma=self.gamma, n_step=self.n_step, double_q=self.double_q,
                         value_rescale=self.value_rescale, huber_delta=self.huber_delta,
+                        quantile_kappa=self.quantile_kappa,
                         advantage_alpha=self.advantage_alpha)
 
 
@@ -161,8 +164,7 @@ def _build(cls, data: dict):
     return cls(**kwargs)
 
 
-def _tuplify(x):
-    return tuple(_tuplify(v) for v in x) if isinstance(x, list) else x
+_tuplify = lambda x: tuple(_tuplify(v) for v in x) if isinstance(x, list) else x  # noqa: E731 (JSON lists)
 
 
 def _fail(msg: str):
@@ -318,12 +320,10 @@ _TOP_FIELDS = {f.name for f in dataclasses.fields(TrainConfig)}
 
 
 def _quick() -> TrainConfig:
-    """The README main job (a few minutes on an idle 2-core CPU): 32x32 depth, a small RAMAVT whose first two blocks
-    are patch layers (4x4 then 2x2 patches: no im2col copies, 1.7x faster learner updates than 3x3 convs with
-    max-pools; a 4x4 final map = 16 attention tokens) that sees absolute depth and image position and feeds the
-    previous action to its LSTM; 'target lost' bootstrapped, an auxiliary tracking-error loss, replay ratio 2, gradients
-    clipped at global norm 1 (late collapses: one seed in ten fell to +349 at norm 10), 1.15M env steps (which pay
-    once the clip holds); the policy acts with the Polyak-averaged target params. RESULTS.md, docs/experiments.md."""
+    """The README main job (minutes on 2 CPU cores): 32x32 depth, a small RAMAVT whose first two blocks are patch
+    layers (4x4 then 2x2: no im2col copies; 16 attention tokens), absolute depth and image position visible, the
+    previous action into its LSTM; 'target lost' bootstrapped, an auxiliary tracking-error loss, replay ratio 2,
+    gradients clipped at norm 1 (against late collapses), 1.15M env steps; acting with the Polyak-averaged params."""
     return TrainConfig(
         env=env_lib.EnvConfig(camera=CameraConfig(resolution=32), autoreset="next_step"),
         network=NetworkConfig(variant="ramavt", channels=(16, 32, 32), kernels=(4, 2, 3), strides=(4, 2, 1),
@@ -352,11 +352,9 @@ def _long() -> TrainConfig:
 
 
 def _sizes() -> TrainConfig:
-    """The quick preset for targets of other sizes: each training episode's target resized by a factor drawn
-    log-uniformly in [0.15, 1] (small targets need the practice; large ones are held farther and flown faster, so
-    they look like the catalogue's) on 1.15M env steps, which size randomisation needs (docs/experiments.md: 60 % of the
-    ceiling on the resized validation models against the quick preset's 22 % at norm 10, and 27 AER below it on the
-    catalogue's own sizes); gradients clipped at norm 10, as measured there."""
+    """The quick preset for targets of other sizes: each training target resized by a log-uniform factor in [0.15, 1]
+    (small targets need the practice), gradients clipped at norm 10, as measured (docs/experiments.md: 60 % of the
+    ceiling on the resized validation models against the quick preset's 22 % at norm 10)."""
     return _quick().override(env_params={"size_scale_min": 0.15, "size_scale_max": 1.0},
                              total_env_steps=1_152_000, max_grad_norm=10.0)
 
