@@ -113,3 +113,18 @@ def test_trainer_trains_a_quantile_network():
     batch = tr.replay.sample(new.replay, jax.random.PRNGKey(4))
     prepared = tr.prepare(new.learner.params, new.learner.target_params, batch, jax.random.PRNGKey(5))
     assert prepared.td.q_target.shape == (cfg.replay.batch_size, cfg.replay.train_len + 1, 11, 8)
+
+
+def test_the_threshold_is_the_configs_quantile_kappa():
+    """LearnerConfig.quantile_kappa reaches the loss: far below the errors the loss is about their weighted mean
+    magnitude, at a threshold far above them their weighted half-square over the threshold."""
+    q_online, q_target, actions, rewards, terminated, truncated = _window_values(jax.random.PRNGKey(3))
+    z_online, z_target = q_online[..., None] + jnp.arange(4.0), q_target[..., None] + jnp.arange(4.0)
+    mask = jnp.ones(actions.shape, bool)
+    loss = lambda kappa: float(losses.sequence_quantile_loss(  # noqa: E731
+        z_online, z_target, actions, rewards, terminated, truncated, mask,
+        QCFG.override(quantile_kappa=kappa).learner.td)[0])
+    assert QCFG.learner.td.quantile_kappa == 0.05
+    small, large = loss(1e-4), loss(1e3)
+    assert 1e-4 < large < small * 1e-2  # quadratic over a huge threshold: tiny
+    np.testing.assert_allclose(loss(2e-4), small, rtol=1e-3)  # linear regime: the threshold barely matters
