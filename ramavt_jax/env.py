@@ -101,6 +101,12 @@ def command_speed(state: EnvState, params: EnvParams) -> jax.Array:
     return params.speed * large ** params.speed_standoff_power * small ** params.small_standoff_power
 
 
+def command_gain(state: EnvState, params: EnvParams) -> jax.Array:
+    """[] How far a command moves the chaser in the episode's stand-off units against a catalogue target (k = 1):
+    command_speed / (speed * k). 1 / k for small targets; 1 for large ones under the default speed rule."""
+    return command_speed(state, params) / (params.speed * state.scale)
+
+
 def desired_position(state: EnvState, params: EnvParams) -> jax.Array:
     """Where the target centre should be in the camera frame [3] for this episode's target (m)."""
     return params.desired_pos * state.scale

@@ -8,10 +8,21 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
+from ramavt_jax import env as env_lib
 from ramavt_jax.baselines import Policy
 from ramavt_jax.network import NetworkConfig, RecurrentState, initial_state, make_network, record_action
 
 __all__ = ["GreedyState", "greedy_policy", "GreedyPolicyOf", "unbatch_state", "batch_state"]
+
+
+def standoff_signal(network: NetworkConfig, env_state: env_lib.EnvState, env_params: env_lib.EnvParams):
+    """[] What a network that reads the stand-off takes from one env's state (NetworkConfig.reads_standoff): its
+    scale k (standoff_input) or its command gain (command_gain_input, env.command_gain); None for other networks."""
+    if network.standoff_input:
+        return env_state.scale
+    if network.command_gain_input:
+        return env_lib.command_gain(env_state, env_params)
+    return None
 
 
 def unbatch_state(s: RecurrentState) -> RecurrentState:
@@ -40,7 +51,8 @@ def greedy_policy(network: NetworkConfig, params, obs_shape: tuple, name: str = 
         return GreedyState(net_state=unbatch_state(s), first=jnp.ones((), bool))
 
     def act(key, pstate: GreedyState, obs, env_state, env_params):
-        standoff = env_state.scale[None, None] if network.standoff_input else None  # the commanded k, [1, 1]
+        signal = standoff_signal(network, env_state, env_params)
+        standoff = None if signal is None else signal[None, None]  # [1, 1]
         q, new = net.apply({"params": params}, obs[None, None], pstate.first[None, None],
                            batch_state(pstate.net_state), standoff=standoff)
         action = jnp.argmax(q[0, 0]).astype(jnp.int32)

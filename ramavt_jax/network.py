@@ -252,8 +252,8 @@ class QNetwork(nn.Module):
     """Q-network. __call__(obs [B, T, H, W, C], reset [B, T] bool, state, actions [B, T] | None, standoff [B, T] |
     None) -> (q [B, T, A] float32, state). ``actions`` (taken at each step) matter only with ``prev_action``: the
     returned state's prev_action is then ``actions[:, T - 1]``, else unchanged (acting code records its pick:
-    record_action). ``standoff`` (the stand-off scale k of each step's episode; 1 for catalogue targets) is needed
-    with ``standoff_input`` and ignored without."""
+    record_action). ``standoff`` (each step's stand-off signal, greedy.standoff_signal: the scale k or the command
+    gain, 1 for catalogue targets) is needed with ``standoff_input`` or ``command_gain_input``, ignored without."""
 
     config: NetworkConfig
 
@@ -281,7 +281,7 @@ class QNetwork(nn.Module):
                 x = jnp.concatenate([x, previous_actions(cfg, reset, state, actions)], axis=-1)
                 taken = actions is not None and actions.shape[1] == t  # the last step's action is known
                 prev_action = actions[:, -1:].T.astype(jnp.int32) if taken else state.prev_action
-            if cfg.standoff_input:
+            if cfg.reads_standoff:
                 x = jnp.concatenate([x, standoff_feature(standoff, reset.shape)[..., None].astype(dtype)], axis=-1)
             y, (h, c) = LSTMStack(cfg.lstm, cfg.lstm_layers, dtype=dtype, name="lstm")(x, reset, (state.h, state.c))
             if cfg.aux_outputs:  # [B, T, aux_outputs], read by auxiliary losses only
@@ -305,8 +305,8 @@ def standoff_feature(standoff: jax.Array | None, shape: tuple[int, int]) -> jax.
     """[B, T] ln k of each step's stand-off scale standoff [B, T]; refuses a missing one (k = 1 is passed, not
     assumed: a caller that forgets it would act on the wrong scale unnoticed)."""
     if standoff is None or standoff.shape != tuple(shape):
-        raise ValueError(f"QNetwork: a standoff_input network needs standoff [B, T] = {tuple(shape)} (the episodes' "
-                         f"stand-off scales), got {None if standoff is None else standoff.shape}")
+        raise ValueError(f"QNetwork: this network needs standoff [B, T] = {tuple(shape)} (the episodes' "
+                         f"stand-off signal), got {None if standoff is None else standoff.shape}")
     return jnp.log(standoff)
 
 

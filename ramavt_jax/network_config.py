@@ -62,6 +62,10 @@ class NetworkConfig:
     # by 1/k at 1/k of the distance: k cannot be read from a frame, only from how fast the view moves, and a command
     # moves the view of a small target 1/k times as far. Recurrent variants only; the caller passes k per step.
     standoff_input: bool = False
+    # Instead of ln k, ln of how far a command moves the view in the episode's stand-off units against a catalogue
+    # target's (env.command_gain: 1 / k for small targets, 1 for large ones under the default speed rule): the
+    # quantity a frame cannot show, in a range that training on small sizes covers for every size.
+    command_gain_input: bool = False
     # A linear head of this many outputs on the LSTM output, sown as intermediates 'aux' (apply with
     # mutable=["intermediates"]): the trainer fits it to the true tracking error (LearnerConfig.aux_weight). 0 = none.
     aux_outputs: int = 0
@@ -129,8 +133,10 @@ class NetworkConfig:
             fail(f"quantiles must be 0 (expected values) or an integer >= 2, got {self.quantiles!r}")
         if self.quantiles and self.dueling:
             fail("quantiles and dueling are not combined (a dueling head of quantiles is not defined here)")
-        if self.standoff_input and not self.recurrent:
-            fail("standoff_input needs a recurrent variant (the stand-off scale is an LSTM input), not 'drlavt'")
+        if self.standoff_input and self.command_gain_input:
+            fail("standoff_input and command_gain_input are two forms of one input: choose one")
+        if self.reads_standoff and not self.recurrent:
+            fail("standoff_input / command_gain_input need a recurrent variant (an LSTM input), not 'drlavt'")
         if self.use_mha and self.channels[-1] % self.attention_heads != 0:
             fail(
                 f"attention_heads={self.attention_heads} must divide the last block's channels "
@@ -153,6 +159,11 @@ class NetworkConfig:
     @property
     def recurrent(self) -> bool:
         return self.variant != "drlavt"
+
+    @property
+    def reads_standoff(self) -> bool:
+        """Whether the network takes a per-step stand-off signal (its ``standoff`` argument): k or the command gain."""
+        return self.standoff_input or self.command_gain_input
 
     @property
     def jnp_dtype(self):

@@ -87,7 +87,7 @@ class Transition:
       privileged: ``[K]`` float32 simulator state at obs t for auxiliary training losses only (the trainer's true
         tracking error); ``None`` = not stored.
       standoff: ``[]`` float32 stand-off scale k of obs t's episode, for networks that read it
-        (NetworkConfig.standoff_input); ``None`` = not stored.
+        (NetworkConfig.reads_standoff: k or the command gain); ``None`` = not stored.
     """
 
     obs: jax.Array

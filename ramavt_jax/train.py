@@ -33,7 +33,7 @@ from ramavt_jax import distributed
 from ramavt_jax import env as env_lib
 from ramavt_jax import replay as replay_lib
 from ramavt_jax.augment import augment_batch
-from ramavt_jax.greedy import unbatch_state
+from ramavt_jax.greedy import standoff_signal, unbatch_state
 from ramavt_jax.losses import TDBatch, sequence_priority, td_loss
 from ramavt_jax.network import init_params, initial_state, make_network, record_action
 from ramavt_jax.train_config import TrainConfig
@@ -98,7 +98,7 @@ class Trainer:
             terminated=jnp.zeros((), bool), truncated=jnp.zeros((), bool), is_first=jnp.zeros((), bool),
             recurrent_state=unbatch_state(s).replace(frames=None),
             privileged=jnp.zeros((3,)) if self.config.learner.aux_weight else None,
-            standoff=jnp.ones(()) if self.config.network.standoff_input else None)
+            standoff=jnp.ones(()) if self.config.network.reads_standoff else None)
 
     def _per_device(self, batched_fn):
         """Run a function of per-env arrays ([N, ...] in and out) on each device's own envs (``jax.shard_map``).
@@ -134,7 +134,8 @@ class Trainer:
 
     def q_values(self, params, obs, reset, state, actions=None, standoff=None):
         """Online/target forward: obs [B, T, H, W, C], reset [B, T], actions [B, T] (the actions taken; used by
-        prev_action networks), standoff [B, T] (used by standoff_input networks) -> (q [B, T, A], state)."""
+        prev_action networks), standoff [B, T] (networks that read it: greedy.standoff_signal) -> (q [B, T, A],
+        state)."""
         return self.net.apply({"params": params}, obs, reset, state, actions=actions, standoff=standoff)
 
     # ---------------------------------------------------------------- init
@@ -157,7 +158,8 @@ class Trainer:
         """One epsilon-greedy step of all envs: (actor, Transition [N, ...] (state [layers, N, units]), stats)."""
         c = self.config.acting
         k_eps, k_rand, k_env = jax.random.split(key, 3)
-        standoff = actor.env_state.scale if self.config.network.standoff_input else None  # [N]
+        standoff = (jax.vmap(lambda s: standoff_signal(self.config.network, s, self.env_params))(actor.env_state)
+                    if self.config.network.reads_standoff else None)  # [N]
         q, net_state = self.q_values(params, actor.obs[:, None], actor.is_first[:, None], actor.net_state,
                                      standoff=None if standoff is None else standoff[:, None])
         greedy = jnp.argmax(q[:, 0], axis=-1).astype(jnp.int32)

@@ -30,6 +30,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ramavt_jax import env as env_lib
+from ramavt_jax import greedy
 from ramavt_jax import targets as targets_lib
 from ramavt_jax.evaluation import rollouts, runs
 from ramavt_jax.network import Encoder, RecurrentState, initial_state, make_network, record_action
@@ -75,7 +76,8 @@ def make_rollout(run: runs.LoadedRun, targets: tuple[str, ...], episodes: int, s
                       jnp.ones((), bool))
 
         def body(c: Carry, k_step):
-            standoff = c.state.scale[None, None] if cfg.network.standoff_input else None  # the episode's k, [1, 1]
+            signal = greedy.standoff_signal(cfg.network, c.state, params)  # [] or None
+            standoff = None if signal is None else signal[None, None]
             (q, net_state), sown = net.apply({"params": net_params}, c.obs[None, None], c.first[None, None],
                                              c.net_state, standoff=standoff, mutable=["intermediates"],
                                              capture_intermediates=encoder_only)

@@ -68,6 +68,7 @@ def _changes(arm: str, reference: str) -> dict:
         ("per", "clip-1152k", {"replay.priority_exponent": 0.9}),
         ("size-up", "size-small-1152k", {"env_params": (("size_scale_max", 4.0), ("size_scale_min", 0.15))}),
         ("size-standoff", "size-small-1152k", {"network.standoff_input": True}),
+        ("size-command", "size-small-1152k", {"network.command_gain_input": True}),
         ("quantiles", "clip-1152k", {"network.quantiles": 32}),
         ("size-stretch", "size-small-1152k", {"env_params": (("size_scale_max", 1.0), ("size_scale_min", 0.15),
                                                              ("stretch_max", 1.5), ("stretch_prob", 0.5))}),

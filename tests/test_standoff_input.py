@@ -30,7 +30,7 @@ def params():
 
 
 def test_frame_stacking_variant_refuses_the_input():
-    with pytest.raises(ValueError, match="standoff_input needs a recurrent variant"):
+    with pytest.raises(ValueError, match="need a recurrent variant"):
         NetworkConfig(variant="drlavt", standoff_input=True)
 
 
@@ -104,3 +104,31 @@ def test_greedy_policy_reads_k_from_the_env_state(trainer, params):
     reset = jnp.zeros((1, 5), bool).at[0, 0].set(True)
     q, _ = trainer.q_values(params, obs[None], reset, initial_state(CFG.network, 1), standoff=jnp.full((1, 5), 0.4))
     assert actions == np.asarray(jnp.argmax(q[0], -1)).tolist()
+
+
+def test_command_gain_is_how_far_a_command_moves_the_view_in_standoff_units(trainer):
+    """env.command_gain: 1 / k for small targets, 1 for large ones under the default speed rule, k ** (p - 1) with
+    the rule's power p; a command_gain_input network reads it (greedy.standoff_signal)."""
+    from ramavt_jax import env as env_lib
+
+    params = trainer.env_params
+    state = trainer.env.reset(jax.random.PRNGKey(3), params)[1]
+    gain = lambda k, p=params: float(env_lib.command_gain(state.replace(scale=jnp.float32(k)), p))  # noqa: E731
+    np.testing.assert_allclose([gain(0.4), gain(1.0), gain(4.8)], [2.5, 1.0, 1.0], rtol=1e-6)
+    np.testing.assert_allclose(gain(4.8, params.replace(speed_standoff_power=jnp.float32(0.0))), 1 / 4.8, rtol=1e-6)
+    net = dataclasses.replace(CFG.network, standoff_input=False, command_gain_input=True)
+    small = state.replace(scale=jnp.float32(0.4))
+    assert float(greedy.standoff_signal(net, small, params)) == pytest.approx(2.5)
+    assert float(greedy.standoff_signal(CFG.network, small, params)) == pytest.approx(0.4)
+    assert greedy.standoff_signal(SMOKE.network, small, params) is None
+    with pytest.raises(ValueError, match="two forms of one input"):
+        dataclasses.replace(CFG.network, command_gain_input=True)
+
+
+def test_rollout_stores_the_command_gain_for_a_command_gain_network():
+    cfg = CFG.override(network=dataclasses.replace(CFG.network, standoff_input=False, command_gain_input=True))
+    tr = T.Trainer(cfg)
+    state = jax.jit(tr.init)(jax.random.PRNGKey(4))
+    _, chunk, _, _ = jax.jit(tr.rollout)(state.learner.params, state.actor, jnp.int32(0), jax.random.PRNGKey(5))
+    k0 = np.asarray(state.actor.env_state.scale)
+    np.testing.assert_allclose(np.asarray(chunk.standoff)[:, 0], 1.0 / np.minimum(k0, 1.0), rtol=1e-6)
