@@ -158,6 +158,14 @@ def _elementwise_loss(td: jax.Array, huber_delta: float | None) -> jax.Array:
     return 0.5 * jnp.square(quadratic) + huber_delta * (abs_td - quadratic)
 
 
+def _masked_mean(per_step: jax.Array, mask: jax.Array, weights: jax.Array | None) -> jax.Array:
+    """[] Mean of per_step [B, T] over the transitions in mask [B, T], each window's weighted by weights [B] (None
+    for 1); 0 if none is in the mask."""
+    mask_f = mask.astype(per_step.dtype)
+    per_step = per_step * mask_f if weights is None else per_step * mask_f * weights[:, None]
+    return per_step.sum() / jnp.maximum(mask_f.sum(), 1.0)
+
+
 def _sequence_targets(
     q_online_t: jax.Array,  # [T, A]  online Q at obs t+1 (for double-Q action selection)
     q_target_t: jax.Array,  # [T, A]  target Q at obs t+1
@@ -239,11 +247,7 @@ def sequence_td_loss(
     target = jax.lax.stop_gradient(target)
 
     td_error = target - q_taken
-    mask_f = mask.astype(q_taken.dtype)
-    per_step = _elementwise_loss(td_error, cfg.huber_delta) * mask_f
-    if weights is not None:
-        per_step = per_step * weights[:, None]
-    loss = per_step.sum() / jnp.maximum(mask_f.sum(), 1.0)
+    loss = _masked_mean(_elementwise_loss(td_error, cfg.huber_delta), mask, weights)
     return loss, {"td_error": td_error, "q_taken": q_taken, "target": target}
 
 
@@ -294,11 +298,7 @@ def sequence_quantile_loss(
     target = jax.lax.stop_gradient(per_window(rewards.astype(boot.dtype), discount, boot, stop))  # [B, T, N]
     taus = (jnp.arange(n, dtype=z_taken.dtype) + 0.5) / n
     pairs = quantile_huber(target[:, :, None, :] - z_taken[..., None], taus, cfg.quantile_kappa)
-    mask_f = mask.astype(z_taken.dtype)
-    per_step = pairs.mean((-2, -1)) * mask_f  # [B, T]
-    if weights is not None:
-        per_step = per_step * weights[:, None]
-    loss = per_step.sum() / jnp.maximum(mask_f.sum(), 1.0)
+    loss = _masked_mean(pairs.mean((-2, -1)), mask, weights)
     q_taken, target_mean = z_taken.mean(-1), target.mean(-1)
     return loss, {"td_error": target_mean - q_taken, "q_taken": q_taken, "target": target_mean}
 
