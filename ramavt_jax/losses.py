@@ -277,8 +277,9 @@ def sequence_quantile_loss(
     action the online net's mean picks there (double-Q) or the target net's (plain), exactly as
     :func:`sequence_td_loss` builds one expected value (``n_step_targets`` per quantile). Every predicted quantile is
     regressed on every target quantile with :func:`quantile_huber` (kappa = ``cfg.quantile_kappa``), averaged over
-    both (QR-DQN sums over the predicted ones: the mean keeps the loss on one quantile's scale, beside other losses). The other arguments and ``aux`` are as in
-    :func:`sequence_td_loss`, ``aux`` holding the means (``td_error`` = target mean minus Q of the taken action).
+    both (QR-DQN sums over the predicted ones: the mean keeps the loss on one quantile's scale, beside other losses).
+    The other arguments and ``aux`` are as in :func:`sequence_td_loss`, ``aux`` holding the means (``td_error`` =
+    target mean minus Q of the taken action).
     Value rescaling and advantage learning are not defined here (TrainConfig refuses them with quantiles).
     """
     chex.assert_rank([z_online, z_target], 4)
@@ -288,9 +289,8 @@ def sequence_quantile_loss(
     n = z_online.shape[-1]
     taken = actions[..., None, None].astype(jnp.int32)
     z_taken = jnp.take_along_axis(z_online[:, :-1], taken, axis=2)[:, :, 0]  # [B, T, N]
-    z_target_t = jax.lax.stop_gradient(z_target[:, 1:])  # [B, T, A, N]
-    q_pick = jax.lax.stop_gradient(z_online[:, 1:] if cfg.double_q else z_target[:, 1:]).mean(-1)  # [B, T, A]
-    boot = jnp.take_along_axis(z_target_t, jnp.argmax(q_pick, -1)[..., None, None], axis=2)[:, :, 0]  # [B, T, N]
+    q_pick = (z_online[:, 1:] if cfg.double_q else z_target[:, 1:]).mean(-1)  # [B, T, A]; argmax: no gradient
+    boot = jnp.take_along_axis(z_target[:, 1:], jnp.argmax(q_pick, -1)[..., None, None], axis=2)[:, :, 0]  # [B, T, N]
     discount = cfg.gamma * (1.0 - terminated.astype(boot.dtype))
     stop = terminated.astype(bool) | truncated.astype(bool)
     per_window = jax.vmap(lambda r, d, z, s: jax.vmap(lambda zq: n_step_targets(r, d, zq, cfg.n_step, s),

@@ -302,8 +302,8 @@ class QNetwork(nn.Module):
 
 
 def standoff_feature(standoff: jax.Array | None, shape: tuple[int, int]) -> jax.Array:
-    """[B, T] ln k of each step's stand-off scale standoff [B, T]; refuses a missing one (k = 1 is passed, not
-    assumed: a caller that forgets it would act on the wrong scale unnoticed)."""
+    """[B, T] ln of each step's stand-off signal standoff [B, T] (greedy.standoff_signal: k or the command gain);
+    refuses a missing one (1 is passed, not assumed: a caller that forgets it would act on the wrong size unnoticed)."""
     if standoff is None or standoff.shape != tuple(shape):
         raise ValueError(f"QNetwork: this network needs standoff [B, T] = {tuple(shape)} (the episodes' "
                          f"stand-off signal), got {None if standoff is None else standoff.shape}")

@@ -261,7 +261,7 @@ ARMS["size-standoff"] = lambda c: _net(ARMS["size-small-1152k"](c), standoff_inp
 # training on sizes up to 1x covers. What a frame cannot show is how far a command moves the view, in stand-off units:
 # 1 / k for small targets, 1 for large ones under the speed rule, a range that training on small sizes covers.
 ARMS["size-command"] = lambda c: _net(ARMS["size-small-1152k"](c), command_gain_input=True)
-# Distributional values (QR-DQN: 32 quantiles of the return per action, the quantile Huber loss at kappa 1, Q their
+# Distributional values (QR-DQN: 32 quantiles of the return per action, the quantile Huber loss at kappa 0.05, Q their
 # mean), one change to the quick preset: a tumbling target's visible surface moves about its centre, so the return
 # of an action is spread; the quantiles give the shared layers a richer signal than one mean per action.
 ARMS["quantiles"] = lambda c: _net(ARMS["clip-1152k"](c), quantiles=32)
