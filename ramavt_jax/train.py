@@ -17,7 +17,8 @@ call; the host only logs, evaluates and checkpoints between chunks.
 Learner: sample ``batch_size`` windows of ``burn_in + train_len + 1`` stored steps; from the stored recurrent
 state run ``burn_in`` steps through the online net under ``stop_gradient`` (the target net runs over the whole
 window from the same stored state, also without gradient), then the masked double-Q / n-step TD loss
-(:mod:`ramavt_jax.losses`) over the ``train_len`` transitions after burn-in.
+(:mod:`ramavt_jax.losses`) over the ``train_len`` transitions after burn-in. With ``bootstrap_from='online'`` the
+targets bootstrap from the trained pass's own values under ``stop_gradient`` and the target pass is skipped.
 """
 
 from __future__ import annotations
@@ -212,8 +213,9 @@ class Trainer:
 
     def prepare(self, params, target_params, batch: replay_lib.SequenceBatch, key: jax.Array) -> PreparedBatch:
         """Everything the loss needs that takes no gradient: (augmented) observations, the target net's Q over the
-        window and the online net's state after burn-in, both run from the window's stored start state."""
-        c = self.config
+        window (None with LearnerConfig.bootstrap_from = 'online') and the online net's state after burn-in, both run
+        from the window's stored start state."""
+        c, sg = self.config, jax.lax.stop_gradient
         burn, obs = batch.burn_in, batch.obs
         if self.augment_fn is not None:
             obs = self.augment_fn(key, obs)
@@ -223,15 +225,16 @@ class Trainer:
             frames = jnp.repeat(obs[:, :1], c.network.frame_stack - 1, axis=1)
         state = batch.start_state.replace(frames=frames)
         standoff = batch.standoff  # [B, L] or None
-        q_target = self._target_values(target_params, obs, batch.reset, state, batch.action, standoff)
+        q_target = None  # bootstrap_from='online': trained_loss takes the trained pass's values
+        if c.learner.bootstrap_from == "target":
+            q_target = sg(self._target_values(target_params, obs, batch.reset, state, batch.action, standoff))[:, burn:]
         if burn:
             _, state = self.q_values(params, obs[:, :burn], batch.reset[:, :burn], state, batch.action[:, :burn],
                                      None if standoff is None else standoff[:, :burn])
-        sg = jax.lax.stop_gradient
         terminated, truncated = batch.terminated[:, burn:], batch.truncated[:, burn:]
         if c.learner.bootstrap_lost:  # see LearnerConfig.bootstrap_lost
             terminated, truncated = jnp.zeros_like(terminated), truncated | terminated
-        td = TDBatch(q_target=sg(q_target[:, burn:]), action=batch.action[:, burn:],
+        td = TDBatch(q_target=q_target, action=batch.action[:, burn:],
                      reward=sg(batch.reward[:, burn:] * c.learner.reward_scale), terminated=terminated,
                      truncated=truncated, mask=batch.loss_mask[:, burn:], weight=batch.weights)
         privileged = None if batch.privileged is None else batch.privileged[:, burn:]
@@ -247,7 +250,10 @@ class Trainer:
                                              mutable=["intermediates"])
         if self.config.network.quantiles:  # the quantile loss (losses.sequence_quantile_loss)
             q_online = sown["intermediates"]["quantiles"][0]
-        loss, aux = td_loss(q_online, prepared.td, self.td)
+        td = prepared.td
+        if td.q_target is None:  # LearnerConfig.bootstrap_from = 'online': this pass's own values, as constants
+            td = td.replace(q_target=jax.lax.stop_gradient(q_online))
+        loss, aux = td_loss(q_online, td, self.td)
         mask = prepared.td.mask.astype(jnp.float32)
         masked_mean = lambda x: (x * mask).sum() / jnp.maximum(mask.sum(), 1.0)  # noqa: E731 (over [B, T])
         aux_loss = jnp.zeros(())

@@ -65,6 +65,9 @@ class LearnerConfig:
     aux_weight: float = 0.0
     reward_scale: float = 0.1  # rewards are multiplied by this in the TD targets
     target_update: str = "polyak"  # 'polyak' | 'period'
+    # 'target' (net, over the whole window) | 'online': the targets bootstrap from the online net's own trained pass
+    # under stop_gradient (no target pass); the target net is still averaged, for RunConfig.policy_params='target'.
+    bootstrap_from: str = "target"
     polyak_tau: float = 0.01  # target net moves this fraction towards the online net per step ('polyak')
     target_period: int = 500  # gradient steps between hard target syncs ('period')
     # None = polyak_tau throughout. Else the target net (and so a trained policy acting with it) starts averaging over
@@ -97,9 +100,11 @@ class LearnerConfig:
                                ("aux_weight", self.aux_weight >= 0, ">= 0 (0 = no auxiliary loss)"),
                                ("reward_scale", self.reward_scale > 0, "> 0"),
                                ("quantile_kappa", self.quantile_kappa > 0, "> 0"),
-                               ("replay_ratio", self.replay_ratio > 0, "> 0")):
+                               ("replay_ratio", self.replay_ratio > 0, "> 0"),
+                               ("target_update", self.target_update in ("polyak", "period"), "'polyak' or 'period'"),
+                               ("bootstrap_from", self.bootstrap_from in ("target", "online"), "'target' or 'online'")):
             if not ok:
-                raise fail(f"{name} must be {rule}, got {getattr(self, name)}")
+                raise fail(f"{name} must be {rule}, got {getattr(self, name)!r}")
         if self.polyak_tau_start is not None and not 0.0 < self.polyak_tau_start <= 1.0:
             raise fail(f"polyak_tau_start must be None (a constant polyak_tau) or in (0, 1], "
                        f"got {self.polyak_tau_start}")
@@ -109,8 +114,6 @@ class LearnerConfig:
             raise fail(f"polyak_tau_decay must be two gradient steps 0 <= hold <= end, got {self.polyak_tau_decay}")
         if self.huber_delta is not None and not self.huber_delta > 0:
             raise fail(f"huber_delta must be None (MSE) or > 0, got {self.huber_delta}")
-        if self.target_update not in ("polyak", "period"):
-            raise fail(f"target_update must be 'polyak' or 'period', got {self.target_update!r}")
         if not isinstance(self.augment_config, AugmentConfig):
             raise fail(f"augment_config must be an augment.AugmentConfig, got {type(self.augment_config).__name__}")
 
@@ -304,9 +307,7 @@ class TrainConfig:
                 return {f.name: conv(getattr(x, f.name)) for f in dataclasses.fields(x)}
             if isinstance(x, (tuple, list)):
                 return [conv(v) for v in x]
-            if isinstance(x, (np.integer, np.floating)):
-                return x.item()
-            return x
+            return x.item() if isinstance(x, (np.integer, np.floating)) else x
         return conv(self)
 
     @classmethod
@@ -396,5 +397,4 @@ def preset(name: str, **overrides: Any) -> TrainConfig:
     """A named configuration (a key of PRESETS); keyword overrides as in TrainConfig.override."""
     if name not in PRESETS:
         raise ValueError(f"unknown preset {name!r}; choose one of {sorted(PRESETS)}")
-    cfg = PRESETS[name]()
-    return cfg.override(**overrides) if overrides else cfg
+    return PRESETS[name]().override(**overrides) if overrides else PRESETS[name]()

@@ -91,6 +91,7 @@ def test_invalid_configs_raise_clear_errors(overrides, message):
 @pytest.mark.parametrize("build, message", [
     (lambda: ActingConfig(eps_end=2.0), r"^ActingConfig: eps_end must be in \[0, 1\], got 2.0$"),
     (lambda: LearnerConfig(target_update="soft"), r"^LearnerConfig: target_update must be 'polyak' or 'period'"),
+    (lambda: LearnerConfig(bootstrap_from="both"), r"^LearnerConfig: bootstrap_from must be .target. or .online., got .both.$"),
     (lambda: RunConfig(keep_checkpoints=0), r"^RunConfig: keep_checkpoints must be >= 1, got 0$"),
     (lambda: RunConfig(policy_params="ema"), r"^RunConfig: policy_params must be 'online' or 'target', got 'ema'$"),
     (lambda: replay_lib.ReplayConfig(train_len=0), r"^ReplayConfig.train_len must be >= 1, got 0$"),
@@ -462,3 +463,28 @@ def test_prioritised_training_sets_the_sampled_windows_priorities():
     stored = np.asarray(jax.vmap(lambda i: sum_tree.get(tree, i))(jnp.arange(tree.capacity)))
     written = stored[stored > 0]
     assert len(np.unique(np.round(written, 6))) > 2, np.unique(written)  # new windows share one; updates differ
+
+
+# ------------------------------------------------------------------------------------------ online bootstrap
+def test_online_targets_equal_target_net_targets_when_the_nets_are_equal(trainer, learner):
+    """LearnerConfig.bootstrap_from='online' bootstraps from the trained pass's own values under stop_gradient. With
+    target params = online params the target-net path bootstraps from the same values (its pass runs from the
+    window's stored state through burn-in, as the online one does), so loss and gradients agree; with the nets apart
+    they differ, so the comparison can fail. The target net is never read."""
+    params, target = learner
+    online = T.Trainer(SMOKE.override(bootstrap_from="online"))
+    batch = _as_batch(_window(jax.random.PRNGKey(6), SMOKE))
+    grad_fns = {tr: jax.jit(jax.value_and_grad(tr.loss, has_aux=True)) for tr in (trainer, online)}
+    grad = lambda tr, t: grad_fns[tr](params, t, batch, jax.random.PRNGKey(0))  # noqa: E731
+    (loss_t, _), grads_t = grad(trainer, params)
+    (loss_o, _), grads_o = grad(online, target)  # the target params are not read
+    np.testing.assert_allclose(float(loss_o), float(loss_t), rtol=1e-5)
+    for g_o, g_t in zip(jax.tree.leaves(grads_o), jax.tree.leaves(grads_t)):
+        np.testing.assert_allclose(np.asarray(g_o), np.asarray(g_t), rtol=1e-4, atol=1e-6)
+    assert abs(float(grad(trainer, target)[0][0]) - float(loss_t)) > 1e-4
+    # NaN target params: the online-bootstrap loss stays finite (the target pass is skipped, not computed and
+    # discarded), the target-net loss does not
+    poisoned = jax.tree.map(lambda p: jnp.full_like(p, jnp.nan), params)
+    assert online.prepare(params, poisoned, batch, jax.random.PRNGKey(0)).td.q_target is None
+    assert np.isfinite(float(grad(online, poisoned)[0][0])) and not np.isfinite(float(grad(trainer, poisoned)[0][0]))
+

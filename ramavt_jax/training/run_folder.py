@@ -43,7 +43,8 @@ RESUMABLE_FIELDS = ("run.total_env_steps", "run.eval_episodes", "run.eval_max_st
 ADDED_FIELDS = ("network.depth_centre", "network.depth_gain", "learner.polyak_tau_start",
                 "learner.polyak_tau_decay", "network.silhouette_stats", "replay.priority_exponent",
                 "replay.importance_exponent", "replay.priority_max_share", "network.standoff_input",
-                "network.command_gain_input", "network.quantiles", "learner.quantile_kappa")
+                "network.command_gain_input", "network.quantiles", "learner.quantile_kappa",
+                "learner.bootstrap_from")
 _SEED_DIR = re.compile(r"seed_\d+")
 
 
