@@ -2,13 +2,17 @@
 
     python benchmarks/ab_chunk.py runs/quick --baseline bc1a0fc [--seeds 3] [--rounds 3]
     python benchmarks/ab_chunk.py runs/quick --baseline bc1a0fc --baseline-run runs/old_quick   # other networks
+    python benchmarks/ab_chunk.py runs/quick --set bootstrap_from=online     # this checkout against a config change
 
 Both versions' ``Trainer.chunk`` (collect + learn, as ``ramavt train`` runs it) start from the same state: the latest
 checkpoint of ``RUN`` (a run of ``--preset``; for ``--seeds N`` that state is copied to N seeds, vmapped as
 ``--seeds N`` training does). The baseline's package comes from ``git archive BASELINE ramavt_jax`` under another
 module name, so both versions live in one process and their calls alternate (same machine load). Both must hold the
 same state layout, unless ``--baseline-run`` gives the baseline a run of its own (a run of the baseline's preset,
-e.g. when the preset's network changed since): each version then starts from its own run's state. ``--act-only`` adds a third program: this checkout's chunk before learning starts (acting only).
+e.g. when the preset's network changed since): each version then starts from its own run's state. ``--act-only`` adds
+a program: this checkout's chunk before learning starts (acting only). ``--set FIELD=VALUE`` (repeatable) adds this
+checkout with the preset's fields changed (TrainConfig.override; VALUE read as JSON, else as a string), from the same
+state, which the change must keep in the same layout; without ``--baseline`` the reference is this checkout as is.
 Prints the chunk times per round, the medians, the load average; writes JSON to ``--out``.
 """
 
@@ -31,7 +35,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_train import export_package, merge_json  # noqa: E402
 
 from ramavt_jax import train as T  # noqa: E402
-from ramavt_jax import train_config  # noqa: E402
+from ramavt_jax import presets, train_config  # noqa: E402
 from ramavt_jax.training.checkpoint import CheckpointStore  # noqa: E402
 
 BASELINE_MODULE = "ramavt_baseline"
@@ -57,6 +61,26 @@ def _restore(run: Path, like):
         return jax.tree.map(lambda x: x[0], store.restore(stacked)[0])
 
 
+def _baseline_state(baseline_run: Path | None, state, key):
+    """The state the baseline starts from: ``state``, or the latest checkpoint of a run of the baseline's own preset,
+    restored in this checkout's layout of that run's config."""
+    if baseline_run is None:
+        return state
+    saved = json.loads((baseline_run / "config.json").read_text())["config"]
+    return _restore(baseline_run, _zeros_like_init(T.Trainer(train_config.TrainConfig.from_dict(saved)), key))
+
+
+def _parse_setting(parser, text: str):
+    """``FIELD=VALUE`` -> (field, value): VALUE as JSON (numbers, true/false), else as a string."""
+    field, sep, value = text.partition("=")
+    if not sep or not field:
+        parser.error(f"--set takes FIELD=VALUE, got {text!r}")
+    try:
+        return field, json.loads(value)
+    except json.JSONDecodeError:
+        return field, value
+
+
 def _zeros_like_init(trainer, key):
     return jax.tree.map(lambda x: jnp.zeros(x.shape, x.dtype), jax.eval_shape(trainer.init, key))
 
@@ -68,30 +92,38 @@ def _recast(state, template):
 def main(argv=None) -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("run", type=Path, help="a run folder of --preset with checkpoints")
-    p.add_argument("--baseline", required=True, help="git revision to compare with (e.g. a commit or a tag)")
+    p.add_argument("--baseline", default=None, help="git revision to compare with (e.g. a commit or a tag)")
     p.add_argument("--baseline-run", type=Path, default=None,
                    help="a run of the baseline's preset whose state the baseline starts from (default: RUN)")
-    p.add_argument("--preset", default="quick", choices=sorted(train_config.PRESETS))
+    p.add_argument("--preset", default="quick", choices=sorted(presets.PRESETS))
     p.add_argument("--seeds", type=int, default=1)
     p.add_argument("--rounds", type=int, default=3)
     p.add_argument("--act-only", action="store_true")
+    p.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE",
+                   help="also time this checkout with these preset fields changed (repeatable: one program)")
     p.add_argument("--out", default=str(Path(__file__).resolve().parent / "results_ab_chunk.json"))
     a = p.parse_args(argv)
     if a.seeds < 1 or a.rounds < 1:
         p.error("--seeds and --rounds must be >= 1")
+    if a.baseline is None and not a.set:
+        p.error("give --baseline REV, --set FIELD=VALUE or both")
+    changes = dict(_parse_setting(p, text) for text in a.set)
+    reference = a.baseline or "this"
     key = jax.random.PRNGKey(0)
     with tempfile.TemporaryDirectory() as tmp:
-        base_train = import_baseline(a.baseline, Path(tmp))
-        trainers = {a.baseline: base_train.Trainer(base_train.preset(a.preset)), "this": T.Trainer(train_config.preset(a.preset))}
+        trainers = {"this": T.Trainer(presets.preset(a.preset))}
         state = _restore(a.run, _zeros_like_init(trainers["this"], key))
-        base_state = state
-        if a.baseline_run is not None:  # restored in this checkout's layout of the baseline run's own config
-            saved = json.loads((a.baseline_run / "config.json").read_text())["config"]
-            base_state = _restore(a.baseline_run, _zeros_like_init(T.Trainer(train_config.TrainConfig.from_dict(saved)),
-                                                                   key))
-        states = {"this": state, a.baseline: _recast(base_state, jax.eval_shape(trainers[a.baseline].init, key))}
+        states = {"this": state}
+        if changes:
+            name = "this, " + ", ".join(a.set)
+            trainers[name], states[name] = T.Trainer(presets.preset(a.preset, **changes)), state
+        if a.baseline is not None:
+            base_train = import_baseline(a.baseline, Path(tmp))
+            trainers[a.baseline] = base_train.Trainer(base_train.preset(a.preset))
+            states[a.baseline] = _recast(_baseline_state(a.baseline_run, state, key),
+                                         jax.eval_shape(trainers[a.baseline].init, key))
         if a.act_only:  # learning_starts above the restored step count: the chunk only collects
-            trainers["this, acting only"] = T.Trainer(train_config.preset(a.preset, learning_starts=train_config.preset(
+            trainers["this, acting only"] = T.Trainer(presets.preset(a.preset, learning_starts=presets.preset(
                 a.preset).replay.capacity_steps))
             states["this, acting only"] = state.replace(env_steps=jnp.zeros_like(state.env_steps))
         if a.seeds > 1:
@@ -111,8 +143,8 @@ def main(argv=None) -> None:
                   f" (load {os.getloadavg()[0]:.2f})", flush=True)
     med = {k: statistics.median(v) for k, v in times.items()}
     for k, v in med.items():
-        print(f"{k}: median chunk {v:.2f} s, {med[a.baseline] / v:.2f}x the baseline {a.baseline}")
-    merge_json(a.out, f"{a.preset}_seeds{a.seeds}_vs_{a.baseline}", dict(
+        print(f"{k}: median chunk {v:.2f} s, {med[reference] / v:.2f}x {reference}")
+    merge_json(a.out, f"{a.preset}_seeds{a.seeds}_vs_{reference}" + "".join(f"_{t}" for t in a.set), dict(
         run=str(a.run), baseline_run=str(a.baseline_run or a.run), env_steps=int(state.env_steps), chunk_s=times, median_s=med,
         loadavg_start=load0, loadavg_end=os.getloadavg(), jax=jax.__version__))
 

@@ -23,7 +23,7 @@ import jax
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_train import code_version, merge_json  # noqa: E402
 
-from ramavt_jax import train_config  # noqa: E402
+from ramavt_jax import presets  # noqa: E402
 from ramavt_jax.train import Trainer  # noqa: E402
 
 DEFAULT_OUT = Path(__file__).resolve().parent / "results_compile_level.json"
@@ -38,7 +38,7 @@ def main(argv=None) -> None:
     a = p.parse_args(argv)
     jax.config.update("jax_enable_compilation_cache", False)
     load = [os.getloadavg()[0]]
-    trainer = Trainer(train_config.preset(a.preset))
+    trainer = Trainer(presets.preset(a.preset))
     init = jax.jit(trainer.init)
     lowered = jax.jit(trainer.chunk, donate_argnums=0).lower(jax.eval_shape(trainer.init, jax.random.PRNGKey(0)))
     names = {"default": None, f"level{a.level}": {"xla_backend_optimization_level": a.level}}

@@ -31,7 +31,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_train import _filled_replay, machine_info, merge_json  # noqa: E402
 
 from ramavt_jax import train as T  # noqa: E402
-from ramavt_jax import train_config  # noqa: E402
+from ramavt_jax import presets, train_config  # noqa: E402
 from ramavt_jax.layers import CONV_FUNCTIONS, conv_out_size  # noqa: E402
 
 IMPLS = ("im2col", "lax", "hybrid")  # the first is the baseline
@@ -125,7 +125,7 @@ def bench_update(cfg: train_config.TrainConfig, rounds: int) -> dict:
 
 def main(argv=None) -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--preset", default="quick", choices=sorted(train_config.PRESETS))
+    p.add_argument("--preset", default="quick", choices=sorted(presets.PRESETS))
     p.add_argument("--seeds", type=int, default=1, help="vmap the layers over this many seeds' kernels")
     p.add_argument("--rounds", type=int, default=15)
     p.add_argument("--skip-update", action="store_true", help="only the layers")
@@ -133,7 +133,7 @@ def main(argv=None) -> None:
     a = p.parse_args(argv)
     if a.seeds < 1 or a.rounds < 1:
         p.error("--seeds and --rounds must be >= 1")
-    cfg = train_config.preset(a.preset, eval_episodes=0, learning_starts=0)
+    cfg = presets.preset(a.preset, eval_episodes=0, learning_starts=0)
     load0, t0 = os.getloadavg(), time.time()
     print(f"conv implementations at the {a.preset} preset's sizes, {a.seeds} seed(s), load {load0[0]:.2f}")
     res = {"preset": a.preset, "seeds": a.seeds, "rounds": a.rounds, "layers": bench_layers(cfg, a.seeds, a.rounds)}

@@ -33,7 +33,7 @@ from pathlib import Path
 
 import jax
 
-from ramavt_jax import train_config
+from ramavt_jax import presets
 from ramavt_jax.training import program
 
 from bench_env import bench_point, machine  # noqa: E402 (the script's directory)
@@ -60,8 +60,8 @@ def device_info() -> dict:
 def chunk_throughput(preset: str, chunks: int) -> dict:
     """Time ``chunks`` training chunks of ``preset`` after a first one; see the module docstring. The program is the
     one ``ramavt train`` runs (``training.program``: the chunk compiled ahead of time, its state donated)."""
-    base = train_config.preset(preset)
-    cfg = train_config.preset(preset, eval_episodes=0, learning_starts=base.env_steps_per_iteration)
+    base = presets.preset(preset)
+    cfg = presets.preset(preset, eval_episodes=0, learning_starts=base.env_steps_per_iteration)
     prog = program.compiled_program(cfg, None)
     state = prog.init(jax.random.PRNGKey(0))
     t0 = time.perf_counter()

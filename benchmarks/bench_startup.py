@@ -25,7 +25,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_train import code_version, export_package, merge_json  # noqa: E402
 
-from ramavt_jax import train_config  # noqa: E402
+from ramavt_jax import presets  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 DEFAULT_OUT = Path(__file__).resolve().parent / "results_startup.json"
@@ -71,7 +71,7 @@ def main(argv=None) -> None:
     a = p.parse_args(argv)
     load = [os.getloadavg()[0]]
     runs: dict[str, list[dict]] = {"this": [], a.baseline: []}
-    steps = train_config.preset(a.preset).env_steps_per_chunk  # the same for both (the quick preset's is unchanged)
+    steps = presets.preset(a.preset).env_steps_per_chunk  # the same for both (the quick preset's is unchanged)
     with tempfile.TemporaryDirectory() as tmp:
         versions = [("this", REPO), (a.baseline, export_package(a.baseline, Path(tmp) / "pkg").parent)]
         for _, path in versions:

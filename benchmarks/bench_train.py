@@ -28,7 +28,7 @@ from ramavt_jax import env as env_lib
 from ramavt_jax import replay as replay_lib
 from ramavt_jax import train as T
 from ramavt_jax import greedy
-from ramavt_jax import train_config
+from ramavt_jax import presets, train_config
 from ramavt_jax.network import NetworkConfig, count_params
 from ramavt_jax.render import CameraConfig
 from ramavt_jax.train_config import ActingConfig, LearnerConfig, ReplayConfig, RunConfig
@@ -181,7 +181,7 @@ def run(variants=VARIANTS, resolution: int = 64, num_envs: int = 64, batch_size:
     rows = []
     network = None
     if preset is not None:
-        cfg = train_config.preset(preset)
+        cfg = presets.preset(preset)
         network, variants = cfg.network, (cfg.network.variant,)
         resolution, num_envs, batch_size = cfg.env.camera.resolution, cfg.acting.num_envs, cfg.replay.batch_size
         burn_in, train_len, rollout_steps = cfg.replay.burn_in, cfg.replay.train_len, cfg.acting.rollout_steps
@@ -233,7 +233,7 @@ def main(argv=None):
     p.add_argument("--rollout-steps", type=int, default=20)
     p.add_argument("--repeats", type=int, default=5)
     p.add_argument("--out", default=str(DEFAULT_OUT))
-    p.add_argument("--preset", default=None, choices=sorted(train_config.PRESETS), help="benchmark a training preset's network")
+    p.add_argument("--preset", default=None, choices=sorted(presets.PRESETS), help="benchmark a training preset's network")
     a = p.parse_args(argv)
     run(a.variants, a.resolution, a.num_envs, a.batch_size, a.burn_in, a.train_len, a.rollout_steps, a.repeats, a.out,
         preset=a.preset)

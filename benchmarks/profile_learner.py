@@ -31,7 +31,7 @@ import jax.numpy as jnp
 import optax
 
 from ramavt_jax import train as T
-from ramavt_jax import train_config
+from ramavt_jax import presets
 from ramavt_jax.network import Encoder
 
 from bench_train import _filled_replay, _median_time, machine_info, merge_json  # noqa: E402 (the script's directory)
@@ -52,7 +52,7 @@ def _label(stack, op_name, thunk):
 def profile(preset: str, repeats: int, batch_size: int | None = None, trace: bool = False,
             network: dict | None = None) -> dict:
     """The pieces' times at ``preset``'s sizes; ``network``: NetworkConfig fields replaced (e.g. the stem)."""
-    cfg = train_config.preset(preset, eval_episodes=0, learning_starts=0)
+    cfg = presets.preset(preset, eval_episodes=0, learning_starts=0)
     if batch_size:
         cfg = cfg.override(batch_size=batch_size)
     if network:
@@ -106,7 +106,7 @@ def profile(preset: str, repeats: int, batch_size: int | None = None, trace: boo
 
 def main(argv=None) -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--preset", default="quick", choices=sorted(train_config.PRESETS))
+    p.add_argument("--preset", default="quick", choices=sorted(presets.PRESETS))
     p.add_argument("--batch-size", type=int, default=None)
     p.add_argument("--repeats", type=int, default=20)
     p.add_argument("--trace", action="store_true", help="also attribute the update's time to source lines")

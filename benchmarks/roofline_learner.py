@@ -30,7 +30,7 @@ import jax
 import jax.numpy as jnp
 
 from ramavt_jax import train as T
-from ramavt_jax import train_config
+from ramavt_jax import presets
 
 from bench_train import _filled_replay, _median_time, machine_info, merge_json  # noqa: E402 (the script's directory)
 from hlo_profile import traffic_breakdown  # noqa: E402
@@ -60,7 +60,7 @@ def machine_limits(repeats: int) -> dict:
 
 
 def roofline(preset: str, repeats: int, batch_size: int | None = None) -> dict:
-    cfg = train_config.preset(preset, eval_episodes=0, learning_starts=0)
+    cfg = presets.preset(preset, eval_episodes=0, learning_starts=0)
     if batch_size:
         cfg = cfg.override(batch_size=batch_size)
     tr = T.Trainer(cfg)
@@ -85,7 +85,7 @@ def roofline(preset: str, repeats: int, batch_size: int | None = None) -> dict:
 
 def main(argv=None) -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--preset", default="quick", choices=sorted(train_config.PRESETS))
+    p.add_argument("--preset", default="quick", choices=sorted(presets.PRESETS))
     p.add_argument("--batch-size", type=int, default=None)
     p.add_argument("--repeats", type=int, default=15)
     p.add_argument("--out", default=str(Path(__file__).resolve().parent / "results_roofline.json"))

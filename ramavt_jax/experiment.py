@@ -3,7 +3,7 @@ then evaluate the finished run (``evaluation.final``). ``ramavt train`` parses i
 :func:`train_and_evaluate`; Python users call it directly::
 
     from ramavt_jax.experiment import train_and_evaluate
-    from ramavt_jax.train_config import preset
+    from ramavt_jax.presets import preset
     summary = train_and_evaluate(preset("smoke"), "runs/smoke")
 
 This module sits above the figures layer and below the command line (contracts in pyproject.toml).

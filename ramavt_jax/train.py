@@ -3,7 +3,7 @@
 
 API (purejaxrl shape)::
 
-    cfg = train_config.preset("quick")                  # or TrainConfig(...), frozen and validated
+    cfg = presets.preset("quick")                       # or TrainConfig(...), frozen and validated
     train = make_train(cfg)                             # pure function of a key
     out = jax.jit(train)(jax.random.PRNGKey(0))         # {'runner_state': RunnerState, 'metrics': ChunkMetrics}
     outs = jax.jit(jax.vmap(make_train(cfg)))(keys)     # several seeds at once (small configs)

@@ -1,5 +1,6 @@
 """Training configuration: one frozen, validated config per concern (``acting``, ``replay``, ``learner``, ``run``,
-beside the env's and the network's own), composed into `TrainConfig`, and the named presets.
+beside the env's and the network's own), composed into `TrainConfig`; the named presets are in
+:mod:`ramavt_jax.presets`.
 
 Each group checks its own values when it is built; `TrainConfig` checks once, at construction, how the groups fit
 together (window vs replay rows, whole gradient steps per iteration, ...). ``TrainConfig.to_dict`` is the
@@ -22,7 +23,7 @@ from ramavt_jax.render import CameraConfig
 from ramavt_jax.replay_config import ReplayConfig
 from ramavt_jax.value_checks import check_finite, check_floats, check_ints
 
-__all__ = ["ActingConfig", "ReplayConfig", "LearnerConfig", "RunConfig", "TrainConfig", "PRESETS", "preset"]
+__all__ = ["ActingConfig", "ReplayConfig", "LearnerConfig", "RunConfig", "TrainConfig"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -318,83 +319,3 @@ class TrainConfig:
 
 
 _TOP_FIELDS = {f.name for f in dataclasses.fields(TrainConfig)}
-
-
-def _quick() -> TrainConfig:
-    """The README main job (minutes on 2 CPU cores): 32x32 depth, a small RAMAVT whose first two blocks are patch
-    layers (4x4 then 2x2: no im2col copies; 16 attention tokens), absolute depth and image position visible, the
-    previous action into its LSTM; 'target lost' bootstrapped, an auxiliary tracking-error loss, replay ratio 2,
-    gradients clipped at norm 1 (against late collapses), 1.15M env steps; acting with the Polyak-averaged params."""
-    return TrainConfig(
-        env=env_lib.EnvConfig(camera=CameraConfig(resolution=32), autoreset="next_step"),
-        network=NetworkConfig(variant="ramavt", channels=(16, 32, 32), kernels=(4, 2, 3), strides=(4, 2, 1),
-                              pools=(False, False, False), se_reduction=4, attention_heads=4, dense=128, lstm=128,
-                              lstm_layers=1, head=128, coord_channels=True, pooled_skip=True, prev_action=True,
-                              aux_outputs=3),
-        acting=ActingConfig(num_envs=64, rollout_steps=20, eps_start=1.0, eps_end=0.05, eps_decay_steps=200_000),
-        replay=ReplayConfig(capacity_steps=64_000, burn_in=10, train_len=20, batch_size=32),
-        learner=LearnerConfig(learning_starts=10_240, replay_ratio=2.0, lr=1e-3, gamma=0.97, n_step=5,
-                              reward_scale=0.1, target_update="polyak", polyak_tau=0.01, bootstrap_lost=True,
-                              aux_weight=1.0, max_grad_norm=1.0),
-        run=RunConfig(total_env_steps=1_152_000, iterations_per_chunk=25, eval_episodes=32, checkpoint_every_chunks=5,
-                      policy_params="target"),
-    )
-
-
-def _long() -> TrainConfig:
-    """The quick preset's network with 3x3 convs and max-pools in place of its patch layers, without the
-    previous-action input, 1.15M env steps, exploration decaying over 400k steps, a 128k-step replay and gradients
-    clipped at norm 10 (RESULTS.md): the earlier shipped agent's (ramavt_depth_long), as trained."""
-    quick = _quick()
-    stem = dict(kernels=(3, 3, 3), strides=(2, 1, 1), pools=(True, True, False))  # 3x3 convs + max-pools
-    return quick.override(network=dataclasses.replace(quick.network, prev_action=False, **stem),
-                          total_env_steps=1_152_000, eps_decay_steps=400_000, capacity_steps=128_000,
-                          checkpoint_every_chunks=6, max_grad_norm=10.0)
-
-
-def _sizes() -> TrainConfig:
-    """The quick preset for targets of other sizes: each training target resized by a log-uniform factor in [0.15, 1]
-    (small targets need the practice), gradients clipped at norm 10, as measured (docs/experiments.md: 60 % of the
-    ceiling on the resized validation models against the quick preset's 22 % at norm 10)."""
-    return _quick().override(env_params={"size_scale_min": 0.15, "size_scale_max": 1.0},
-                             total_env_steps=1_152_000, max_grad_norm=10.0)
-
-
-def _paper() -> TrainConfig:
-    """The paper's settings: 256x256 depth, full RAMAVT, batch 64, Adam 1e-4, gamma 0.99, 50,000-step replay, plain
-    1-step DRQN targets with a hard-synced target net, MSE, epsilon 0.9 -> 0.1, *orig* windows of 4 burn-in + 8
-    trained steps. Needs hours on a CPU; meant for a GPU machine."""
-    return TrainConfig(
-        env=env_lib.EnvConfig(camera=CameraConfig(resolution=256), autoreset="next_step"),
-        network=NetworkConfig(variant="ramavt"),
-        acting=ActingConfig(num_envs=16, rollout_steps=20, eps_start=0.9, eps_end=0.1, eps_decay_steps=1_000_000),
-        replay=ReplayConfig(capacity_steps=50_000, burn_in=4, train_len=8, batch_size=64),
-        learner=LearnerConfig(learning_starts=10_000, replay_ratio=1.6, lr=1e-4, gamma=0.99, n_step=1, double_q=False,
-                              reward_scale=1.0, target_update="period", target_period=1000),
-        run=RunConfig(total_env_steps=2_000_000, iterations_per_chunk=10, checkpoint_every_chunks=20,
-                      eval_episodes=32),
-    )
-
-
-def _smoke() -> TrainConfig:
-    """Seconds of compute: plumbing checks (tests, CI). 16x16 depth, a tiny plain DRQN, 4 chunks of 320 steps."""
-    return TrainConfig(
-        env=env_lib.EnvConfig(camera=CameraConfig(resolution=16), autoreset="next_step"),
-        network=NetworkConfig(variant="origin", channels=(8, 8), kernels=(3, 3), strides=(1, 1), pools=(True, True),
-                              dense=32, lstm=32, lstm_layers=1, head=32),
-        acting=ActingConfig(num_envs=8, rollout_steps=10, eps_decay_steps=1280),
-        replay=ReplayConfig(capacity_steps=800, burn_in=3, train_len=5, batch_size=4),
-        learner=LearnerConfig(learning_starts=160, replay_ratio=0.5, n_step=2),
-        run=RunConfig(total_env_steps=1280, iterations_per_chunk=4, eval_episodes=4, eval_max_steps=50,
-                      checkpoint_every_chunks=2),
-    )
-
-
-PRESETS = {"quick": _quick, "sizes": _sizes, "long": _long, "paper": _paper, "smoke": _smoke}
-
-
-def preset(name: str, **overrides: Any) -> TrainConfig:
-    """A named configuration (a key of PRESETS); keyword overrides as in TrainConfig.override."""
-    if name not in PRESETS:
-        raise ValueError(f"unknown preset {name!r}; choose one of {sorted(PRESETS)}")
-    return PRESETS[name]().override(**overrides) if overrides else PRESETS[name]()

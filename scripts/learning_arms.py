@@ -22,7 +22,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ramavt_jax import baselines, greedy, train_config
+from ramavt_jax import baselines, greedy, presets
 from ramavt_jax import env as env_lib
 from ramavt_jax import targets as targets_lib
 from ramavt_jax.evaluation import runs, statistics
@@ -268,10 +268,10 @@ ARMS["quantiles"] = lambda c: _net(ARMS["clip-1152k"](c), quantiles=32)
 
 
 def arm_config(name: str, preset: str = "quick", **overrides):
-    base = train_config.preset(preset, eval_episodes=0, **overrides)
+    base = presets.preset(preset, eval_episodes=0, **overrides)
     if preset == "quick" and ARMS["clip-1152k"](base) != base:
         raise SystemExit("the quick preset is no longer 'clip-1152k' of these arms: update ARMS")
-    if preset == "quick" and not overrides and ARMS["long-lr2"](base) != train_config.preset("long", eval_episodes=0):
+    if preset == "quick" and not overrides and ARMS["long-lr2"](base) != presets.preset("long", eval_episodes=0):
         raise SystemExit("the long preset is no longer 'long-lr2' of these arms: update ARMS")
     return ARMS[name](base)
 

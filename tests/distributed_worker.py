@@ -16,7 +16,7 @@ def _max_diff(a, b) -> float:
 def sharded_vs_unsharded(chunks: int) -> dict:
     from ramavt_jax import distributed
     from ramavt_jax.training import program
-    from ramavt_jax.train_config import preset
+    from ramavt_jax.presets import preset
 
     cfg = preset("smoke")
     mesh = distributed.make_mesh()
@@ -59,7 +59,7 @@ def seeds_over_devices() -> dict:
     """2 seeds in one program on 2 devices (one seed per device) vs the same program on one device."""
     from ramavt_jax import distributed
     from ramavt_jax.training import program
-    from ramavt_jax.train_config import preset
+    from ramavt_jax.presets import preset
 
     cfg = preset("smoke")
     keys = np.stack([np.asarray(jax.random.PRNGKey(s)) for s in (3, 4)])
@@ -85,7 +85,7 @@ def seeds_over_devices() -> dict:
 def indivisible() -> dict:
     from ramavt_jax import distributed
     from ramavt_jax.training import program
-    from ramavt_jax.train_config import preset
+    from ramavt_jax.presets import preset
 
     cfg = preset("smoke")  # 8 envs; the test starts 3 devices
     try:

@@ -14,12 +14,12 @@ from flax import struct
 
 from ramavt_jax import train as T
 from ramavt_jax import train_state
-from ramavt_jax import train_config
+from ramavt_jax import presets
 from ramavt_jax.experiment import train_and_evaluate
 from ramavt_jax.training import driver, metrics, run_folder
 from ramavt_jax.training.checkpoint import CheckpointNotFoundError, CheckpointStore, has_checkpoint
 
-SMOKE = train_config.preset("smoke", eval_episodes=0, checkpoint_every_chunks=1)
+SMOKE = presets.preset("smoke", eval_episodes=0, checkpoint_every_chunks=1)
 
 
 @struct.dataclass

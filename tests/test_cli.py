@@ -143,7 +143,7 @@ def test_read_only_out_is_one_line(tmp_path, capsys):
 def test_every_training_field_is_a_flag_and_preset_picks_the_defaults(monkeypatch):
     """Grouped flags set every config group's fields, and --preset picks the defaults they change."""
     from ramavt_jax.cli import train as cli_train
-    from ramavt_jax.train_config import preset
+    from ramavt_jax.presets import preset
 
     seen = {}
 
@@ -276,7 +276,7 @@ def test_final_evaluation_acts_with_the_configured_params(tmp_path, monkeypatch,
 
     from ramavt_jax import experiment
     from ramavt_jax.train_state import LearnerState
-    from ramavt_jax.train_config import preset
+    from ramavt_jax.presets import preset
     from ramavt_jax.training import driver
 
     def fake_run(config, out, **kwargs):

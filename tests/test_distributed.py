@@ -15,7 +15,7 @@ import pytest
 
 from ramavt_jax import distributed
 from ramavt_jax.training import driver as train_log
-from ramavt_jax.train_config import preset
+from ramavt_jax.presets import preset
 
 ROOT = Path(__file__).resolve().parents[1]
 SMOKE = preset("smoke", eval_episodes=0, checkpoint_every_chunks=1)

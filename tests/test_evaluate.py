@@ -182,7 +182,7 @@ def _fake_run(run_dir, seed=0):
 
     from ramavt_jax.network import init_params
 
-    cfg = train_config.preset("smoke", eval_episodes=0)
+    cfg = presets.preset("smoke", eval_episodes=0)
     # the RunnerState's structure without compiling the trainer: zeros everywhere but the network parameters
     abstract = jax.eval_shape(train.Trainer(cfg).init, jax.ShapeDtypeStruct((2,), jnp.uint32))
     state = jax.tree.map(lambda x: np.zeros(x.shape, x.dtype), abstract)
@@ -239,7 +239,7 @@ def test_load_policy_of_a_real_training_run(tmp_path):
     from ramavt_jax import train_config
     from ramavt_jax.experiment import train_and_evaluate
 
-    cfg = train_config.preset("smoke", eval_episodes=0)
+    cfg = presets.preset("smoke", eval_episodes=0)
     summary = train_and_evaluate(cfg, tmp_path / "smoke_s0", seed=0, progress=False)
     loaded = runs.load_policy(tmp_path / "smoke_s0")
     for a, b in zip(jax.tree.leaves(loaded.params), jax.tree.leaves(summary.state.learner.params)):
@@ -285,7 +285,8 @@ def test_the_shipped_agents_row_names_how_it_was_trained():
 @pytest.mark.parametrize("name", ["quick", "paper", "smoke"])
 def test_config_json_round_trips_to_the_same_train_config(name):
     from ramavt_jax.augment import AugmentConfig
-    from ramavt_jax.train_config import TrainConfig, preset
+    from ramavt_jax.presets import preset
+    from ramavt_jax.train_config import TrainConfig
 
     cfg = preset(name, env_params=(("dist_weight", 0.5), ("lost_patience", 10)), augment=True,
                  augment_config=AugmentConfig(crop=True, flip=False, rot90=False), state_dtype="bfloat16")
@@ -298,7 +299,8 @@ def test_config_json_round_trips_to_the_same_train_config(name):
 def test_the_shipped_config_jsons_load_as_the_presets_they_were_trained_with():
     """Each shipped agent's config.json reads back into the config it was trained with: the quick preset (without its
     end-of-training evaluation) for the shipped agent, the long preset for the earlier one."""
-    from ramavt_jax.train_config import TrainConfig, preset
+    from ramavt_jax.presets import preset
+    from ramavt_jax.train_config import TrainConfig
 
     def shipped(name):
         record = json.loads((Path(pretrained.AGENTS_DIR) / name / "config.json").read_text())
@@ -332,7 +334,7 @@ def test_final_evaluation_draws_only_each_splits_targets_with_one_rollout_progra
     from ramavt_jax import targets as targets_lib
     from ramavt_jax.evaluation import final
 
-    cfg = train_config.preset("smoke", eval_episodes=12, eval_max_steps=2)
+    cfg = presets.preset("smoke", eval_episodes=12, eval_max_steps=2)
     calls = []
 
     def record(tracking_env, policy, params, key, num_episodes, num_steps):

@@ -85,11 +85,11 @@ def test_each_table_arm_is_one_change(arm, reference, change):
 
 
 def test_quick_preset_is_the_depth_row():
-    assert learning_arms.arm_config("clip-1152k") == learning_arms.train_config.preset("quick", eval_episodes=0)
+    assert learning_arms.arm_config("clip-1152k") == learning_arms.presets.preset("quick", eval_episodes=0)
 
 
 def test_sizes_preset_is_the_arm_chosen_for_other_sizes():
-    sizes = learning_arms.train_config.preset("sizes", eval_episodes=0)
+    sizes = learning_arms.presets.preset("sizes", eval_episodes=0)
     assert learning_arms.arm_config("size-small-1152k") == sizes
     assert dict(sizes.env_params) == {"size_scale_min": 0.15, "size_scale_max": 1.0}
 

@@ -6,7 +6,7 @@ import pytest
 
 from ramavt_jax import targets
 from ramavt_jax.evaluation import pretrained, rollouts
-from ramavt_jax.train_config import preset
+from ramavt_jax.presets import preset
 from ramavt_jax.training.driver import run
 
 

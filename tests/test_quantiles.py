@@ -11,10 +11,10 @@ import pytest
 
 from ramavt_jax import losses
 from ramavt_jax import train as T
-from ramavt_jax import train_config
+from ramavt_jax import presets
 from ramavt_jax.network import NetworkConfig, init_params, initial_state, make_network
 
-SMOKE = train_config.preset("smoke")
+SMOKE = presets.preset("smoke")
 QCFG = SMOKE.override(network=dataclasses.replace(SMOKE.network, quantiles=8))
 
 

@@ -19,7 +19,8 @@ import pytest
 
 from ramavt_jax import cli
 from ramavt_jax.train import Trainer
-from ramavt_jax.train_config import TrainConfig, preset
+from ramavt_jax.presets import preset
+from ramavt_jax.train_config import TrainConfig
 from ramavt_jax.training import memory, run_folder
 from ramavt_jax.training.checkpoint import CheckpointError, CheckpointStore
 

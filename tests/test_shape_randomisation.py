@@ -193,7 +193,7 @@ def test_stretched_episodes_render_and_step(stretch_env):
 
 
 def test_shape_randomisation_is_for_training_only_and_checked(stretch_env):
-    from ramavt_jax.train_config import preset
+    from ramavt_jax.presets import preset
 
     cfg = preset("smoke", env_params=(("stretch_max", 1.5), ("stretch_prob", 0.5), ("target_spin_std", 0.2)))
     assert rollouts.run_env_overrides(cfg.env_params) == {"target_spin_std": 0.2}

@@ -11,10 +11,10 @@ import pytest
 from ramavt_jax import greedy
 from ramavt_jax import replay as replay_lib
 from ramavt_jax import train as T
-from ramavt_jax import train_config
+from ramavt_jax import presets
 from ramavt_jax.network import NetworkConfig, RecurrentState, init_params, initial_state, make_network
 
-SMOKE = train_config.preset("smoke")
+SMOKE = presets.preset("smoke")
 CFG = SMOKE.override(network=dataclasses.replace(SMOKE.network, standoff_input=True),
                      env_params=(("size_scale_min", 0.15), ("size_scale_max", 4.0), ("max_steps", 6)))
 

@@ -227,7 +227,7 @@ def test_size_scale_prob_resizes_that_share_of_the_episodes(size_env, vreset):
 
 
 def test_size_randomisation_is_for_training_only():
-    from ramavt_jax.train_config import preset
+    from ramavt_jax.presets import preset
 
     pairs = (("size_scale_max", 2.0), ("size_scale_min", 0.5), ("size_scale_prob", 0.5), ("target_spin_std", 0.2))
     cfg = preset("smoke", env_params=pairs)  # a training preset may set them (ramavt train --env-params ...)

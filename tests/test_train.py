@@ -13,13 +13,13 @@ from ramavt_jax import replay as replay_lib
 from ramavt_jax import train as T
 from ramavt_jax import train_state
 from ramavt_jax import greedy
-from ramavt_jax import train_config
+from ramavt_jax import presets, train_config
 from ramavt_jax.losses import sequence_td_loss
 from ramavt_jax.network import NetworkConfig, RecurrentState, init_params, initial_state
 from ramavt_jax.render import CameraConfig
 from ramavt_jax.train_config import ActingConfig, LearnerConfig, RunConfig
 
-SMOKE = train_config.preset("smoke")
+SMOKE = presets.preset("smoke")
 
 
 @pytest.fixture(scope="module")
@@ -42,7 +42,7 @@ def loss_fn(trainer):
 
 # ------------------------------------------------------------------------------------------ config
 def test_presets():
-    quick, paper = train_config.preset("quick"), train_config.preset("paper")
+    quick, paper = presets.preset("quick"), presets.preset("paper")
     assert quick.env.camera.resolution <= 48 and quick.env.obs_mode == "depth"
     assert quick.env_params == ()  # the original task, not an easier one
     assert paper.env.camera.resolution == 256 and paper.replay.batch_size == 64 and paper.learner.lr == 1e-4
@@ -50,9 +50,9 @@ def test_presets():
     assert paper.network == NetworkConfig(variant="ramavt")
     for cfg in (quick, paper, SMOKE):
         assert cfg.updates_per_iteration >= 1 and cfg.num_chunks >= 1
-    assert train_config.preset("quick", lr=3e-4).learner.lr == 3e-4  # a group field by its own name (not the preset's value)
+    assert presets.preset("quick", lr=3e-4).learner.lr == 3e-4  # a group field by its own name (not the preset's value)
     with pytest.raises(ValueError, match="unknown preset"):
-        train_config.preset("huge")
+        presets.preset("huge")
 
 
 @pytest.mark.parametrize(

@@ -20,11 +20,12 @@ from typing_extensions import Annotated
 from ramavt_jax import distributed
 from ramavt_jax.cli.checks import positive
 from ramavt_jax.experiment import train_and_evaluate
-from ramavt_jax.train_config import PRESETS, TrainConfig, preset
+from ramavt_jax.presets import PRESETS, preset
+from ramavt_jax.train_config import TrainConfig
 from ramavt_jax.training import driver
 
 DEFAULT_PRESET = "quick"
-PresetName = Literal[tuple(PRESETS)]  # the choices of --preset: train_config.PRESETS
+PresetName = Literal[tuple(PRESETS)]  # the choices of --preset: presets.PRESETS
 # How tyro parses the one untyped-tuple field, TrainConfig.env_params (--env-params dist_weight=0.5
 # lost_patience=10), and builds the config dataclasses (a failed check is a ConfigError)
 FLAG_TYPES = constructors.ConstructorRegistry()
@@ -134,7 +135,7 @@ def make_train_cmd(preset_name: str, clock_start: float | None = None):
 
         Args:
             config: the training configuration (defaults: the preset's).
-            preset: the named defaults of train_config.PRESETS, e.g. 'quick' (minutes on 2 CPU cores: 32x32 depth,
+            preset: the named defaults of presets.PRESETS, e.g. 'quick' (minutes on 2 CPU cores: 32x32 depth,
                 small RAMAVT), 'sizes' (quick on targets resized to [0.15, 1]x, 1.15M env steps: for other sizes),
                 'paper' (256x256, full RAMAVT, batch 64, lr 1e-4, gamma 0.99, 50,000-step replay),
                 'smoke' (plumbing checks).
