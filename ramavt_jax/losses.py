@@ -31,6 +31,7 @@ __all__ = [
     "signed_hyperbolic",
     "signed_parabolic",
     "n_step_targets",
+    "lambda_targets",
     "TDConfig",
     "TDBatch",
     "sequence_td_loss",
@@ -104,6 +105,37 @@ def n_step_targets(
     return returns
 
 
+def lambda_targets(
+    rewards: jax.Array,  # [T]
+    discounts: jax.Array,  # [T]
+    q_boot: jax.Array,  # [T]
+    lam: float,
+    stop: jax.Array | None = None,  # [T] bool
+) -> jax.Array:  # [T]
+    """Peng's Q(lambda) returns over one window, the arguments as in :func:`n_step_targets`::
+
+        G[t] = rewards[t] + discounts[t] * (q_boot[t] if end[t] else (1 - lam) q_boot[t] + lam G[t + 1])
+
+    with ``end[t]`` at the window's last transition and where ``stop[t]``: the mixture over k of the k-step returns
+    with weights ``(1 - lam) lam^(k-1)``, the longest one (to the episode or window end) taking the rest. ``lam = 0``
+    is the one-step target, ``lam = 1`` the return to the end. No off-policy correction (as PQN and R2D2's n-step).
+    """
+    chex.assert_rank([rewards, discounts, q_boot], 1)
+    chex.assert_equal_shape([rewards, discounts, q_boot])
+    T = rewards.shape[0]
+    end = jnp.arange(T) == T - 1
+    if stop is not None:
+        end = end | stop.astype(bool)
+
+    def backward(g_next, step):
+        r, d, v, e = step
+        g = r + d * jnp.where(e, v, (1.0 - lam) * v + lam * g_next)
+        return g, g
+
+    _, returns = jax.lax.scan(backward, jnp.zeros_like(q_boot[-1]), (rewards, discounts, q_boot, end), reverse=True)
+    return returns
+
+
 @struct.dataclass
 class TDConfig:
     """Configuration of :func:`sequence_td_loss` (all fields static, so it can be a jit argument).
@@ -111,6 +143,8 @@ class TDConfig:
     Attributes:
       gamma: discount per step.
       n_step: number of steps of the bootstrapped return (1 = one-step Q-learning).
+      td_lambda: None for n-step returns; else Peng's Q(lambda) returns over the window (:func:`lambda_targets`),
+        which take the place of the n-step ones (``n_step`` must then be 1).
       double_q: choose the bootstrap action with the online network, evaluate it with the target network.
         Otherwise bootstrap from ``max_a q_target``.
       value_rescale: R2D2 invertible value rescaling: target = h(n-step return of h^-1(q)); the networks then
@@ -128,6 +162,7 @@ class TDConfig:
 
     gamma: float = struct.field(pytree_node=False, default=0.99)
     n_step: int = struct.field(pytree_node=False, default=1)
+    td_lambda: float | None = struct.field(pytree_node=False, default=None)
     double_q: bool = struct.field(pytree_node=False, default=True)
     value_rescale: bool = struct.field(pytree_node=False, default=False)
     rescale_eps: float = struct.field(pytree_node=False, default=1e-3)
@@ -140,6 +175,10 @@ class TDConfig:
             raise ValueError(f"TDConfig.gamma must be in [0, 1], got {self.gamma}")
         if int(self.n_step) != self.n_step or self.n_step < 1:
             raise ValueError(f"TDConfig.n_step must be an integer >= 1, got {self.n_step}")
+        if self.td_lambda is not None and not (0.0 <= self.td_lambda <= 1.0 and self.n_step == 1):
+            raise ValueError(f"TDConfig.td_lambda must be None (n-step returns) or in [0, 1] with n_step=1 (the "
+                             f"lambda-returns replace the n-step ones), got td_lambda={self.td_lambda}, "
+                             f"n_step={self.n_step}")
         if self.huber_delta is not None and not self.huber_delta > 0:
             raise ValueError(f"TDConfig.huber_delta must be None (squared loss) or > 0, got {self.huber_delta}")
         if not 0.0 <= self.advantage_alpha < 1.0:
@@ -166,6 +205,13 @@ def _masked_mean(per_step: jax.Array, mask: jax.Array, weights: jax.Array | None
     return per_step.sum() / jnp.maximum(mask_f.sum(), 1.0)
 
 
+def _returns(rewards: jax.Array, discounts: jax.Array, q_boot: jax.Array, stop: jax.Array, cfg: TDConfig) -> jax.Array:
+    """[T] the bootstrapped returns of one window that cfg asks for: n-step or lambda."""
+    if cfg.td_lambda is None:
+        return n_step_targets(rewards, discounts, q_boot, cfg.n_step, stop=stop)
+    return lambda_targets(rewards, discounts, q_boot, cfg.td_lambda, stop=stop)
+
+
 def _sequence_targets(
     q_online_t: jax.Array,  # [T, A]  online Q at obs t+1 (for double-Q action selection)
     q_target_t: jax.Array,  # [T, A]  target Q at obs t+1
@@ -184,7 +230,7 @@ def _sequence_targets(
         v_t = signed_parabolic(v_t, cfg.rescale_eps)
     discount_t = cfg.gamma * (1.0 - terminated.astype(v_t.dtype))
     stop = terminated.astype(bool) | truncated.astype(bool)
-    target = n_step_targets(r_t.astype(v_t.dtype), discount_t, v_t, cfg.n_step, stop=stop)
+    target = _returns(r_t.astype(v_t.dtype), discount_t, v_t, stop, cfg)
     if cfg.value_rescale:
         target = signed_hyperbolic(target, cfg.rescale_eps)
     return target
@@ -293,8 +339,7 @@ def sequence_quantile_loss(
     boot = jnp.take_along_axis(z_target[:, 1:], jnp.argmax(q_pick, -1)[..., None, None], axis=2)[:, :, 0]  # [B, T, N]
     discount = cfg.gamma * (1.0 - terminated.astype(boot.dtype))
     stop = terminated.astype(bool) | truncated.astype(bool)
-    per_window = jax.vmap(lambda r, d, z, s: jax.vmap(lambda zq: n_step_targets(r, d, zq, cfg.n_step, s),
-                                                      in_axes=1, out_axes=1)(z))
+    per_window = jax.vmap(lambda r, d, z, s: jax.vmap(lambda zq: _returns(r, d, zq, s, cfg), in_axes=1, out_axes=1)(z))
     target = jax.lax.stop_gradient(per_window(rewards.astype(boot.dtype), discount, boot, stop))  # [B, T, N]
     taus = (jnp.arange(n, dtype=z_taken.dtype) + 0.5) / n
     pairs = quantile_huber(target[:, :, None, :] - z_taken[..., None], taus, cfg.quantile_kappa)

@@ -56,6 +56,7 @@ class LearnerConfig:
     max_grad_norm: float = 10.0  # 0 = no clipping
     gamma: float = 0.97  # discount
     n_step: int = 5  # n-step TD targets (<= train_len)
+    td_lambda: float | None = None  # None = n-step targets; else Peng's Q(lambda) over the window (needs n_step=1)
     double_q: bool = True  # double-Q targets: the online net picks the action, the target net values it
     value_rescale: bool = False  # R2D2's invertible value rescaling of the targets
     huber_delta: float | None = None  # None = mean squared TD error (the original loss), else the Huber threshold
@@ -106,6 +107,9 @@ class LearnerConfig:
                                ("bootstrap_from", self.bootstrap_from in ("target", "online"), "'target' or 'online'")):
             if not ok:
                 raise fail(f"{name} must be {rule}, got {getattr(self, name)!r}")
+        if self.td_lambda is not None and not (0.0 <= self.td_lambda <= 1.0 and self.n_step == 1):
+            raise fail(f"td_lambda must be None (n-step targets) or in [0, 1] with n_step=1 (lambda-returns replace "
+                       f"the n-step ones), got td_lambda={self.td_lambda}, n_step={self.n_step}")
         if self.polyak_tau_start is not None and not 0.0 < self.polyak_tau_start <= 1.0:
             raise fail(f"polyak_tau_start must be None (a constant polyak_tau) or in (0, 1], "
                        f"got {self.polyak_tau_start}")
@@ -121,7 +125,7 @@ class LearnerConfig:
     @property
     def td(self) -> TDConfig:
         """The loss's view of these settings (losses.TDConfig)."""
-        return TDConfig(gamma=self.gamma, n_step=self.n_step, double_q=self.double_q,
+        return TDConfig(gamma=self.gamma, n_step=self.n_step, td_lambda=self.td_lambda, double_q=self.double_q,
                         value_rescale=self.value_rescale, huber_delta=self.huber_delta,
                         quantile_kappa=self.quantile_kappa,
                         advantage_alpha=self.advantage_alpha)

@@ -265,6 +265,12 @@ ARMS["size-command"] = lambda c: _net(ARMS["size-small-1152k"](c), command_gain_
 # mean), one change to the quick preset: a tumbling target's visible surface moves about its centre, so the return
 # of an action is spread; the quantiles give the shared layers a richer signal than one mean per action.
 ARMS["quantiles"] = lambda c: _net(ARMS["clip-1152k"](c), quantiles=32)
+# Targets from the online net's own trained pass (PQN's recipe without its LayerNorm): one forward pass fewer per
+# update; the target net is still averaged, for acting.
+ARMS["online-boot"] = lambda c: ARMS["clip-1152k"](c).override(bootstrap_from="online")
+# Peng's Q(lambda) returns (lambda 0.9: a mean horizon of 10 steps against the preset's 5-step returns) in place of
+# the n-step ones.
+ARMS["lambda-09"] = lambda c: ARMS["clip-1152k"](c).override(td_lambda=0.9, n_step=1)
 
 
 def arm_config(name: str, preset: str = "quick", **overrides):

@@ -7,7 +7,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from ramavt_jax.losses import TDConfig, n_step_targets, sequence_td_loss, signed_hyperbolic, signed_parabolic
+from ramavt_jax.losses import (TDConfig, lambda_targets, n_step_targets, sequence_td_loss, signed_hyperbolic,
+                               signed_parabolic)
 
 
 def _loss(jit, q_online, q_target, actions, rewards, terminated, truncated, mask, cfg):
@@ -114,6 +115,47 @@ def test_n_step_targets_terminal_in_middle():
     np.testing.assert_allclose(n_step_targets(r, d, v, 1), [6.0, 12.0, 3.0, 24.0, 30.0])
 
 
+def _lambda_mixture(r, d, v, lam, stop):
+    """Peng's Q(lambda) written out: for each t the k-step returns (n_step_targets at n = k) mixed with weights
+    (1 - lam) lam^(k-1), the longest one (to the episode or window end) taking the remaining weight."""
+    T = len(r)
+    out = np.zeros(T)
+    for t in range(T):
+        end = next(k for k in range(t, T) if k == T - 1 or stop[k])
+        n_max = end - t + 1
+        g = [float(n_step_targets(r, d, v, k, stop)[t]) for k in range(1, n_max + 1)]
+        out[t] = sum((1 - lam) * lam ** (k - 1) * g[k - 1] for k in range(1, n_max)) + lam ** (n_max - 1) * g[-1]
+    return out
+
+
+@pytest.mark.parametrize("lam", [0.0, 0.6, 1.0])
+def test_lambda_targets_mix_the_n_step_returns(lam):
+    """lambda_targets equals the written-out mixture of n_step_targets' returns, with an episode end inside the
+    window; lambda 0 is the one-step target and lambda 1 the return to the end."""
+    key = jax.random.split(jax.random.PRNGKey(0), 3)
+    r, v = jax.random.normal(key[0], (9,)), jax.random.normal(key[1], (9,)) * 5
+    stop = jnp.zeros(9, bool).at[3].set(True)
+    d = 0.9 * (1.0 - (jnp.arange(9) == 3))  # a terminal at t = 3
+    got = jax.jit(lambda_targets, static_argnums=3)(r, d, v, lam, stop)
+    np.testing.assert_allclose(np.asarray(got), _lambda_mixture(r, d, v, lam, np.asarray(stop)), rtol=1e-5, atol=1e-5)
+    if lam == 0.0:
+        np.testing.assert_allclose(np.asarray(got), np.asarray(n_step_targets(r, d, v, 1)), rtol=1e-6)
+    if lam == 1.0:
+        np.testing.assert_allclose(np.asarray(got), np.asarray(n_step_targets(r, d, v, 9, stop)), rtol=1e-5)
+
+
+def test_the_loss_takes_lambda_returns_when_configured():
+    """sequence_td_loss with td_lambda builds its targets with lambda_targets (plain max bootstrap, A = 1)."""
+    q_target = np.arange(6, dtype=np.float32).reshape(1, 6, 1) * 10.0
+    r = np.array([[1.0, 2.0, 3.0, 4.0, 5.0]], np.float32)
+    z = np.zeros((1, 5), bool)
+    cfg = TDConfig(gamma=0.9, n_step=1, td_lambda=0.7, double_q=False)
+    _, aux = sequence_td_loss(np.zeros_like(q_target), q_target, np.zeros((1, 5), np.int32), r, z, z, ~z, cfg)
+    expected = lambda_targets(jnp.asarray(r[0]), jnp.full(5, 0.9), jnp.asarray(q_target[0, 1:, 0]), 0.7)
+    np.testing.assert_allclose(np.asarray(aux["target"][0]), np.asarray(expected), rtol=1e-6)
+    assert abs(float(aux["target"][0, 0]) - float(r[0, 0] + 0.9 * q_target[0, 1, 0])) > 1.0  # not one-step
+
+
 def test_n_step_loss_terminal_in_middle():
     # Same numbers through the loss with A = 1 (so max/argmax is trivial): Q_tg(obs t+1) = q_boot[t]
     q_target = np.array([[[0.0], [10.0], [20.0], [30.0], [40.0], [50.0]]], np.float32)
@@ -189,6 +231,10 @@ def test_bad_config():
         TDConfig(gamma=1.5)
     with pytest.raises(ValueError, match="huber_delta"):
         TDConfig(huber_delta=0.0)
+    with pytest.raises(ValueError, match=r"td_lambda must be None .* got td_lambda=0.9, n_step=5"):
+        TDConfig(n_step=5, td_lambda=0.9)
+    with pytest.raises(ValueError, match=r"td_lambda must be None .* got td_lambda=1.5, n_step=1"):
+        TDConfig(td_lambda=1.5)
 
 
 def test_importance_weights_scale_each_window():

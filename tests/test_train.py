@@ -91,6 +91,7 @@ def test_invalid_configs_raise_clear_errors(overrides, message):
 @pytest.mark.parametrize("build, message", [
     (lambda: ActingConfig(eps_end=2.0), r"^ActingConfig: eps_end must be in \[0, 1\], got 2.0$"),
     (lambda: LearnerConfig(target_update="soft"), r"^LearnerConfig: target_update must be 'polyak' or 'period'"),
+    (lambda: LearnerConfig(td_lambda=0.9), r"^LearnerConfig: td_lambda must be None \(n-step targets\) or in \[0, 1\] with n_step=1"),
     (lambda: LearnerConfig(bootstrap_from="both"), r"^LearnerConfig: bootstrap_from must be .target. or .online., got .both.$"),
     (lambda: RunConfig(keep_checkpoints=0), r"^RunConfig: keep_checkpoints must be >= 1, got 0$"),
     (lambda: RunConfig(policy_params="ema"), r"^RunConfig: policy_params must be 'online' or 'target', got 'ema'$"),
