@@ -61,6 +61,19 @@ def _restore(run: Path, like):
         return jax.tree.map(lambda x: x[0], store.restore(stacked)[0])
 
 
+def _baseline_preset(name: str):
+    """The preset ``name`` of the imported baseline package: its ``presets`` module, or for revisions before it its
+    ``train_config`` (or, earlier still, ``train``)."""
+    for module in ("presets", "train_config", "train"):
+        try:
+            found = getattr(importlib.import_module(f"{BASELINE_MODULE}.{module}"), "preset", None)
+        except ModuleNotFoundError:
+            continue
+        if found is not None:
+            return found(name)
+    raise SystemExit(f"the baseline revision has no preset function to build {name!r} with")
+
+
 def _baseline_state(baseline_run: Path | None, state, key):
     """The state the baseline starts from: ``state``, or the latest checkpoint of a run of the baseline's own preset,
     restored in this checkout's layout of that run's config."""
@@ -107,6 +120,8 @@ def main(argv=None) -> None:
         p.error("--seeds and --rounds must be >= 1")
     if a.baseline is None and not a.set:
         p.error("give --baseline REV, --set FIELD=VALUE or both")
+    if a.baseline_run is not None and a.baseline is None:
+        p.error("--baseline-run needs --baseline")
     changes = dict(_parse_setting(p, text) for text in a.set)
     reference = a.baseline or "this"
     key = jax.random.PRNGKey(0)
@@ -119,7 +134,7 @@ def main(argv=None) -> None:
             trainers[name], states[name] = T.Trainer(presets.preset(a.preset, **changes)), state
         if a.baseline is not None:
             base_train = import_baseline(a.baseline, Path(tmp))
-            trainers[a.baseline] = base_train.Trainer(base_train.preset(a.preset))
+            trainers[a.baseline] = base_train.Trainer(_baseline_preset(a.preset))
             states[a.baseline] = _recast(_baseline_state(a.baseline_run, state, key),
                                          jax.eval_shape(trainers[a.baseline].init, key))
         if a.act_only:  # learning_starts above the restored step count: the chunk only collects

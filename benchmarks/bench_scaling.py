@@ -162,16 +162,16 @@ def env_point(envs_per_device: int, mesh, num_devices: int, resolution: int, bud
 
 def train_config(num_envs: int, iterations_per_chunk: int):
     """The 'quick' preset with ``num_envs`` envs, one chunk as the whole run, learning from the 2nd iteration."""
-    from ramavt_jax import train_config as tc
+    from ramavt_jax import presets
 
-    base = tc.preset("quick")
+    base = presets.preset("quick")
     per_iter = num_envs * base.acting.rollout_steps
     frames_per_update = base.replay.batch_size * base.replay.train_len
     updates = max(1, round(base.learner.replay_ratio * per_iter / frames_per_update))  # keep the preset's ratio (2) if whole
-    return tc.preset(
+    return presets.preset(
         "quick", num_envs=num_envs, iterations_per_chunk=iterations_per_chunk,
         total_env_steps=per_iter * iterations_per_chunk,
-        replay_capacity=num_envs * TRAIN_REPLAY_STEPS_PER_ENV,
+        capacity_steps=num_envs * TRAIN_REPLAY_STEPS_PER_ENV,
         # rows hold 2 * rollout_steps = 40 >= burn_in + train_len + 1 = 31 steps after 2 iterations: can_sample
         learning_starts=2 * per_iter, replay_ratio=updates * frames_per_update / per_iter,
         eval_episodes=0, checkpoint_every_chunks=0)

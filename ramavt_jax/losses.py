@@ -132,7 +132,8 @@ def lambda_targets(
         g = r + d * jnp.where(e, v, (1.0 - lam) * v + lam * g_next)
         return g, g
 
-    _, returns = jax.lax.scan(backward, jnp.zeros_like(q_boot[-1]), (rewards, discounts, q_boot, end), reverse=True)
+    start = jnp.zeros((), jnp.result_type(rewards, discounts, q_boot))  # the carry's dtype: the mixed inputs'
+    _, returns = jax.lax.scan(backward, start, (rewards, discounts, q_boot, end), reverse=True)
     return returns
 
 
@@ -252,7 +253,8 @@ def sequence_td_loss(
     Args:
       q_online: ``[B, T+1, A]`` online-network Q-values for observations 0..T of each window.  Gradients flow
         through ``q_online[:, t, actions[:, t]]`` only (the action selection at t+1 is not differentiated).
-      q_target: ``[B, T+1, A]`` target-network Q-values for the same observations (gradient stopped).
+      q_target: ``[B, T+1, A]`` bootstrap values for the same observations (gradient stopped): the target net's, or
+        the online pass's own (LearnerConfig.bootstrap_from = 'online').
         ``q_target[:, 0]`` is used by advantage learning only.
       actions: ``[B, T]`` action of transition t (obs t -> obs t+1).
       rewards: ``[B, T]`` reward of transition t.
@@ -316,12 +318,12 @@ def sequence_quantile_loss(
     cfg: TDConfig,
     weights: jax.Array | None = None,  # [B]
 ) -> tuple[jax.Array, dict[str, jax.Array]]:
-    """Masked (double-)Q n-step quantile regression loss (QR-DQN, Dabney et al. 2018) over a batch of sequences.
+    """Masked (double-)Q quantile regression loss (QR-DQN, Dabney et al. 2018) over a batch of sequences.
 
     The networks predict N quantiles of the return per action (fractions ``(2i + 1) / 2N``), Q being their mean. The
-    target of transition t is the n-step return of each of the target net's quantiles at the bootstrap obs, for the
-    action the online net's mean picks there (double-Q) or the target net's (plain), exactly as
-    :func:`sequence_td_loss` builds one expected value (``n_step_targets`` per quantile). Every predicted quantile is
+    target of transition t is the n-step (or lambda) return of each of the bootstrap quantiles at the bootstrap obs,
+    for the action the online net's mean picks there (double-Q) or the target values' (plain), exactly as
+    :func:`sequence_td_loss` builds one expected value (the same returns per quantile). Every predicted quantile is
     regressed on every target quantile with :func:`quantile_huber` (kappa = ``cfg.quantile_kappa``), averaged over
     both (QR-DQN sums over the predicted ones: the mean keeps the loss on one quantile's scale, beside other losses).
     The other arguments and ``aux`` are as in :func:`sequence_td_loss`, ``aux`` holding the means (``td_error`` =
@@ -362,8 +364,9 @@ class TDBatch:
     """The inputs of :func:`sequence_td_loss` that take no gradient, for ``B`` windows of ``T`` transitions.
 
     Attributes:
-      q_target: ``[B, T+1, A]`` target-network Q-values for observations 0..T, or ``[B, T+1, A, N]`` their N
-        quantiles (a quantile network: :func:`td_loss` then takes the online net's quantiles too).
+      q_target: ``[B, T+1, A]`` bootstrap values (target net, or the online pass under stop_gradient) for
+        observations 0..T, or ``[B, T+1, A, N]`` their N quantiles (a quantile network: :func:`td_loss` then takes
+        the online net's quantiles too).
       action: ``[B, T]`` int action of transition t.
       reward: ``[B, T]`` reward of transition t (already scaled).
       terminated: ``[B, T]`` bool, obs t+1 is terminal.

@@ -1,5 +1,6 @@
-"""Recurrent DQN training (R2D2-style) for the tracking task: the jitted trainer. Its config and presets live in
-:mod:`ramavt_jax.train_config`, its state containers in :mod:`ramavt_jax.train_state`.
+"""Recurrent DQN training (R2D2-style) for the tracking task: the jitted trainer. Its config lives in
+:mod:`ramavt_jax.train_config`, the named presets in :mod:`ramavt_jax.presets`, its state containers in
+:mod:`ramavt_jax.train_state`.
 
 API (purejaxrl shape)::
 
@@ -16,7 +17,7 @@ call; the host only logs, evaluates and checkpoints between chunks.
 
 Learner: sample ``batch_size`` windows of ``burn_in + train_len + 1`` stored steps; from the stored recurrent
 state run ``burn_in`` steps through the online net under ``stop_gradient`` (the target net runs over the whole
-window from the same stored state, also without gradient), then the masked double-Q / n-step TD loss
+window from the same stored state, also without gradient), then the masked double-Q / n-step (or lambda-return) TD loss
 (:mod:`ramavt_jax.losses`) over the ``train_len`` transitions after burn-in. With ``bootstrap_from='online'`` the
 targets bootstrap from the trained pass's own values under ``stop_gradient`` and the target pass is skipped.
 """

@@ -57,7 +57,8 @@ class LearnerConfig:
     gamma: float = 0.97  # discount
     n_step: int = 5  # n-step TD targets (<= train_len)
     td_lambda: float | None = None  # None = n-step targets; else Peng's Q(lambda) over the window (needs n_step=1)
-    double_q: bool = True  # double-Q targets: the online net picks the action, the target net values it
+    double_q: bool = True  # double-Q targets: the online net picks the action, the target net values it (a no-op
+    # with bootstrap_from='online': one net picks and values, which is the plain max)
     value_rescale: bool = False  # R2D2's invertible value rescaling of the targets
     huber_delta: float | None = None  # None = mean squared TD error (the original loss), else the Huber threshold
     quantile_kappa: float = 0.05  # the quantile loss's Huber threshold, scaled-reward units (losses.TDConfig)

@@ -489,3 +489,16 @@ def test_online_targets_equal_target_net_targets_when_the_nets_are_equal(trainer
     assert online.prepare(params, poisoned, batch, jax.random.PRNGKey(0)).td.q_target is None
     assert np.isfinite(float(grad(online, poisoned)[0][0])) and not np.isfinite(float(grad(trainer, poisoned)[0][0]))
 
+
+@pytest.mark.parametrize("change", [dict(quantiles=4), dict(advantage_alpha=0.5)])
+def test_online_targets_equal_target_net_targets_for_quantiles_and_advantage_learning(change):
+    """The quantile loss and advantage learning read the bootstrap values too (the quantiles; the gap at obs t): with
+    equal nets both settings give the same loss."""
+    net = dataclasses.replace(SMOKE.network, **{k: v for k, v in change.items() if k == "quantiles"})
+    cfg = SMOKE.override(network=net, **{k: v for k, v in change.items() if k != "quantiles"})
+    params = init_params(cfg.network, jax.random.PRNGKey(1), cfg.env.obs_shape)["params"]
+    batch, key = _as_batch(_window(jax.random.PRNGKey(8), cfg), cfg), jax.random.PRNGKey(0)
+    by_target = T.Trainer(cfg).loss(params, params, batch, key)[0]
+    by_online = T.Trainer(cfg.override(bootstrap_from="online")).loss(params, None, batch, key)[0]
+    np.testing.assert_allclose(float(by_online), float(by_target), rtol=1e-5)
+
