@@ -87,7 +87,7 @@ def test_each_table_arm_is_one_change(arm, reference, change):
 
 
 def test_quick_preset_is_the_depth_row():
-    assert learning_arms.arm_config("clip-1152k") == learning_arms.presets.preset("quick", eval_episodes=0)
+    assert learning_arms.arm_config("online-boot") == learning_arms.presets.preset("quick", eval_episodes=0)
 
 
 def test_sizes_preset_is_the_arm_chosen_for_other_sizes():
