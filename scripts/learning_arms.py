@@ -270,6 +270,8 @@ ARMS["quantiles"] = lambda c: _net(ARMS["clip-1152k"](c), quantiles=32)
 # update; the target net is still averaged, for acting. The quick preset since it crossed the depth tracker two chunks
 # sooner at the same final AER.
 ARMS["online-boot"] = lambda c: ARMS["clip-1152k"](c).override(bootstrap_from="online")
+# The sizes preset with the quick preset's targets from the online net: one change to it.
+ARMS["size-online-boot"] = lambda c: ARMS["size-small-1152k"](c).override(bootstrap_from="online")
 # Peng's Q(lambda) returns (lambda 0.9: a mean horizon of 10 steps against the preset's 5-step returns) in place of
 # the n-step ones.
 ARMS["lambda-09"] = lambda c: ARMS["clip-1152k"](c).override(td_lambda=0.9, n_step=1)

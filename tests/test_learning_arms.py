@@ -71,6 +71,7 @@ def _changes(arm: str, reference: str) -> dict:
         ("size-command", "size-small-1152k", {"network.command_gain_input": True}),
         ("quantiles", "clip-1152k", {"network.quantiles": 32}),
         ("online-boot", "clip-1152k", {"learner.bootstrap_from": "online"}),
+        ("size-online-boot", "size-small-1152k", {"learner.bootstrap_from": "online"}),
         ("lambda-09", "clip-1152k", {"learner.td_lambda": 0.9, "learner.n_step": 1}),  # lambda replaces n-step
         ("size-stretch", "size-small-1152k", {"env_params": (("size_scale_max", 1.0), ("size_scale_min", 0.15),
                                                              ("stretch_max", 1.5), ("stretch_prob", 0.5))}),
