@@ -177,7 +177,7 @@ def test_eval_mpc_perturbations_custom_target_and_figures(tmp_path):
 def _fake_run(run_dir, seed=0):
     """A run folder in driver.run's layout (config.json, checkpoints/<step>, metrics.jsonl) without training:
     the initial RunnerState with perturbed params, saved by the trainer's CheckpointStore. Seconds, not minutes."""
-    from ramavt_jax import train, train_config
+    from ramavt_jax import presets, train
     from ramavt_jax.training.checkpoint import CheckpointStore
 
     from ramavt_jax.network import init_params
@@ -236,7 +236,7 @@ def test_load_policy_reads_the_parameter_set_the_config_or_the_caller_names(tmp_
 
 @pytest.mark.slow
 def test_load_policy_of_a_real_training_run(tmp_path):
-    from ramavt_jax import train_config
+    from ramavt_jax import presets
     from ramavt_jax.experiment import train_and_evaluate
 
     cfg = presets.preset("smoke", eval_episodes=0)
@@ -331,7 +331,7 @@ def test_final_evaluation_draws_only_each_splits_targets_with_one_rollout_progra
     """Every split runs in one env with per-split target draws (traced), so the jitted rollout, cached on (env,
     policy, steps), compiles once per policy instead of once per policy and split. Each split's key comes from its
     name: validation and test episodes never share a key, and a split's key does not depend on the others."""
-    from ramavt_jax import train_config
+    from ramavt_jax import presets
     from ramavt_jax import targets as targets_lib
     from ramavt_jax.evaluation import final
 
