@@ -2,7 +2,7 @@
 
     python benchmarks/ab_chunk.py runs/quick --baseline bc1a0fc [--seeds 3] [--rounds 3]
     python benchmarks/ab_chunk.py runs/quick --baseline bc1a0fc --baseline-run runs/old_quick   # other networks
-    python benchmarks/ab_chunk.py runs/quick --set bootstrap_from=online     # this checkout against a config change
+    python benchmarks/ab_chunk.py runs/quick --set bootstrap_from=target     # this checkout against a config change
 
 Both versions' ``Trainer.chunk`` (collect + learn, as ``ramavt train`` runs it) start from the same state: the latest
 checkpoint of ``RUN`` (a run of ``--preset``; for ``--seeds N`` that state is copied to N seeds, vmapped as
