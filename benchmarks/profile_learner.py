@@ -6,7 +6,7 @@
 
 Pieces (B windows of L = burn_in + train_len + 1 steps):
   sample        replay.sample (gather B windows, dequantise)
-  target_fwd    target net over the whole window [B, L]
+  target_fwd    target net over the whole window [B, L] (only when the preset bootstraps from it)
   burn_in_fwd   online net over the burn-in [B, burn_in]
   loss_grad     value_and_grad of the TD loss: online net forward + backward over [B, train_len + 1]
   encoder_grad  the conv encoder alone, forward + backward over the same B * (train_len + 1) frames
@@ -86,21 +86,23 @@ def profile(preset: str, repeats: int, batch_size: int | None = None, trace: boo
     update = jax.jit(tr.update)
     pieces = {
         "sample": lambda: sample(replay_state, key),
-        "target_fwd": lambda: target_fwd(learner.target_params),
         "burn_in_fwd": lambda: burn_fwd(params),
         "loss_grad": lambda: loss_grad(params, prepared),
         "encoder_grad": lambda: encoder_grad(enc_params),
         "optimizer": lambda: optimizer(learner, grads),
         "update": lambda: update(learner, replay_state, key),
     }
+    if cfg.learner.bootstrap_from == "target":  # with 'online' the update runs no target pass
+        pieces["target_fwd"] = lambda: target_fwd(learner.target_params)
     times_ms = {name: 1e3 * _median_time(fn, repeats) for name, fn in pieces.items()}
     trained = cfg.replay.batch_size * cfg.replay.train_len
     breakdown = {}
     if trace:
         hlo = update.lower(learner, replay_state, key).compile().as_text()
         breakdown = trace_breakdown(update, (learner, replay_state, key), repeats, _label, hlo)
-    return {"trace_ms": {k: 1e3 * v for k, v in breakdown.items()},"preset": preset, "batch_size": cfg.replay.batch_size, "burn_in": burn, "train_len": cfg.replay.train_len,
-            "times_ms": times_ms, "updates_per_s": 1e3 / times_ms["update"],
+    return {"trace_ms": {k: 1e3 * v for k, v in breakdown.items()}, "preset": preset,
+            "bootstrap_from": cfg.learner.bootstrap_from, "batch_size": cfg.replay.batch_size, "burn_in": burn,
+            "train_len": cfg.replay.train_len, "times_ms": times_ms, "updates_per_s": 1e3 / times_ms["update"],
             "trained_frames_per_s": trained * 1e3 / times_ms["update"]}
 
 

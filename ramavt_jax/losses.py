@@ -38,6 +38,7 @@ __all__ = [
     "quantile_huber",
     "sequence_quantile_loss",
     "td_loss",
+    "masked_mean",
 ]
 
 
@@ -198,7 +199,7 @@ def _elementwise_loss(td: jax.Array, huber_delta: float | None) -> jax.Array:
     return 0.5 * jnp.square(quadratic) + huber_delta * (abs_td - quadratic)
 
 
-def _masked_mean(per_step: jax.Array, mask: jax.Array, weights: jax.Array | None) -> jax.Array:
+def masked_mean(per_step: jax.Array, mask: jax.Array, weights: jax.Array | None = None) -> jax.Array:
     """[] Mean of per_step [B, T] over the transitions in mask [B, T], each window's weighted by weights [B] (None
     for 1); 0 if none is in the mask."""
     mask_f = mask.astype(per_step.dtype)
@@ -295,7 +296,7 @@ def sequence_td_loss(
     target = jax.lax.stop_gradient(target)
 
     td_error = target - q_taken
-    loss = _masked_mean(_elementwise_loss(td_error, cfg.huber_delta), mask, weights)
+    loss = masked_mean(_elementwise_loss(td_error, cfg.huber_delta), mask, weights)
     return loss, {"td_error": td_error, "q_taken": q_taken, "target": target}
 
 
@@ -345,7 +346,7 @@ def sequence_quantile_loss(
     target = jax.lax.stop_gradient(per_window(rewards.astype(boot.dtype), discount, boot, stop))  # [B, T, N]
     taus = (jnp.arange(n, dtype=z_taken.dtype) + 0.5) / n
     pairs = quantile_huber(target[:, :, None, :] - z_taken[..., None], taus, cfg.quantile_kappa)
-    loss = _masked_mean(pairs.mean((-2, -1)), mask, weights)
+    loss = masked_mean(pairs.mean((-2, -1)), mask, weights)
     q_taken, target_mean = z_taken.mean(-1), target.mean(-1)
     return loss, {"td_error": target_mean - q_taken, "q_taken": q_taken, "target": target_mean}
 

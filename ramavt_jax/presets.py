@@ -101,4 +101,4 @@ def preset(name: str, **overrides: Any) -> TrainConfig:
     """A named configuration (a key of PRESETS); keyword overrides as in TrainConfig.override."""
     if name not in PRESETS:
         raise ValueError(f"unknown preset {name!r}; choose one of {sorted(PRESETS)}")
-    return PRESETS[name]().override(**overrides) if overrides else PRESETS[name]()
+    return PRESETS[name]().override(**overrides)

@@ -36,7 +36,7 @@ from ramavt_jax import env as env_lib
 from ramavt_jax import replay as replay_lib
 from ramavt_jax.augment import augment_batch
 from ramavt_jax.greedy import standoff_signal, unbatch_state
-from ramavt_jax.losses import TDBatch, sequence_priority, td_loss
+from ramavt_jax.losses import TDBatch, masked_mean, sequence_priority, td_loss
 from ramavt_jax.network import init_params, initial_state, make_network, record_action
 from ramavt_jax.train_config import TrainConfig
 from ramavt_jax.train_state import (ActorState, ChunkMetrics, EpisodeStats, LearnerState, LearnStats, PreparedBatch,
@@ -256,13 +256,12 @@ class Trainer:
             td = td.replace(q_target=jax.lax.stop_gradient(q_online))
         loss, aux = td_loss(q_online, td, self.td)
         mask = prepared.td.mask.astype(jnp.float32)
-        masked_mean = lambda x: (x * mask).sum() / jnp.maximum(mask.sum(), 1.0)  # noqa: E731 (over [B, T])
         aux_loss = jnp.zeros(())
         if self.config.learner.aux_weight:  # the aux head's squared error at the trained obs (LearnerConfig)
             miss = jnp.square(sown["intermediates"]["aux"][0][:, :-1] - prepared.privileged[:, :-1]).sum(-1)
-            aux_loss = masked_mean(miss)
+            aux_loss = masked_mean(miss, mask)
             loss = loss + self.config.learner.aux_weight * aux_loss
-        aux = dict(aux, q_mean=masked_mean(aux["q_taken"]), aux_loss=aux_loss)
+        aux = dict(aux, q_mean=masked_mean(aux["q_taken"], mask), aux_loss=aux_loss)
         if self.config.replay.prioritised:  # uniform sampling needs no priorities
             td_error = jax.lax.stop_gradient(aux["td_error"])
             aux["priority"] = sequence_priority(td_error, mask, self.config.replay.priority_max_share)
