@@ -147,7 +147,8 @@ class Trainer:
         key, k_net, k_env = jax.random.split(key, 3)
         params = init_params(c.network, k_net, self.obs_shape)["params"]
         learner = LearnerState(params=params, target_params=jax.tree.map(jnp.copy, params),
-                               opt_state=self.optimizer.init(params), updates=jnp.zeros((), jnp.int32))
+                               opt_state=self.optimizer.init(params), updates=jnp.zeros((), jnp.int32),
+                               averaged_params=jax.tree.map(jnp.copy, params) if c.run.policy_average_chunks else None)
         obs, env_state = self._per_device(jax.vmap(lambda k: self.env.reset(k, self.env_params)))(
             jax.random.split(k_env, n))
         actor = self._shard_actor(ActorState(env_state=env_state, obs=obs, is_first=jnp.ones((n,), bool),
@@ -291,7 +292,7 @@ class Trainer:
             target = optax.incremental_update(params, learner.target_params, self.polyak_tau(learner.updates))
         else:
             target = optax.periodic_update(params, learner.target_params, n, c.target_period)
-        new = LearnerState(params=params, target_params=target, opt_state=opt_state, updates=n)
+        new = learner.replace(params=params, target_params=target, opt_state=opt_state, updates=n)
         if batch.indices is not None:
             replay_state = self.replay.set_priorities(replay_state, batch, aux["priority"])
         return new, replay_state, LearnStats(loss=loss, aux_loss=aux["aux_loss"], q_mean=aux["q_mean"],
@@ -340,7 +341,20 @@ class Trainer:
         """``iterations_per_chunk`` iterations in one lax.scan (jit this; metrics are [iterations])."""
         runner, metrics = jax.lax.scan(lambda r, _: self.iteration(r), runner, None,
                                        length=self.config.run.iterations_per_chunk)
-        return runner.replace(chunk=runner.chunk + 1), metrics
+        chunk = runner.chunk + 1
+        return runner.replace(chunk=chunk, learner=self._average_policy(runner.learner, chunk)), metrics
+
+    def _average_policy(self, learner: LearnerState, chunk: jax.Array) -> LearnerState:
+        """The running uniform mean of the target params at the ends of the run's last ``policy_average_chunks``
+        chunks (RunConfig): before them it is the target params themselves (weight 1), so a run extended on resume
+        starts its window afresh. ``chunk``: [] int32 chunks completed, this one included."""
+        k = self.config.run.policy_average_chunks
+        if not k:
+            return learner
+        start = max(self.config.num_chunks - k, 0)  # chunks completed before the window
+        weight = 1.0 / jnp.maximum(chunk - start, 1).astype(jnp.float32)
+        averaged = optax.incremental_update(learner.target_params, learner.averaged_params, weight)
+        return learner.replace(averaged_params=averaged)
 
     def train(self, key: jax.Array) -> dict:
         """Whole run (init + all chunks) as one pure function: {'runner_state', 'metrics' [chunks, iterations]}."""

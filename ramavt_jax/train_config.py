@@ -145,14 +145,24 @@ class RunConfig:
     keep_checkpoints: int = 2  # the newest checkpoints kept (older ones are deleted)
     tensorboard: bool = False  # also log to out/tb (needs tensorboardX)
     # The parameters the trained greedy policy acts with (final evaluation, `--policy checkpoint`, export): 'online'
-    # (the last gradient step's) or 'target' (the target net's; with Polyak updates an average over ~1/tau updates)
-    policy_params: typing.Literal["online", "target"] = "online"
+    # (the last gradient step's), 'target' (the target net's; with Polyak updates an average over ~1/tau updates)
+    # or 'averaged' (the target net's averaged over the run's last policy_average_chunks chunks). Training acts with
+    # the online net whatever this says, so it changes no training step.
+    policy_params: typing.Literal["online", "target", "averaged"] = "online"
+    # Polyak-Ruppert tail averaging: the uniform mean of the target params at the ends of the last K chunks is kept
+    # beside them (LearnerState.averaged_params; 0 = not kept). K above the run's chunks averages all of them.
+    policy_average_chunks: int = 0
 
     def __post_init__(self):
         check_ints("RunConfig", self, dict(total_env_steps=1, iterations_per_chunk=1, eval_episodes=0,
-                                            eval_max_steps=1, checkpoint_every_chunks=0, keep_checkpoints=1))
-        if self.policy_params not in ("online", "target"):
-            raise ValueError(f"RunConfig: policy_params must be 'online' or 'target', got {self.policy_params!r}")
+                                            eval_max_steps=1, checkpoint_every_chunks=0, keep_checkpoints=1,
+                                            policy_average_chunks=0))
+        if self.policy_params not in ("online", "target", "averaged"):
+            raise ValueError(f"RunConfig: policy_params must be 'online', 'target' or 'averaged', "
+                             f"got {self.policy_params!r}")
+        if self.policy_params == "averaged" and self.policy_average_chunks < 1:
+            raise ValueError("RunConfig: policy_params='averaged' needs policy_average_chunks >= 1 (the chunks "
+                             "averaged), got 0")
 
 
 _GROUPS = {"acting": ActingConfig, "replay": ReplayConfig, "learner": LearnerConfig, "run": RunConfig}

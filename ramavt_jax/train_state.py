@@ -27,10 +27,16 @@ class LearnerState:
     target_params: Any
     opt_state: Any
     updates: jax.Array  # [] int32 gradient steps taken
+    # the uniform average of target_params at the ends of the run's last RunConfig.policy_average_chunks chunks
+    # (equal to target_params before them); None when that is 0
+    averaged_params: Any = None
 
     def policy_params(self, which: str):
-        """The parameter set a trained policy acts with (RunConfig.policy_params): 'online' or 'target'."""
-        return {"online": self.params, "target": self.target_params}[which]
+        """The parameter set a trained policy acts with (RunConfig.policy_params): 'online', 'target' or
+        'averaged'."""
+        if which == "averaged" and self.averaged_params is None:
+            raise ValueError("policy_params='averaged' needs a run trained with run.policy_average_chunks >= 1")
+        return {"online": self.params, "target": self.target_params, "averaged": self.averaged_params}[which]
 
 
 @struct.dataclass

@@ -7,8 +7,9 @@ run folder that `ramavt eval --policy checkpoint` reads. With FIRST = LAST it pi
 The run needs a checkpoint of every chunk in the range (`--run.checkpoint-every-chunks 1 --run.keep-checkpoints N`;
 `--run.no-checkpoint-replay` keeps them small, and each is read whole).
 The output folder holds the run's config.json and one checkpoint, numbered LAST, whose online and target parameters
-are both the average; its other arrays (optimiser, envs) are the LAST checkpoint's, and it has no replay, so it can be
-evaluated but not resumed.
+(and averaged ones, where the run keeps them) are all the average; its other arrays (optimiser, envs) are the LAST
+checkpoint's, and it has no replay, so it can be evaluated but not resumed. A run trained with
+`--run.policy-average-chunks K` keeps such a mean of its last K chunks itself (RunConfig.policy_params='averaged').
 """
 
 from __future__ import annotations
@@ -62,7 +63,8 @@ def main(argv=None) -> None:
     if args.out.exists():
         raise SystemExit(f"--out {args.out} exists: name a new folder (it is never overwritten)")
     mean, state, meta, config = average_params(args.run, first, last)
-    state = state.replace(learner=state.learner.replace(params=mean, target_params=mean))
+    averaged = None if state.learner.averaged_params is None else mean
+    state = state.replace(learner=state.learner.replace(params=mean, target_params=mean, averaged_params=averaged))
     # restore() leaves empty arrays as their shape structs (nothing to read): make them arrays again to save them
     state = jax.tree.map(lambda x: jnp.zeros(x.shape, x.dtype) if isinstance(x, jax.ShapeDtypeStruct) else x, state)
     args.out.mkdir(parents=True)

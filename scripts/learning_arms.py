@@ -386,7 +386,7 @@ def main() -> None:
     ap.add_argument("--preset", default="quick")
     ap.add_argument("--episodes", type=int, default=10, help="held-out episodes per target")
     ap.add_argument("--eval-seed", type=int, default=0)
-    ap.add_argument("--policy-params", choices=("online", "target"), default=None,
+    ap.add_argument("--policy-params", choices=("online", "target", "averaged"), default=None,
                     help="evaluate these params (default: each run's own); writes heldout_<choice>.json")
     args = ap.parse_args()
     key = jax.random.PRNGKey(args.eval_seed)

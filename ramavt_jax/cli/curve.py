@@ -37,7 +37,7 @@ def curve_cmd(
     episodes: int = 10,
     max_steps: int = 1000,
     seed: int = 0,
-    policy_params: Literal["online", "target"] | None = None,
+    policy_params: Literal["online", "target", "averaged"] | None = None,
     baselines: bool = True,
     resolution: int = 64,
     horizon: int = baselines_lib.MPC_HORIZON,
@@ -57,7 +57,8 @@ def curve_cmd(
             --max-steps (no perturbation), so its AER of a checkpoint is the curve's.
         max_steps: episode length cap.
         seed: evaluation seed.
-        policy_params: the runs' parameter set, 'online' or 'target'; default: each run's own `run.policy_params`.
+        policy_params: the runs' parameter set, 'online', 'target' or 'averaged'; default: each run's own
+            `run.policy_params`.
         baselines: also fly the depth tracker and the mpc ceiling once on the same episodes (horizontal lines; the
             table marks the first checkpoint above the depth tracker).
         resolution: camera resolution of the depth tracker (as `ramavt eval --resolution`).

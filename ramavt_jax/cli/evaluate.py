@@ -89,7 +89,7 @@ def _check_eval_args(policy, agent, run, targets, episodes, max_steps, tables, b
 def eval_cmd(
     policy: Literal["checkpoint", "pretrained", "mpc", "proportional", "depth", "random"] = "checkpoint",
     run: tuple[Path, ...] = (),
-    policy_params: Literal["online", "target"] | None = None,
+    policy_params: Literal["online", "target", "averaged"] | None = None,
     agent: str = pretrained.DEFAULT_AGENT,
     baselines: bool = True,
     targets: str = "test",
@@ -119,8 +119,9 @@ def eval_cmd(
             divides by its AER), 'proportional' (a proportional controller on the true state, quantised; not an
             upper bound), 'depth' (classical depth-image tracker) or 'random'.
         run: training run folders (written by `ramavt train`); each is one row of Tables I-III.
-        policy_params: the runs' parameter set: 'online' or 'target' (the Polyak-averaged target net's); default:
-            each run's own `run.policy_params`.
+        policy_params: the runs' parameter set: 'online', 'target' (the Polyak-averaged target net's) or 'averaged'
+            (the target net's averaged over the run's last `run.policy_average_chunks` chunks); default: each run's own
+            `run.policy_params`.
         agent: the shipped agent evaluated by --policy pretrained.
         baselines: with --policy checkpoint, also evaluate mpc, proportional, depth tracker and random in every table (a
             baseline given as --policy is evaluated alone).

@@ -121,7 +121,7 @@ def _finite(x) -> float | None:
 
 def evaluate_checkpoint(run_dir: str | Path, step: int, ep: CurveEpisodes, policy_params: str | None = None) -> dict:
     """One checkpoint's greedy policy on ``ep`` (with the run's own parameter set unless ``policy_params`` names
-    'online' or 'target'): :func:`_point`'s columns plus 'step' and 'env_steps' from the checkpoint."""
+    'online', 'target' or 'averaged'): :func:`_point`'s columns plus 'step' and 'env_steps' from the checkpoint."""
     lr = load_policy(run_dir, step=step, policy_params=policy_params, log=lambda msg: None)
     cfg = lr.config
     tracking_env = tables.suite_env(cfg.env, ep.targets, rollouts.PERTURBATION_VALUES)

@@ -52,6 +52,9 @@ def load_policy(run_dir, step: int | None = None, name: str | None = None,
                                 f"(config.json, checkpoints/)")
     saved = folders.read_config(run_dir)
     config = TrainConfig.from_dict(saved["config"])
+    if policy_params == "averaged" and not config.run.policy_average_chunks:
+        raise ValueError(f"{run_dir} keeps no averaged params: policy_params='averaged' needs a run trained with "
+                         f"--run.policy-average-chunks K")
     if policy_params is not None:
         config = config.override(policy_params=policy_params)
     store = CheckpointStore(run_dir / folders.CHECKPOINTS, create=False)

@@ -1,0 +1,73 @@
+"""Tail averaging of the policy (RunConfig.policy_average_chunks): the averaged params are the uniform mean of the
+target params at the ends of the run's last K chunks, the target params before them, and change no training step;
+a run folder serves them as `policy_params='averaged'`, and a run without them refuses that in one line."""
+
+import jax
+import numpy as np
+import pytest
+
+from ramavt_jax import cli, presets
+from ramavt_jax.evaluation.runs import load_policy
+from ramavt_jax.train import Trainer
+from ramavt_jax.training import program
+
+SMOKE = presets.preset("smoke")  # 4 chunks
+AVERAGED = SMOKE.override(policy_average_chunks=2, policy_params="averaged")
+
+
+@pytest.fixture(scope="module")
+def chunk_by_chunk():
+    """(RunnerState after each of the 4 chunks, with averaging; the same without), one jitted chunk each."""
+    runs = []
+    for cfg in (AVERAGED, SMOKE):
+        trainer = Trainer(cfg)
+        step, state, states = jax.jit(trainer.chunk), trainer.init(jax.random.PRNGKey(3)), []
+        for _ in range(cfg.num_chunks):
+            state, _ = step(state)
+            states.append(jax.device_get(state))
+        runs.append(states)
+    return runs
+
+
+def _leaves(tree):
+    return [np.asarray(x) for x in jax.tree.leaves(tree)]
+
+
+def test_averaged_params_are_the_mean_of_the_last_chunks_target_params(chunk_by_chunk):
+    states, _ = chunk_by_chunk
+    for s in states[:2]:  # before the window: the target params themselves
+        for a, t in zip(_leaves(s.learner.averaged_params), _leaves(s.learner.target_params)):
+            np.testing.assert_array_equal(a, t)
+    last_two = [_leaves(s.learner.target_params) for s in states[2:]]
+    assert any(not np.allclose(a, b) for a, b in zip(*last_two))  # the two chunks differ: a real mean
+    for got, a, b in zip(_leaves(states[-1].learner.averaged_params), *last_two):
+        np.testing.assert_allclose(got, (a + b) / 2, rtol=1e-6, atol=1e-7)
+
+
+def test_averaging_changes_no_training_step(chunk_by_chunk):
+    averaged, plain = chunk_by_chunk
+    assert plain[-1].learner.averaged_params is None
+    for a, b in zip(_leaves(averaged[-1].replace(learner=averaged[-1].learner.replace(averaged_params=None))),
+                    _leaves(plain[-1])):
+        np.testing.assert_array_equal(a, b)
+
+
+def test_the_window_is_part_of_the_compiled_programs_key():
+    """The window's start depends on the run's length, so two lengths may not share one compiled chunk."""
+    longer = AVERAGED.override(total_env_steps=2 * AVERAGED.run.total_env_steps)
+    assert program._cache_key(longer) != program._cache_key(AVERAGED)
+    plain_longer = SMOKE.override(total_env_steps=2 * SMOKE.run.total_env_steps)
+    assert program._cache_key(plain_longer) == program._cache_key(SMOKE)  # without it, one compile serves both
+
+
+def test_a_run_folder_serves_its_averaged_params(tmp_path, every_chunk_run):
+    out = tmp_path / "avg"
+    cli.main(["train", "--preset", "smoke", "--no-progress", "--out", str(out), "--run.eval-episodes", "0",
+              "--run.policy-average-chunks", "2", "--run.policy-params", "averaged"])
+    run = load_policy(out, log=lambda *_: None)
+    assert run.config.run.policy_params == "averaged"
+    target = load_policy(out, policy_params="target", log=lambda *_: None)
+    assert any(not np.allclose(a, b) for a, b in zip(_leaves(run.params), _leaves(target.params)))
+    with pytest.raises(ValueError, match="keeps no averaged params: .* needs a run trained with "
+                                         "--run.policy-average-chunks K$"):
+        load_policy(every_chunk_run, policy_params="averaged", log=lambda *_: None)  # conftest.py: trained without
