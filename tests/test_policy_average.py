@@ -52,10 +52,13 @@ def test_averaging_changes_no_training_step(chunk_by_chunk):
         np.testing.assert_array_equal(a, b)
 
 
-def test_the_window_is_part_of_the_compiled_programs_key():
+def test_the_runs_length_is_part_of_the_compiled_programs_key_where_the_chunk_depends_on_it():
     """The window's start depends on the run's length, so two lengths may not share one compiled chunk."""
     longer = AVERAGED.override(total_env_steps=2 * AVERAGED.run.total_env_steps)
     assert program._cache_key(longer) != program._cache_key(AVERAGED)
+    cosine = SMOKE.override(lr_final=1e-5)  # the learning-rate schedule spans the run's gradient steps too
+    cosine_longer = cosine.override(total_env_steps=2 * SMOKE.run.total_env_steps)
+    assert program._cache_key(cosine_longer) != program._cache_key(cosine)
     plain_longer = SMOKE.override(total_env_steps=2 * SMOKE.run.total_env_steps)
     assert program._cache_key(plain_longer) == program._cache_key(SMOKE)  # without it, one compile serves both
 
