@@ -52,7 +52,7 @@ def _res64(cfg):
 # encoder blind to depth scale and position, 'target lost' as a terminal state, no previous action); 'all' combines
 # the first three changes, 'prev' is 'all' + the previous action into the LSTM, and 'prev-aux' ('prev' + the
 # auxiliary tracking-error loss) with twice the learning rate ('aux-lr2') was the quick preset before the patch
-# layers ('patch', below); 'online-boot' is the quick preset now (arm_config checks that).
+# layers ('patch', below); 'avg-12' is the quick preset now (arm_config checks that).
 _LR = 5e-4  # the quick preset's learning rate before 'aux-lr2': every arm's, unless it changes it
 
 
@@ -61,7 +61,8 @@ def _base(c):
                               strides=(2, 1, 1), pools=(True, True, True), prev_action=False, aux_outputs=0)
     return c.override(network=net, bootstrap_lost=False, aux_weight=0.0, lr=_LR, total_env_steps=384_000,
                       max_grad_norm=10.0,  # every arm before 'clip-1' clipped at norm 10
-                      bootstrap_from="target")  # and every arm before 'online-boot' bootstrapped from the target net
+                      bootstrap_from="target",  # and every arm before 'online-boot' bootstrapped from the target net
+                      policy_params="target", policy_average_chunks=0)  # and acted with the target net (no average)
 
 
 ARMS = {
@@ -275,12 +276,16 @@ ARMS["size-online-boot"] = lambda c: ARMS["size-small-1152k"](c).override(bootst
 # Peng's Q(lambda) returns (lambda 0.9: a mean horizon of 10 steps against the preset's 5-step returns) in place of
 # the n-step ones.
 ARMS["lambda-09"] = lambda c: ARMS["clip-1152k"](c).override(td_lambda=0.9, n_step=1)
+# Polyak-Ruppert tail averaging: the policy is the mean of the target net's params at the ends of the last 12 of the
+# 36 chunks (one change: the parameter set the policy acts with; training is the same). The quick preset since it
+# scored higher with a narrower spread over seeds on validation.
+ARMS["avg-12"] = lambda c: ARMS["online-boot"](c).override(policy_average_chunks=12, policy_params="averaged")
 
 
 def arm_config(name: str, preset: str = "quick", **overrides):
     base = presets.preset(preset, eval_episodes=0, **overrides)
-    if preset == "quick" and ARMS["online-boot"](base) != base:
-        raise SystemExit("the quick preset is no longer 'online-boot' of these arms: update ARMS")
+    if preset == "quick" and ARMS["avg-12"](base) != base:
+        raise SystemExit("the quick preset is no longer 'avg-12' of these arms: update ARMS")
     if preset == "quick" and not overrides and ARMS["long-lr2"](base) != presets.preset("long", eval_episodes=0):
         raise SystemExit("the long preset is no longer 'long-lr2' of these arms: update ARMS")
     return ARMS[name](base)

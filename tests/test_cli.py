@@ -267,7 +267,7 @@ def test_console_re_executes_with_the_tunable_and_runs_the_cli_when_it_cannot(mo
     assert calls == [] and ran == [True, True]
 
 
-@pytest.mark.parametrize("which", ["online", "target"])
+@pytest.mark.parametrize("which", ["online", "target", "averaged"])
 def test_final_evaluation_acts_with_the_configured_params(tmp_path, monkeypatch, which):
     """`ramavt train`'s end-of-run evaluation gets the parameter set run.policy_params names."""
     from types import SimpleNamespace
@@ -283,14 +283,17 @@ def test_final_evaluation_acts_with_the_configured_params(tmp_path, monkeypatch,
         summary = driver.RunSummary(seed=0, out_dir=str(out), last=None, finished=True)
         summary.state = SimpleNamespace(learner=LearnerState(params={"w": np.ones(2)},
                                                              target_params={"w": np.full(2, 7.0)},
-                                                             opt_state=None, updates=0))
+                                                             opt_state=None, updates=0,
+                                                             averaged_params={"w": np.full(2, 3.0)}))
         return summary
 
     seen = {}
     monkeypatch.setattr(experiment.driver, "run", fake_run)
     monkeypatch.setattr(experiment, "evaluate_run", lambda config, d, seed, params, log: seen.update(params=params))
-    experiment.train_and_evaluate(preset("smoke", policy_params=which), tmp_path, seed=0, progress=False)
-    np.testing.assert_array_equal(seen["params"]["w"], np.full(2, 7.0 if which == "target" else 1.0))
+    experiment.train_and_evaluate(preset("smoke", policy_params=which, policy_average_chunks=2), tmp_path, seed=0,
+                                  progress=False)
+    expected = {"online": 1.0, "target": 7.0, "averaged": 3.0}[which]
+    np.testing.assert_array_equal(seen["params"]["w"], np.full(2, expected))
 
 
 def test_env_params_add_to_a_presets_pairs(monkeypatch):

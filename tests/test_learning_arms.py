@@ -73,6 +73,8 @@ def _changes(arm: str, reference: str) -> dict:
         ("online-boot", "clip-1152k", {"learner.bootstrap_from": "online"}),
         ("size-online-boot", "size-small-1152k", {"learner.bootstrap_from": "online"}),
         ("lambda-09", "clip-1152k", {"learner.td_lambda": 0.9, "learner.n_step": 1}),  # lambda replaces n-step
+        # one change: the parameters the policy acts with
+        ("avg-12", "online-boot", {"run.policy_average_chunks": 12, "run.policy_params": "averaged"}),
         ("size-stretch", "size-small-1152k", {"env_params": (("size_scale_max", 1.0), ("size_scale_min", 0.15),
                                                              ("stretch_max", 1.5), ("stretch_prob", 0.5))}),
         ("clip-1536k", "clip-1152k", {"run.total_env_steps": 1_536_000}),
@@ -88,7 +90,7 @@ def test_each_table_arm_is_one_change(arm, reference, change):
 
 
 def test_quick_preset_is_the_depth_row():
-    assert learning_arms.arm_config("online-boot") == learning_arms.presets.preset("quick", eval_episodes=0)
+    assert learning_arms.arm_config("avg-12") == learning_arms.presets.preset("quick", eval_episodes=0)
 
 
 def test_sizes_preset_is_the_arm_chosen_for_other_sizes():

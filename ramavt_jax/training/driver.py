@@ -338,5 +338,6 @@ def _summary(config, f: _Folders, loop: _Loop, state, prog: _Program, mesh, trai
 
 def seed_params(state, k: int, num_seeds: int, which: str = "online"):
     """Host copy of seed ``k``'s network params from a (possibly [seeds]-stacked) RunnerState: the online net's
-    (``which='online'``) or the target net's (``'target'``; see RunConfig.policy_params)."""
+    (``which='online'``), the target net's (``'target'``) or their tail average (``'averaged'``; see
+    RunConfig.policy_params)."""
     return distributed.local_copy(_seed_slice(state.learner.policy_params(which), k, num_seeds))
