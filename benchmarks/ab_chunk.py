@@ -61,6 +61,28 @@ def _restore(run: Path, like):
         return jax.tree.map(lambda x: x[0], store.restore(stacked)[0])
 
 
+def _without_average(state):
+    """``state`` without the policy's tail average (LearnerState.averaged_params): it changes no training step, and
+    revisions before it have no such field."""
+    return state.replace(learner=state.learner.replace(averaged_params=None))
+
+
+def _restore_state(run: Path, trainer, key):
+    """The latest state of ``run`` (trained with or without a tail average), without that average."""
+    like = _zeros_like_init(trainer, key)
+    try:
+        return _restore(run, _without_average(like))
+    except Exception:  # noqa: BLE001 (the run keeps the average: restore it too, then drop it)
+        return _without_average(_restore(run, like))
+
+
+def _for_trainer(state, trainer, key):
+    """``state`` in the layout of ``trainer``'s: with a tail average (a copy of the target params) where it keeps one."""
+    if jax.eval_shape(trainer.init, key).learner.averaged_params is None:
+        return state
+    return state.replace(learner=state.learner.replace(averaged_params=state.learner.target_params))
+
+
 def _baseline_preset(name: str):
     """The preset ``name`` of the imported baseline package: its ``presets`` module, or for revisions before it its
     ``train_config`` (or, earlier still, ``train``)."""
@@ -80,7 +102,7 @@ def _baseline_state(baseline_run: Path | None, state, key):
     if baseline_run is None:
         return state
     saved = json.loads((baseline_run / "config.json").read_text())["config"]
-    return _restore(baseline_run, _zeros_like_init(T.Trainer(train_config.TrainConfig.from_dict(saved)), key))
+    return _restore_state(baseline_run, T.Trainer(train_config.TrainConfig.from_dict(saved)), key)
 
 
 def _parse_setting(parser, text: str):
@@ -127,11 +149,12 @@ def main(argv=None) -> None:
     key = jax.random.PRNGKey(0)
     with tempfile.TemporaryDirectory() as tmp:
         trainers = {"this": T.Trainer(presets.preset(a.preset))}
-        state = _restore(a.run, _zeros_like_init(trainers["this"], key))
-        states = {"this": state}
+        state = _restore_state(a.run, trainers["this"], key)
+        states = {"this": _for_trainer(state, trainers["this"], key)}
         if changes:
             name = "this, " + ", ".join(a.set)
-            trainers[name], states[name] = T.Trainer(presets.preset(a.preset, **changes)), state
+            trainers[name] = T.Trainer(presets.preset(a.preset, **changes))
+            states[name] = _for_trainer(state, trainers[name], key)
         if a.baseline is not None:
             base_train = import_baseline(a.baseline, Path(tmp))
             trainers[a.baseline] = base_train.Trainer(_baseline_preset(a.preset))
@@ -140,7 +163,8 @@ def main(argv=None) -> None:
         if a.act_only:  # learning_starts above the restored step count: the chunk only collects
             trainers["this, acting only"] = T.Trainer(presets.preset(a.preset, learning_starts=presets.preset(
                 a.preset).replay.capacity_steps))
-            states["this, acting only"] = state.replace(env_steps=jnp.zeros_like(state.env_steps))
+            states["this, acting only"] = _for_trainer(state.replace(env_steps=jnp.zeros_like(state.env_steps)),
+                                                       trainers["this, acting only"], key)
         if a.seeds > 1:
             states = {k: jax.tree.map(lambda x: jnp.stack([x] * a.seeds), s) for k, s in states.items()}
         chunk = {k: jax.jit(jax.vmap(tr.chunk) if a.seeds > 1 else tr.chunk) for k, tr in trainers.items()}

@@ -13,7 +13,7 @@ Placement (GSPMD partitions the one jitted program; XLA inserts the collectives)
   stores ``num_envs / devices`` envs. The env step itself runs under ``jax.shard_map`` (each device its own envs):
   left to GSPMD, the renderer's batch-wide work list would be all-gathered and each device would render the
   whole batch;
-* params, target params, optimiser state, PRNG key and counters are replicated;
+* params, target params (and their tail average), optimiser state, PRNG key and counters are replicated;
 * each sampled learner batch is split along its window axis (when ``batch_size`` divides), so every device
   computes the gradient of its windows and XLA all-reduces (averages) them before the replicated Adam step.
 

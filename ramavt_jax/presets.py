@@ -26,8 +26,8 @@ def _quick() -> TrainConfig:
     previous action into its LSTM; 'target lost' bootstrapped, an auxiliary tracking-error loss, replay ratio 2,
     gradients clipped at norm 1 (against late collapses), n-step targets bootstrapped from the online net's own pass
     (no target-net pass: learns sooner, each update cheaper), 1.15M env steps. The trained policy acts with the
-    Polyak-averaged (target) params averaged again over the last 12 of its 36 chunks (higher AER, narrower spread
-    over seeds; training itself acts with the online params)."""
+    Polyak-averaged (target) params averaged again over its last 12 chunks, 25-36 (higher AER, narrower spread over
+    seeds; training itself acts with the online params)."""
     return TrainConfig(
         env=env_lib.EnvConfig(camera=CameraConfig(resolution=32), autoreset="next_step"),
         network=NetworkConfig(variant="ramavt", channels=(16, 32, 32), kernels=(4, 2, 3), strides=(4, 2, 1),
@@ -40,7 +40,7 @@ def _quick() -> TrainConfig:
                               reward_scale=0.1, target_update="polyak", polyak_tau=0.01, bootstrap_lost=True,
                               aux_weight=1.0, max_grad_norm=1.0, bootstrap_from="online"),
         run=RunConfig(total_env_steps=1_152_000, iterations_per_chunk=25, eval_episodes=32, checkpoint_every_chunks=5,
-                      policy_params="averaged", policy_average_chunks=12),
+                      policy_params="averaged", policy_average_from=24),
     )
 
 
@@ -54,7 +54,7 @@ def _long() -> TrainConfig:
     return quick.override(network=dataclasses.replace(quick.network, prev_action=False, **stem),
                           total_env_steps=1_152_000, eps_decay_steps=400_000, capacity_steps=128_000,
                           checkpoint_every_chunks=6, max_grad_norm=10.0, bootstrap_from="target",
-                          policy_params="target", policy_average_chunks=0)
+                          policy_params="target", policy_average_from=None)
 
 
 def _sizes() -> TrainConfig:
@@ -65,7 +65,7 @@ def _sizes() -> TrainConfig:
     norm 10)."""
     return _quick().override(env_params={"size_scale_min": 0.15, "size_scale_max": 1.0},
                              total_env_steps=1_152_000, max_grad_norm=10.0, bootstrap_from="target",
-                             policy_params="target", policy_average_chunks=0)
+                             policy_params="target", policy_average_from=None)
 
 
 def _paper() -> TrainConfig:

@@ -148,7 +148,8 @@ class Trainer:
         params = init_params(c.network, k_net, self.obs_shape)["params"]
         learner = LearnerState(params=params, target_params=jax.tree.map(jnp.copy, params),
                                opt_state=self.optimizer.init(params), updates=jnp.zeros((), jnp.int32),
-                               averaged_params=jax.tree.map(jnp.copy, params) if c.run.policy_average_chunks else None)
+                               averaged_params=(None if c.run.policy_average_from is None
+                                                else jax.tree.map(jnp.copy, params)))
         obs, env_state = self._per_device(jax.vmap(lambda k: self.env.reset(k, self.env_params)))(
             jax.random.split(k_env, n))
         actor = self._shard_actor(ActorState(env_state=env_state, obs=obs, is_first=jnp.ones((n,), bool),
@@ -345,13 +346,12 @@ class Trainer:
         return runner.replace(chunk=chunk, learner=self._average_policy(runner.learner, chunk)), metrics
 
     def _average_policy(self, learner: LearnerState, chunk: jax.Array) -> LearnerState:
-        """The running uniform mean of the target params at the ends of the run's last ``policy_average_chunks``
-        chunks (RunConfig): before them it is the target params themselves (weight 1), so a run extended on resume
-        starts its window afresh. ``chunk``: [] int32 chunks completed, this one included."""
-        k = self.config.run.policy_average_chunks
-        if not k:
+        """The running uniform mean of the target params at the ends of the chunks after
+        ``RunConfig.policy_average_from``; up to it, the target params themselves (weight 1). ``chunk``: [] int32
+        chunks completed, this one included."""
+        start = self.config.run.policy_average_from
+        if start is None:
             return learner
-        start = max(self.config.num_chunks - k, 0)  # chunks completed before the window
         weight = 1.0 / jnp.maximum(chunk - start, 1).astype(jnp.float32)
         averaged = optax.incremental_update(learner.target_params, learner.averaged_params, weight)
         return learner.replace(averaged_params=averaged)

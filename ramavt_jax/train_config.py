@@ -146,23 +146,26 @@ class RunConfig:
     tensorboard: bool = False  # also log to out/tb (needs tensorboardX)
     # The parameters the trained greedy policy acts with (final evaluation, `--policy checkpoint`, export): 'online'
     # (the last gradient step's), 'target' (the target net's; with Polyak updates an average over ~1/tau updates)
-    # or 'averaged' (the target net's averaged over the run's last policy_average_chunks chunks). Training acts with
-    # the online net whatever this says, so it changes no training step.
+    # or 'averaged' (the target net's averaged over the chunks after policy_average_from). Training acts with the
+    # online net whatever this says, so it changes no training step.
     policy_params: typing.Literal["online", "target", "averaged"] = "online"
-    # Polyak-Ruppert tail averaging: the uniform mean of the target params at the ends of the last K chunks is kept
-    # beside them (LearnerState.averaged_params; 0 = not kept). K above the run's chunks averages all of them.
-    policy_average_chunks: int = 0
+    # Polyak-Ruppert tail averaging: the uniform mean of the target params at the ends of chunks S+1, S+2, ... is
+    # kept beside them (LearnerState.averaged_params; equal to the target params up to chunk S; None = not kept).
+    # Counted from the run's start, so a run extended on resume keeps averaging and one that ends by chunk S has
+    # averaged nothing.
+    policy_average_from: int | None = None
 
     def __post_init__(self):
         check_ints("RunConfig", self, dict(total_env_steps=1, iterations_per_chunk=1, eval_episodes=0,
-                                            eval_max_steps=1, checkpoint_every_chunks=0, keep_checkpoints=1,
-                                            policy_average_chunks=0))
+                                            eval_max_steps=1, checkpoint_every_chunks=0, keep_checkpoints=1))
+        if self.policy_average_from is not None:
+            check_ints("RunConfig", self, dict(policy_average_from=0))
         if self.policy_params not in ("online", "target", "averaged"):
             raise ValueError(f"RunConfig: policy_params must be 'online', 'target' or 'averaged', "
                              f"got {self.policy_params!r}")
-        if self.policy_params == "averaged" and self.policy_average_chunks < 1:
-            raise ValueError("RunConfig: policy_params='averaged' needs policy_average_chunks >= 1 (the chunks "
-                             "averaged), got 0")
+        if self.policy_params == "averaged" and self.policy_average_from is None:
+            raise ValueError("RunConfig: policy_params='averaged' needs policy_average_from (the chunk after which "
+                             "the target params are averaged), or policy_params='target'")
 
 
 _GROUPS = {"acting": ActingConfig, "replay": ReplayConfig, "learner": LearnerConfig, "run": RunConfig}

@@ -27,15 +27,15 @@ class LearnerState:
     target_params: Any
     opt_state: Any
     updates: jax.Array  # [] int32 gradient steps taken
-    # the uniform average of target_params at the ends of the run's last RunConfig.policy_average_chunks chunks
-    # (equal to target_params before them); None when that is 0
+    # the uniform mean of target_params at the ends of the chunks after RunConfig.policy_average_from (equal to
+    # target_params up to it); None when that is None
     averaged_params: Any = None
 
     def policy_params(self, which: str):
         """The parameter set a trained policy acts with (RunConfig.policy_params): 'online', 'target' or
         'averaged'."""
         if which == "averaged" and self.averaged_params is None:
-            raise ValueError("policy_params='averaged' needs a run trained with run.policy_average_chunks >= 1")
+            raise ValueError("policy_params='averaged' needs a run trained with run.policy_average_from set")
         return {"online": self.params, "target": self.target_params, "averaged": self.averaged_params}[which]
 
 

@@ -1,6 +1,7 @@
 """Checkpoint averaging: the uniform average of a run's policy parameters (the set it acts with,
-RunConfig.policy_params: the target net's for the presets) over the checkpoints of chunks FIRST..LAST, written as a
-run folder that `ramavt eval --policy checkpoint` reads. With FIRST = LAST it picks out that one chunk.
+RunConfig.policy_params; for a run that acts with its tail average, 'averaged', the target net's, which that average
+is made of) over the checkpoints of chunks FIRST..LAST, written as a run folder that `ramavt eval --policy checkpoint`
+reads. With FIRST = LAST it picks out that one chunk.
 
     python scripts/average_checkpoints.py runs/eps_100k/seed_0 --chunks 13 24 --out runs/avg/eps_100k_13-24/seed_0
 
@@ -9,7 +10,7 @@ The run needs a checkpoint of every chunk in the range (`--run.checkpoint-every-
 The output folder holds the run's config.json and one checkpoint, numbered LAST, whose online and target parameters
 (and averaged ones, where the run keeps them) are all the average; its other arrays (optimiser, envs) are the LAST
 checkpoint's, and it has no replay, so it can be evaluated but not resumed. A run trained with
-`--run.policy-average-chunks K` keeps such a mean of its last K chunks itself (RunConfig.policy_params='averaged').
+`--run.policy-average-from S` keeps such a mean of its chunks after S itself (RunConfig.policy_params='averaged').
 """
 
 from __future__ import annotations
@@ -30,7 +31,8 @@ from ramavt_jax.training.checkpoint import CheckpointStore
 def average_params(run_dir: Path, first: int, last: int):
     """(mean policy params over chunks first..last, the last chunk's state without replay, its meta, config)."""
     config = TrainConfig.from_dict(folders.read_config(run_dir)["config"])
-    which = config.run.policy_params
+    # a tail average's checkpoints hold running means: average what they are means of, the target params
+    which = "target" if config.run.policy_params == "averaged" else config.run.policy_params
     store = CheckpointStore(run_dir / folders.CHECKPOINTS, create=False)
     try:
         missing = sorted(set(range(first, last + 1)) - set(store.all_steps()))

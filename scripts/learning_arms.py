@@ -62,7 +62,7 @@ def _base(c):
     return c.override(network=net, bootstrap_lost=False, aux_weight=0.0, lr=_LR, total_env_steps=384_000,
                       max_grad_norm=10.0,  # every arm before 'clip-1' clipped at norm 10
                       bootstrap_from="target",  # and every arm before 'online-boot' bootstrapped from the target net
-                      policy_params="target", policy_average_chunks=0)  # and acted with the target net (no average)
+                      policy_params="target", policy_average_from=None)  # and acted with the target params
 
 
 ARMS = {
@@ -279,7 +279,7 @@ ARMS["lambda-09"] = lambda c: ARMS["clip-1152k"](c).override(td_lambda=0.9, n_st
 # Polyak-Ruppert tail averaging: the policy is the mean of the target net's params at the ends of the last 12 of the
 # 36 chunks (one change: the parameter set the policy acts with; training is the same). The quick preset since it
 # scored higher with a narrower spread over seeds on validation.
-ARMS["avg-12"] = lambda c: ARMS["online-boot"](c).override(policy_average_chunks=12, policy_params="averaged")
+ARMS["avg-12"] = lambda c: ARMS["online-boot"](c).override(policy_average_from=24, policy_params="averaged")
 
 
 def arm_config(name: str, preset: str = "quick", **overrides):
@@ -343,7 +343,7 @@ def _summary(length, ret, lost, ids, names):
 
 def evaluate_arm(out: Path, arm: str, episodes: int, key: jax.Array, max_steps: int = 1000,
                  policy_params: str | None = None) -> dict:
-    """Every seed of the arm on the held-out episodes, acting with ``policy_params`` ('online' | 'target'; None =
+    """Every seed of the arm on the held-out episodes, acting with ``policy_params`` ('online' | 'target' | 'averaged'; None =
     the runs' own RunConfig.policy_params)."""
     seed_dirs = sorted((out / arm).glob("seed_*")) or [out / arm]
     loaded = [runs.load_policy(d, policy_params=policy_params) for d in seed_dirs]
@@ -417,7 +417,8 @@ def main() -> None:
 
 def _row_head(r: dict) -> str:
     """'| arm [tag] | AEL mean ± std | AER mean ± std | lost % |' of one heldout JSON."""
-    tag = " [target params]" if r.get("policy_params") == "target" else ""
+    params = r.get("policy_params")
+    tag = f" [{params} params]" if params not in (None, "online") else ""
     lost = 100 * np.mean([s["lost"] for s in r["seeds"]])
     return (f"| {r['arm']}{tag} | {r['AEL_mean']:.1f} ± {r['AEL_std']:.1f} | {r['AER_mean']:.1f} ± "
             f"{r['AER_std']:.1f} | {lost:.0f} |")

@@ -290,7 +290,7 @@ def test_final_evaluation_acts_with_the_configured_params(tmp_path, monkeypatch,
     seen = {}
     monkeypatch.setattr(experiment.driver, "run", fake_run)
     monkeypatch.setattr(experiment, "evaluate_run", lambda config, d, seed, params, log: seen.update(params=params))
-    experiment.train_and_evaluate(preset("smoke", policy_params=which, policy_average_chunks=2), tmp_path, seed=0,
+    experiment.train_and_evaluate(preset("smoke", policy_params=which, policy_average_from=2), tmp_path, seed=0,
                                   progress=False)
     expected = {"online": 1.0, "target": 7.0, "averaged": 3.0}[which]
     np.testing.assert_array_equal(seen["params"]["w"], np.full(2, expected))

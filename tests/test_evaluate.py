@@ -298,8 +298,8 @@ def test_config_json_round_trips_to_the_same_train_config(name):
 
 def test_the_shipped_config_jsons_load_as_the_presets_they_were_trained_with():
     """Each shipped agent's config.json reads back into the config it was trained with: the quick preset (without its
-    end-of-training evaluation, and from before its targets came from the online net) for the shipped agent, the long
-    preset for the earlier one."""
+    end-of-training evaluation, from before its targets came from the online net and its policy was a tail average)
+    for the shipped agent, the long preset for the earlier one."""
     from ramavt_jax.presets import preset
     from ramavt_jax.train_config import TrainConfig
 
@@ -307,7 +307,8 @@ def test_the_shipped_config_jsons_load_as_the_presets_they_were_trained_with():
         record = json.loads((Path(pretrained.AGENTS_DIR) / name / "config.json").read_text())
         return TrainConfig.from_dict(record["config"])
 
-    assert shipped(pretrained.DEFAULT_AGENT) == preset("quick", eval_episodes=0, bootstrap_from="target")
+    assert shipped(pretrained.DEFAULT_AGENT) == preset("quick", eval_episodes=0, bootstrap_from="target",
+                                                       policy_params="target", policy_average_from=None)
     long = preset("long", eval_episodes=0)  # it was trained with the im2col conv, the default before the hybrid one
     assert shipped("ramavt_depth_long") == long.override(network=dataclasses.replace(long.network, conv_impl="im2col"))
 

@@ -74,7 +74,7 @@ def _changes(arm: str, reference: str) -> dict:
         ("size-online-boot", "size-small-1152k", {"learner.bootstrap_from": "online"}),
         ("lambda-09", "clip-1152k", {"learner.td_lambda": 0.9, "learner.n_step": 1}),  # lambda replaces n-step
         # one change: the parameters the policy acts with
-        ("avg-12", "online-boot", {"run.policy_average_chunks": 12, "run.policy_params": "averaged"}),
+        ("avg-12", "online-boot", {"run.policy_average_from": 24, "run.policy_params": "averaged"}),
         ("size-stretch", "size-small-1152k", {"env_params": (("size_scale_max", 1.0), ("size_scale_min", 0.15),
                                                              ("stretch_max", 1.5), ("stretch_prob", 0.5))}),
         ("clip-1536k", "clip-1152k", {"run.total_env_steps": 1_536_000}),

@@ -1,6 +1,7 @@
-"""Tail averaging of the policy (RunConfig.policy_average_chunks): the averaged params are the uniform mean of the
-target params at the ends of the run's last K chunks, the target params before them, and change no training step;
-a run folder serves them as `policy_params='averaged'`, and a run without them refuses that in one line."""
+"""Tail averaging of the policy (RunConfig.policy_average_from): the averaged params are the uniform mean of the
+target params at the ends of the chunks after S, the target params up to it, and change no training step; a run
+extended on resume keeps the same mean; a run folder serves them as `policy_params='averaged'`, and a run without
+them refuses that in one line."""
 
 import jax
 import numpy as np
@@ -12,7 +13,7 @@ from ramavt_jax.train import Trainer
 from ramavt_jax.training import program
 
 SMOKE = presets.preset("smoke")  # 4 chunks
-AVERAGED = SMOKE.override(policy_average_chunks=2, policy_params="averaged")
+AVERAGED = SMOKE.override(policy_average_from=2, policy_params="averaged")  # the mean of chunks 3 and 4
 
 
 @pytest.fixture(scope="module")
@@ -52,25 +53,38 @@ def test_averaging_changes_no_training_step(chunk_by_chunk):
         np.testing.assert_array_equal(a, b)
 
 
-def test_the_runs_length_is_part_of_the_compiled_programs_key_where_the_chunk_depends_on_it():
-    """The window's start depends on the run's length, so two lengths may not share one compiled chunk."""
+def test_the_compiled_chunk_is_shared_across_run_lengths_unless_the_learning_rate_schedule_spans_the_run():
+    """The average's window counts from the run's start, so runs of any length share one compiled chunk; lr_final's
+    cosine schedule spans the run's gradient steps, so its program is keyed on the length."""
     longer = AVERAGED.override(total_env_steps=2 * AVERAGED.run.total_env_steps)
-    assert program._cache_key(longer) != program._cache_key(AVERAGED)
-    cosine = SMOKE.override(lr_final=1e-5)  # the learning-rate schedule spans the run's gradient steps too
+    assert program._cache_key(longer) == program._cache_key(AVERAGED)
+    assert program._cache_key(AVERAGED) != program._cache_key(SMOKE)
+    cosine = SMOKE.override(lr_final=1e-5)
     cosine_longer = cosine.override(total_env_steps=2 * SMOKE.run.total_env_steps)
     assert program._cache_key(cosine_longer) != program._cache_key(cosine)
-    plain_longer = SMOKE.override(total_env_steps=2 * SMOKE.run.total_env_steps)
-    assert program._cache_key(plain_longer) == program._cache_key(SMOKE)  # without it, one compile serves both
+
+
+def test_an_extended_run_keeps_averaging_the_same_window(tmp_path):
+    """Trained for 3 chunks, then resumed with a length of 5: the mean of chunks 3-5, as a 5-chunk run has."""
+    from ramavt_jax.training import driver
+    short = AVERAGED.override(total_env_steps=3 * AVERAGED.env_steps_per_chunk, eval_episodes=0)
+    driver.run(short, tmp_path / "ext", progress=False)
+    extended = driver.run(short.override(total_env_steps=5 * AVERAGED.env_steps_per_chunk), tmp_path / "ext",
+                          progress=False)
+    whole = driver.run(short.override(total_env_steps=5 * AVERAGED.env_steps_per_chunk), tmp_path / "whole",
+                       progress=False)
+    for a, b in zip(_leaves(extended.state.learner.averaged_params), _leaves(whole.state.learner.averaged_params)):
+        np.testing.assert_array_equal(a, b)
 
 
 def test_a_run_folder_serves_its_averaged_params(tmp_path, every_chunk_run):
     out = tmp_path / "avg"
     cli.main(["train", "--preset", "smoke", "--no-progress", "--out", str(out), "--run.eval-episodes", "0",
-              "--run.policy-average-chunks", "2", "--run.policy-params", "averaged"])
+              "--run.policy-average-from", "2", "--run.policy-params", "averaged"])
     run = load_policy(out, log=lambda *_: None)
     assert run.config.run.policy_params == "averaged"
     target = load_policy(out, policy_params="target", log=lambda *_: None)
     assert any(not np.allclose(a, b) for a, b in zip(_leaves(run.params), _leaves(target.params)))
     with pytest.raises(ValueError, match="keeps no averaged params: .* needs a run trained with "
-                                         "--run.policy-average-chunks K$"):
+                                         "--run.policy-average-from S$"):
         load_policy(every_chunk_run, policy_params="averaged", log=lambda *_: None)  # conftest.py: trained without

@@ -120,7 +120,7 @@ def eval_cmd(
             upper bound), 'depth' (classical depth-image tracker) or 'random'.
         run: training run folders (written by `ramavt train`); each is one row of Tables I-III.
         policy_params: the runs' parameter set: 'online', 'target' (the Polyak-averaged target net's) or 'averaged'
-            (the target net's averaged over the run's last `run.policy_average_chunks` chunks); default: each run's own
+            (the target net's averaged over the chunks after `run.policy_average_from`); default: each run's own
             `run.policy_params`.
         agent: the shipped agent evaluated by --policy pretrained.
         baselines: with --policy checkpoint, also evaluate mpc, proportional, depth tracker and random in every table (a

@@ -1,8 +1,8 @@
 """Pretrained agents shipped inside the package (``ramavt_jax/agents/<name>/``), loadable without a run folder.
 
 An agent folder holds ``config.json`` (the full TrainConfig it was trained with, plus the training command and
-what it was trained on), ``params.npz`` (the online network's parameters, one array per parameter path) and
-``TRAINING.md`` (how to reproduce it). Only the network parameters are stored: a few hundred kB.
+what it was trained on), ``params.npz`` (the network parameters its policy acts with, one array per parameter
+path) and ``TRAINING.md`` (how to reproduce it). Only the network parameters are stored: a few hundred kB.
 
     agent = pretrained.load()                 # the default agent: RAMAVT, depth
     policy = agent.policy                     # a baselines.Policy, acting greedily (evaluate / render it)

@@ -40,8 +40,8 @@ def load_policy(run_dir, step: int | None = None, name: str | None = None,
                 policy_params: str | None = None, log=print) -> LoadedRun:
     """The greedy policy of a training run folder written by ``ramavt train`` (config.json + checkpoints/).
 
-    One network parameter set is read from the checkpoint (not the replay buffer): the online or the target net's,
-    as ``policy_params`` says, by default as the run's config (RunConfig.policy_params) says. The returned config
+    One network parameter set is read from the checkpoint (not the replay buffer): the online net's, the target
+    net's or their tail average ('online' | 'target' | 'averaged'), as ``policy_params`` says, by default as the run's config (RunConfig.policy_params) says. The returned config
     records the set that was read. Without ``step``, a damaged newest checkpoint is skipped (reported through
     ``log`` in one line, left on disk) for the newest that loads. An incomplete config.json is refused
     (RunFolderError naming the missing field)."""
@@ -52,9 +52,9 @@ def load_policy(run_dir, step: int | None = None, name: str | None = None,
                                 f"(config.json, checkpoints/)")
     saved = folders.read_config(run_dir)
     config = TrainConfig.from_dict(saved["config"])
-    if policy_params == "averaged" and not config.run.policy_average_chunks:
+    if policy_params == "averaged" and config.run.policy_average_from is None:
         raise ValueError(f"{run_dir} keeps no averaged params: policy_params='averaged' needs a run trained with "
-                         f"--run.policy-average-chunks K")
+                         f"--run.policy-average-from S")
     if policy_params is not None:
         config = config.override(policy_params=policy_params)
     store = CheckpointStore(run_dir / folders.CHECKPOINTS, create=False)

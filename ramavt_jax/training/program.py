@@ -82,13 +82,13 @@ def check_state_fits(config: TrainConfig, abstract, num_seeds: int, mesh, chunk_
 
 def _cache_key(config: TrainConfig) -> TrainConfig:
     """The config with what does not change the compiled chunk set to constants: the run group but its
-    iterations_per_chunk, policy_average_chunks and, where the chunk depends on the run's length (a learning-rate
-    schedule, the policy average's window), total_env_steps. learning_starts does change it; it is zeroed here (and
-    kept in the cache key beside) only because a shortened total_env_steps would fail validation with it."""
-    length_dependent = config.learner.lr_final is not None or config.run.policy_average_chunks > 0
+    iterations_per_chunk, policy_average_from and, where the learning rate's schedule spans the run (lr_final),
+    total_env_steps. learning_starts does change it; it is zeroed here (and kept in the cache key beside) only
+    because a shortened total_env_steps would fail validation with it."""
+    length_dependent = config.learner.lr_final is not None
     run = RunConfig(total_env_steps=config.run.total_env_steps if length_dependent else config.env_steps_per_chunk,
                     iterations_per_chunk=config.run.iterations_per_chunk,
-                    policy_average_chunks=config.run.policy_average_chunks)
+                    policy_average_from=config.run.policy_average_from)
     return config.override(run=run, learning_starts=0)
 
 

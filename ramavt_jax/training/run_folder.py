@@ -33,8 +33,8 @@ __all__ = ["CONFIG_FILE", "METRICS_FILE", "CHECKPOINTS", "EVAL_FILE", "CURVES_FI
 CONFIG_FILE, METRICS_FILE, CHECKPOINTS, EVAL_FILE = "config.json", "metrics.jsonl", "checkpoints", "eval.json"
 CURVES_FILE = "training_curves.png"
 LOCK_FILE = ".lock"
-# TrainConfig fields that may change when a run is resumed: they do not change the compiled chunk or the
-# checkpointed state (a larger total_env_steps extends the run)
+# TrainConfig fields that may change when a run is resumed: they do not change the checkpointed state (a larger
+# total_env_steps extends the run; with lr_final its cosine schedule is stretched over the new length)
 RESUMABLE_FIELDS = ("run.total_env_steps", "run.eval_episodes", "run.eval_max_steps", "run.checkpoint_every_chunks",
                     "run.keep_checkpoints", "run.tensorboard")
 # Fields added to TrainConfig after run folders of earlier versions were written, each defaulting to what those
@@ -44,7 +44,7 @@ ADDED_FIELDS = ("network.depth_centre", "network.depth_gain", "learner.polyak_ta
                 "learner.polyak_tau_decay", "network.silhouette_stats", "replay.priority_exponent",
                 "replay.importance_exponent", "replay.priority_max_share", "network.standoff_input",
                 "network.command_gain_input", "network.quantiles", "learner.quantile_kappa",
-                "learner.bootstrap_from", "learner.td_lambda", "run.policy_average_chunks")
+                "learner.bootstrap_from", "learner.td_lambda", "run.policy_average_from")
 _SEED_DIR = re.compile(r"seed_\d+")
 
 
