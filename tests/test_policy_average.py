@@ -88,3 +88,14 @@ def test_a_run_folder_serves_its_averaged_params(tmp_path, every_chunk_run):
     with pytest.raises(ValueError, match="keeps no averaged params: .* needs a run trained with "
                                          "--run.policy-average-from S$"):
         load_policy(every_chunk_run, policy_params="averaged", log=lambda *_: None)  # conftest.py: trained without
+
+
+@pytest.mark.parametrize("command", ["eval", "curve"])
+def test_asking_a_run_without_an_average_for_it_is_one_line_before_any_compile(command, every_chunk_run, tmp_path,
+                                                                               capsys):
+    args = {"eval": ["eval", "--policy", "checkpoint", "--no-baselines"], "curve": ["curve", "--no-baselines"]}[command]
+    with pytest.raises(SystemExit) as e:
+        cli.main([*args, "--run", str(every_chunk_run), "--policy-params", "averaged", "--out", str(tmp_path / "o")])
+    assert e.value.code == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "keeps no averaged params" in err and "--run.policy-average-from S" in err

@@ -7,7 +7,7 @@ from pathlib import Path
 
 from ramavt_jax.training import run_folder
 
-__all__ = ["UsageError", "positive", "finite", "output_file", "output_folder"]
+__all__ = ["UsageError", "positive", "finite", "output_file", "output_folder", "keeps_policy_params"]
 
 
 class UsageError(ValueError):
@@ -25,6 +25,16 @@ def finite(name: str, value: float, minimum: float = 0.0) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value < minimum:
         raise UsageError(f"{name} must be a finite number >= {minimum:g}, got {value!r}")
     return value
+
+
+def keeps_policy_params(run_dir: Path, policy_params: str | None) -> None:
+    """A run folder asked for its tail average (``--policy-params averaged``) was trained keeping one."""
+    if policy_params != "averaged":
+        return
+    run = run_folder.read_config(Path(run_dir))["config"]["run"]
+    if run.get("policy_average_from") is None:
+        raise UsageError(f"--run {run_dir} keeps no averaged params: --policy-params averaged needs a run trained "
+                         f"with --run.policy-average-from S (use --policy-params target)")
 
 
 def output_folder(path: Path, flag: str = "--out") -> Path:

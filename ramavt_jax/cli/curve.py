@@ -7,7 +7,7 @@ from pathlib import Path
 from typing import Literal
 
 from ramavt_jax import baselines as baselines_lib
-from ramavt_jax.cli.checks import UsageError, output_folder, positive
+from ramavt_jax.cli.checks import UsageError, keeps_policy_params, output_folder, positive
 from ramavt_jax.evaluation import curve as curve_lib
 from ramavt_jax.evaluation import rollouts
 from ramavt_jax.figures import curve as curve_fig
@@ -18,8 +18,9 @@ OTHER_WRITER = "wait for that command to finish, stop it, or write into another 
 JSON_FILE, PNG_FILE = "curve.json", "curve.png"
 
 
-def _check_runs(run: tuple[Path, ...]) -> None:
-    """Every --run is a run folder with checkpoints (one-line UsageError otherwise), before anything compiles."""
+def _check_runs(run: tuple[Path, ...], policy_params: str | None = None) -> None:
+    """Every --run is a run folder with checkpoints (and the parameter set asked for; one-line UsageError otherwise),
+    before anything compiles."""
     if not run:
         raise UsageError("--run needs at least one run folder written by `ramavt train`")
     for run_dir in run:
@@ -29,6 +30,7 @@ def _check_runs(run: tuple[Path, ...]) -> None:
         if not has_checkpoint(Path(run_dir) / run_folder.CHECKPOINTS):
             raise UsageError(f"--run {run_dir} has no checkpoints; train it with --run.checkpoint-every-chunks 1 "
                              f"--run.keep-checkpoints K to keep one per chunk")
+        keeps_policy_params(run_dir, policy_params)
 
 
 def curve_cmd(
@@ -70,7 +72,7 @@ def curve_cmd(
     for name, value in (("--episodes", episodes), ("--max-steps", max_steps), ("--resolution", resolution),
                         ("--horizon", horizon)):
         positive(name, value)
-    _check_runs(run)
+    _check_runs(run, policy_params)
     names = rollouts.resolve_targets(targets)
     output_folder(out)
     ep = curve_lib.CurveEpisodes(names, episodes, max_steps, seed)

@@ -14,7 +14,7 @@ import jax
 from ramavt_jax import baselines as baselines_lib
 from ramavt_jax import env as env_lib
 from ramavt_jax import render
-from ramavt_jax.cli.checks import UsageError, finite, output_folder, positive
+from ramavt_jax.cli.checks import UsageError, finite, keeps_policy_params, output_folder, positive
 from ramavt_jax.evaluation import pretrained, rollouts
 from ramavt_jax.evaluation import tables as tables_lib
 from ramavt_jax.evaluation.runs import LoadedRun, load_policy, row_name
@@ -66,7 +66,8 @@ def _baseline_entries(names: list[str], obs: tuple[str, ...], resolution: int, d
     return entries
 
 
-def _check_eval_args(policy, agent, run, targets, episodes, max_steps, tables, blur_frames, out) -> tuple[str, ...]:
+def _check_eval_args(policy, agent, run, targets, episodes, max_steps, tables, blur_frames, out,
+                     policy_params=None) -> tuple[str, ...]:
     """Every argument of `ramavt eval` checked before anything compiles; returns the resolved target names."""
     positive("--episodes", episodes)
     positive("--max-steps", max_steps)
@@ -81,6 +82,7 @@ def _check_eval_args(policy, agent, run, targets, episodes, max_steps, tables, b
         if not (Path(run_dir) / run_folder.CONFIG_FILE).is_file():
             raise UsageError(f"--run {run_dir}: {run_folder.CONFIG_FILE} not found; --run must name a folder written by "
                              f"`ramavt train` (config.json, checkpoints/)")
+        keeps_policy_params(run_dir, policy_params)
     names = rollouts.resolve_targets(targets)
     output_folder(out)
     return names
@@ -160,7 +162,7 @@ def eval_cmd(
             raise UsageError(f"--{name.replace('_', '-')} must be in [0, 1], got {value}")
     finite("--actuator-noise", actuator_noise)
     finite("--delay-max", delay_max)
-    names = _check_eval_args(policy, agent, run, targets, episodes, max_steps, tables, blur_frames, out)
+    names = _check_eval_args(policy, agent, run, targets, episodes, max_steps, tables, blur_frames, out, policy_params)
     with run_folder.RunLock(Path(out), OTHER_WRITER):  # a second command writing into --out is refused
         entries, loaded = _run_entries(run, policy_params)
         if policy == "pretrained":
