@@ -76,11 +76,12 @@ def _restore_state(run: Path, trainer, key):
         return _without_average(_restore(run, like))
 
 
-def _for_trainer(state, trainer, key):
-    """``state`` in the layout of ``trainer``'s: with a tail average (a copy of the target params) where it keeps one."""
-    if jax.eval_shape(trainer.init, key).learner.averaged_params is None:
+def _for_trainer(state, trainer):
+    """``state`` in ``trainer``'s layout: with a tail average (a copy of the target params) where it keeps one."""
+    if trainer.config.run.policy_average_from is None:
         return state
-    return state.replace(learner=state.learner.replace(averaged_params=state.learner.target_params))
+    averaged = jax.tree.map(jnp.copy, state.learner.target_params)
+    return state.replace(learner=state.learner.replace(averaged_params=averaged))
 
 
 def _baseline_preset(name: str):
@@ -150,11 +151,11 @@ def main(argv=None) -> None:
     with tempfile.TemporaryDirectory() as tmp:
         trainers = {"this": T.Trainer(presets.preset(a.preset))}
         state = _restore_state(a.run, trainers["this"], key)
-        states = {"this": _for_trainer(state, trainers["this"], key)}
+        states = {"this": _for_trainer(state, trainers["this"])}
         if changes:
             name = "this, " + ", ".join(a.set)
             trainers[name] = T.Trainer(presets.preset(a.preset, **changes))
-            states[name] = _for_trainer(state, trainers[name], key)
+            states[name] = _for_trainer(state, trainers[name])
         if a.baseline is not None:
             base_train = import_baseline(a.baseline, Path(tmp))
             trainers[a.baseline] = base_train.Trainer(_baseline_preset(a.preset))
@@ -164,7 +165,7 @@ def main(argv=None) -> None:
             trainers["this, acting only"] = T.Trainer(presets.preset(a.preset, learning_starts=presets.preset(
                 a.preset).replay.capacity_steps))
             states["this, acting only"] = _for_trainer(state.replace(env_steps=jnp.zeros_like(state.env_steps)),
-                                                       trainers["this, acting only"], key)
+                                                       trainers["this, acting only"])
         if a.seeds > 1:
             states = {k: jax.tree.map(lambda x: jnp.stack([x] * a.seeds), s) for k, s in states.items()}
         chunk = {k: jax.jit(jax.vmap(tr.chunk) if a.seeds > 1 else tr.chunk) for k, tr in trainers.items()}

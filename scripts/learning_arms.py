@@ -219,8 +219,8 @@ ARMS["polyak-sched"] = lambda c: ARMS["patch-768k"](c).override(polyak_tau_start
 ARMS["clip-1"] = lambda c: ARMS["patch-768k"](c).override(max_grad_norm=1.0)
 # Each one change to 'clip-1' (the quick preset then): 1.15M env steps ('patch-1152k' gained nothing on 'patch-768k',
 # but late collapses may have eaten the extra steps; the quick budget of 6 min leaves room for them; 'clip-1152k' was
-# the quick preset until 'online-boot'), and the faster target average of 'polyak-002' (a chunk earlier above the depth tracker,
-# lower at the end before the clip).
+# the quick preset until 'online-boot'), and the faster target average of 'polyak-002' (a chunk earlier above the
+# depth tracker, lower at the end before the clip).
 ARMS["clip-1152k"] = lambda c: ARMS["clip-1"](c).override(total_env_steps=1_152_000)
 ARMS["clip-polyak-002"] = lambda c: ARMS["clip-1"](c).override(polyak_tau=0.02)
 # The sizes preset ('size-small-1152k') with the quick preset's clip: one change to it.
@@ -343,8 +343,8 @@ def _summary(length, ret, lost, ids, names):
 
 def evaluate_arm(out: Path, arm: str, episodes: int, key: jax.Array, max_steps: int = 1000,
                  policy_params: str | None = None) -> dict:
-    """Every seed of the arm on the held-out episodes, acting with ``policy_params`` ('online' | 'target' | 'averaged'; None =
-    the runs' own RunConfig.policy_params)."""
+    """Every seed of the arm on the held-out episodes, acting with ``policy_params`` ('online' | 'target' |
+    'averaged'; None = the runs' own RunConfig.policy_params)."""
     seed_dirs = sorted((out / arm).glob("seed_*")) or [out / arm]
     loaded = [runs.load_policy(d, policy_params=policy_params) for d in seed_dirs]
     config = loaded[0].config

@@ -13,3 +13,14 @@ def every_chunk_run(tmp_path_factory):
     cli.main(["train", "--preset", "smoke", "--no-progress", "--out", str(out), "--run.eval-episodes", "0",
               "--run.checkpoint-every-chunks", "1", "--run.keep-checkpoints", "100", "--run.no-checkpoint-replay"])
     return out
+
+
+@pytest.fixture(scope="package")
+def averaged_run(tmp_path_factory):
+    """A smoke run like ``every_chunk_run`` that keeps the policy's tail average over chunks 3-4 and acts with it
+    (``--run.policy-average-from 2 --run.policy-params averaged``); read, never written."""
+    out = tmp_path_factory.mktemp("averaged") / "smoke"
+    cli.main(["train", "--preset", "smoke", "--no-progress", "--out", str(out), "--run.eval-episodes", "0",
+              "--run.checkpoint-every-chunks", "1", "--run.keep-checkpoints", "100", "--run.no-checkpoint-replay",
+              "--run.policy-average-from", "2", "--run.policy-params", "averaged"])
+    return out

@@ -58,17 +58,13 @@ def test_a_run_that_checkpoints_its_replay_is_averaged_without_it(tmp_path):
         np.testing.assert_allclose(got, (a + b) / 2, rtol=1e-6, atol=1e-7)
 
 
-def test_a_tail_averaged_run_is_averaged_over_its_target_params(tmp_path):
+def test_a_tail_averaged_run_is_averaged_over_its_target_params(averaged_run, tmp_path):
     """A run acting with its tail average (policy_params 'averaged') is averaged over what that average is made of,
-    the target params; so the script's mean of chunks 3-4 is the run's own average from chunk 2 on."""
-    run = tmp_path / "tail"
-    cli.main(["train", "--preset", "smoke", "--no-progress", "--out", str(run), "--run.eval-episodes", "0",
-              "--run.checkpoint-every-chunks", "1", "--run.keep-checkpoints", "100", "--run.no-checkpoint-replay",
-              "--run.policy-average-from", "2", "--run.policy-params", "averaged"])
+    the target params; so the script's mean of chunks 3-4 is the run's own average from chunk 2 on (conftest.py)."""
     out = tmp_path / "avg"
-    average_checkpoints.main([str(run), "--chunks", "3", "4", "--out", str(out)])
+    average_checkpoints.main([str(averaged_run), "--chunks", "3", "4", "--out", str(out)])
     script = load_policy(out, log=lambda *_: None)
-    own = load_policy(run, log=lambda *_: None)
+    own = load_policy(averaged_run, log=lambda *_: None)
     assert own.config.run.policy_params == "averaged"
     for a, b in zip(jax.tree.leaves(script.params), jax.tree.leaves(own.params)):
         np.testing.assert_allclose(a, b, rtol=1e-6, atol=1e-7)

@@ -77,16 +77,13 @@ def test_an_extended_run_keeps_averaging_the_same_window(tmp_path):
         np.testing.assert_array_equal(a, b)
 
 
-def test_a_run_folder_serves_its_averaged_params(tmp_path, every_chunk_run):
-    out = tmp_path / "avg"
-    cli.main(["train", "--preset", "smoke", "--no-progress", "--out", str(out), "--run.eval-episodes", "0",
-              "--run.policy-average-from", "2", "--run.policy-params", "averaged"])
-    run = load_policy(out, log=lambda *_: None)
+def test_a_run_folder_serves_its_averaged_params(averaged_run, every_chunk_run):
+    run = load_policy(averaged_run, log=lambda *_: None)  # conftest.py: averaged over chunks 3-4
     assert run.config.run.policy_params == "averaged"
-    target = load_policy(out, policy_params="target", log=lambda *_: None)
+    target = load_policy(averaged_run, policy_params="target", log=lambda *_: None)
     assert any(not np.allclose(a, b) for a, b in zip(_leaves(run.params), _leaves(target.params)))
     with pytest.raises(ValueError, match="keeps no averaged params: .* needs a run trained with "
-                                         "--run.policy-average-from S$"):
+                                         r"--run.policy-average-from S \(or use the 'target' params\)$"):
         load_policy(every_chunk_run, policy_params="averaged", log=lambda *_: None)  # conftest.py: trained without
 
 

@@ -28,13 +28,15 @@ def finite(name: str, value: float, minimum: float = 0.0) -> float:
 
 
 def keeps_policy_params(run_dir: Path, policy_params: str | None) -> None:
-    """A run folder asked for its tail average (``--policy-params averaged``) was trained keeping one."""
-    if policy_params != "averaged":
-        return
-    run = run_folder.read_config(Path(run_dir))["config"]["run"]
-    if run.get("policy_average_from") is None:
-        raise UsageError(f"--run {run_dir} keeps no averaged params: --policy-params averaged needs a run trained "
-                         f"with --run.policy-average-from S (use --policy-params target)")
+    """A run folder asked for its tail average (``--policy-params averaged``) was trained keeping one
+    (evaluation.runs.check_policy_params, as a UsageError)."""
+    # imported here: `ramavt train` loads this module at start-up (its clock counts imports) and needs none of it
+    from ramavt_jax.evaluation.runs import check_policy_params
+
+    try:
+        check_policy_params(run_dir, policy_params)
+    except ValueError as e:
+        raise UsageError(f"--run {e}") from None
 
 
 def output_folder(path: Path, flag: str = "--out") -> Path:

@@ -36,13 +36,26 @@ class LoadedRun:
     meta: dict
 
 
+def check_policy_params(run_dir, policy_params: str | None, config: TrainConfig | None = None) -> None:
+    """Refuse (ValueError, one line) ``policy_params='averaged'`` for a run folder that keeps no tail average;
+    ``config``: the run's, when already read."""
+    if policy_params != "averaged":
+        return
+    if config is None:
+        config = TrainConfig.from_dict(folders.read_config(Path(run_dir))["config"])
+    if config.run.policy_average_from is None:
+        raise ValueError(f"{run_dir} keeps no averaged params: policy_params='averaged' needs a run trained with "
+                         f"--run.policy-average-from S (or use the 'target' params)")
+
+
 def load_policy(run_dir, step: int | None = None, name: str | None = None,
                 policy_params: str | None = None, log=print) -> LoadedRun:
     """The greedy policy of a training run folder written by ``ramavt train`` (config.json + checkpoints/).
 
     One network parameter set is read from the checkpoint (not the replay buffer): the online net's, the target
-    net's or their tail average ('online' | 'target' | 'averaged'), as ``policy_params`` says, by default as the run's config (RunConfig.policy_params) says. The returned config
-    records the set that was read. Without ``step``, a damaged newest checkpoint is skipped (reported through
+    net's or their tail average ('online' | 'target' | 'averaged'), as ``policy_params`` says, by default as the
+    run's config (RunConfig.policy_params) says (check_policy_params refuses a set the run does not keep). The
+    returned config records the set that was read. Without ``step``, a damaged newest checkpoint is skipped (reported through
     ``log`` in one line, left on disk) for the newest that loads. An incomplete config.json is refused
     (RunFolderError naming the missing field)."""
     run_dir = Path(run_dir)
@@ -52,9 +65,7 @@ def load_policy(run_dir, step: int | None = None, name: str | None = None,
                                 f"(config.json, checkpoints/)")
     saved = folders.read_config(run_dir)
     config = TrainConfig.from_dict(saved["config"])
-    if policy_params == "averaged" and config.run.policy_average_from is None:
-        raise ValueError(f"{run_dir} keeps no averaged params: policy_params='averaged' needs a run trained with "
-                         f"--run.policy-average-from S")
+    check_policy_params(run_dir, policy_params, config)
     if policy_params is not None:
         config = config.override(policy_params=policy_params)
     store = CheckpointStore(run_dir / folders.CHECKPOINTS, create=False)
