@@ -280,6 +280,10 @@ ARMS["lambda-09"] = lambda c: ARMS["clip-1152k"](c).override(td_lambda=0.9, n_st
 # 36 chunks (one change: the parameter set the policy acts with; training is the same). The quick preset since it
 # scored higher with a narrower spread over seeds on validation.
 ARMS["avg-12"] = lambda c: ARMS["online-boot"](c).override(policy_average_from=24, policy_params="averaged")
+# Exploration decaying over 100k env steps instead of 200k: with targets from the online net learning starts sooner,
+# and acting greedily sooner may then bring the crossing of the depth tracker forward (with the target net it
+# did not: eps-100k).
+ARMS["avg-eps-100k"] = lambda c: ARMS["avg-12"](c).override(eps_decay_steps=100_000)
 
 
 def arm_config(name: str, preset: str = "quick", **overrides):
