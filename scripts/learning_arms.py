@@ -284,6 +284,10 @@ ARMS["avg-12"] = lambda c: ARMS["online-boot"](c).override(policy_average_from=2
 # and acting greedily sooner may then bring the crossing of the depth tracker forward (with the target net it
 # did not: eps-100k).
 ARMS["avg-eps-100k"] = lambda c: ARMS["avg-12"](c).override(eps_decay_steps=100_000)
+# The quick preset as it is now (clip 1, targets from the online net, the tail average) with the sizes preset's size
+# randomisation: one change to 'avg-12'; against the sizes preset, whose other settings are those of the quick preset
+# when it was chosen.
+ARMS["size-quick"] = lambda c: _env(ARMS["avg-12"](c), size_scale_min=0.15, size_scale_max=1.0)
 
 
 def arm_config(name: str, preset: str = "quick", **overrides):
