@@ -75,6 +75,8 @@ def _changes(arm: str, reference: str) -> dict:
         ("lambda-09", "clip-1152k", {"learner.td_lambda": 0.9, "learner.n_step": 1}),  # lambda replaces n-step
         # one change: the parameters the policy acts with
         ("avg-12", "online-boot", {"run.policy_average_from": 24, "run.policy_params": "averaged"}),
+        ("avg-eps-100k", "avg-12", {"acting.eps_decay_steps": 100_000}),
+        ("size-quick", "avg-12", {"env_params": (("size_scale_max", 1.0), ("size_scale_min", 0.15))}),
         ("size-stretch", "size-small-1152k", {"env_params": (("size_scale_max", 1.0), ("size_scale_min", 0.15),
                                                              ("stretch_max", 1.5), ("stretch_prob", 0.5))}),
         ("clip-1536k", "clip-1152k", {"run.total_env_steps": 1_536_000}),
@@ -95,7 +97,7 @@ def test_quick_preset_is_the_depth_row():
 
 def test_sizes_preset_is_the_arm_chosen_for_other_sizes():
     sizes = learning_arms.presets.preset("sizes", eval_episodes=0)
-    assert learning_arms.arm_config("size-small-1152k") == sizes
+    assert learning_arms.arm_config("size-quick") == sizes
     assert dict(sizes.env_params) == {"size_scale_min": 0.15, "size_scale_max": 1.0}
 
 
