@@ -288,6 +288,8 @@ ARMS["avg-eps-100k"] = lambda c: ARMS["avg-12"](c).override(eps_decay_steps=100_
 # randomisation: one change to 'avg-12'; against the sizes preset, whose other settings are those of the quick preset
 # when it was chosen.
 ARMS["size-quick"] = lambda c: _env(ARMS["avg-12"](c), size_scale_min=0.15, size_scale_max=1.0)
+# The sizes preset at 64x64 depth (an 8x8 first patch keeps the 4x4 token grid): small targets cover 4x the pixels.
+ARMS["size-res64"] = lambda c: _res64(ARMS["size-quick"](c))
 
 
 def arm_config(name: str, preset: str = "quick", **overrides):

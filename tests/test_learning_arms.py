@@ -77,6 +77,8 @@ def _changes(arm: str, reference: str) -> dict:
         ("avg-12", "online-boot", {"run.policy_average_from": 24, "run.policy_params": "averaged"}),
         ("avg-eps-100k", "avg-12", {"acting.eps_decay_steps": 100_000}),
         ("size-quick", "avg-12", {"env_params": (("size_scale_max", 1.0), ("size_scale_min", 0.15))}),
+        ("size-res64", "size-quick", {"env.camera.resolution": 64, "network.kernels": (8, 2, 3),
+                                      "network.strides": (8, 2, 1)}),
         ("size-stretch", "size-small-1152k", {"env_params": (("size_scale_max", 1.0), ("size_scale_min", 0.15),
                                                              ("stretch_max", 1.5), ("stretch_prob", 0.5))}),
         ("clip-1536k", "clip-1152k", {"run.total_env_steps": 1_536_000}),
