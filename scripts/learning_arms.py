@@ -223,7 +223,7 @@ ARMS["clip-1"] = lambda c: ARMS["patch-768k"](c).override(max_grad_norm=1.0)
 # depth tracker, lower at the end before the clip).
 ARMS["clip-1152k"] = lambda c: ARMS["clip-1"](c).override(total_env_steps=1_152_000)
 ARMS["clip-polyak-002"] = lambda c: ARMS["clip-1"](c).override(polyak_tau=0.02)
-# The sizes preset ('size-small-1152k') with the quick preset's clip: one change to it.
+# The sizes preset then ('size-small-1152k') with the quick preset's clip: one change to it.
 ARMS["size-small-clip-1"] = lambda c: ARMS["size-small-1152k"](c).override(max_grad_norm=1.0)
 # The agent's error is mostly along the boresight and across the image by about half a pixel (scripts/
 # position_error.py): statistics of the silhouette (size, centroid, spread; mean, nearest and spread of depth)
@@ -239,24 +239,25 @@ ARMS["clip-dw1"] = lambda c: ARMS["clip-1152k"](c).override(env_params=(("dist_w
 # 64x64 depth on the quick preset ('res64' was one change to 'patch-768k', at norm 10, with one seed far below the
 # others): more pixels across the target, the first patch 8x8 so the attention keeps its 4x4 token grid.
 ARMS["clip-res64"] = lambda c: _res64(ARMS["clip-1152k"](c))
-# The same statistics for the sizes preset ('size-small-1152k'): a small target covers a few pixels, which patch layers
-# see at 4-pixel granularity.
+# The same statistics for the sizes preset then ('size-small-1152k'): a small target covers a few pixels, which
+# patch layers see at 4-pixel granularity.
 ARMS["size-stats"] = lambda c: _net(ARMS["size-small-1152k"](c), silhouette_stats=True)
 ARMS["res64"] = lambda c: _res64(ARMS["patch-768k"](c))
 # The gap to the ceiling is largest on the panelled shapes (the validation satellite and station), and linear probes
 # find no trace of the satellite's tracking error in the agent's memory (docs/experiments.md): more training shapes,
 # each catalogue model stretched along its principal axes in half the episodes (factors up to 1.5 ** (4/3) per
-# axis, volume kept), one change to the quick preset and to the sizes preset.
+# axis, volume kept), one change to the quick preset and to the sizes preset then ('size-small-1152k').
 _STRETCH = {"stretch_max": 1.5, "stretch_prob": 0.5}
 ARMS["stretch"] = lambda c: _env(ARMS["clip-1152k"](c), **_STRETCH)
 ARMS["size-stretch"] = lambda c: _env(ARMS["size-small-1152k"](c), **_STRETCH)
 # Prioritised sequence replay with R2D2's settings (priority exponent 0.9, importance exponent 0.6, priorities
 # 0.9 max + 0.1 mean |TD error|), one change to the quick preset.
 ARMS["per"] = lambda c: ARMS["clip-1152k"](c).override(priority_exponent=0.9)
-# Targets of other sizes, each one change to the sizes preset: resized up to 4x as well as down to 0.15x (under the
-# stand-off speed rule a large target looks and moves, in stand-off units, like a 2.5 m one held at 5 m, larger than
-# most catalogue targets, and drifts k times slower); and the stand-off scale k as an input, since a frame does not
-# show it (a small target's image is a catalogue-sized target's, but every command moves it 1/k times as far).
+# Targets of other sizes, each one change to the sizes preset then ('size-small-1152k'): resized up to 4x as well as
+# down to 0.15x (under the stand-off speed rule a large target looks and moves, in stand-off units, like a 2.5 m one
+# held at 5 m, larger than most catalogue targets, and drifts k times slower); and the stand-off scale k as an input,
+# since a frame does not show it (a small target's image is a catalogue-sized target's, but every command moves it
+# 1/k times as far).
 ARMS["size-up"] = lambda c: _env(ARMS["size-small-1152k"](c), size_scale_max=4.0)
 ARMS["size-standoff"] = lambda c: _net(ARMS["size-small-1152k"](c), standoff_input=True)
 # size-standoff failed on the 12 m station in one seed in five: ln k = 1.57 there, beyond the [ln 0.3, 0] that
@@ -271,7 +272,7 @@ ARMS["quantiles"] = lambda c: _net(ARMS["clip-1152k"](c), quantiles=32)
 # update; the target net is still averaged, for acting. The quick preset since it crossed the depth tracker two chunks
 # sooner at the same final AER.
 ARMS["online-boot"] = lambda c: ARMS["clip-1152k"](c).override(bootstrap_from="online")
-# The sizes preset with the quick preset's targets from the online net: one change to it.
+# The sizes preset then ('size-small-1152k') with the quick preset's targets from the online net: one change to it.
 ARMS["size-online-boot"] = lambda c: ARMS["size-small-1152k"](c).override(bootstrap_from="online")
 # Peng's Q(lambda) returns (lambda 0.9: a mean horizon of 10 steps against the preset's 5-step returns) in place of
 # the n-step ones.
@@ -285,8 +286,8 @@ ARMS["avg-12"] = lambda c: ARMS["online-boot"](c).override(policy_average_from=2
 # did not: eps-100k).
 ARMS["avg-eps-100k"] = lambda c: ARMS["avg-12"](c).override(eps_decay_steps=100_000)
 # The quick preset as it is now (clip 1, targets from the online net, the tail average) with the sizes preset's size
-# randomisation: one change to 'avg-12'; against the sizes preset, whose other settings are those of the quick preset
-# when it was chosen.
+# randomisation: one change to 'avg-12', and the sizes preset since (presets._sizes); the earlier sizes preset,
+# 'size-small-1152k', kept the quick preset's settings of its time (norm 10, targets and policy from the target net).
 ARMS["size-quick"] = lambda c: _env(ARMS["avg-12"](c), size_scale_min=0.15, size_scale_max=1.0)
 # The sizes preset at 64x64 depth (an 8x8 first patch keeps the 4x4 token grid): small targets cover 4x the pixels.
 ARMS["size-res64"] = lambda c: _res64(ARMS["size-quick"](c))
