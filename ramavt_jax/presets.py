@@ -60,7 +60,7 @@ def _long() -> TrainConfig:
 def _sizes() -> TrainConfig:
     """The quick preset for targets of other sizes: each training target resized by a log-uniform factor in [0.15, 1]
     (small targets need the practice); everything else is the quick preset's (docs/experiments.md, arm size-quick:
-    61 % of the ceiling on the resized validation models, against 52 % for the earlier sizes preset, which kept the
+    62 % of the ceiling on the resized validation models, against 52 % for the earlier sizes preset, which kept the
     gradient clip at norm 10, targets from the target net and a policy of its target params)."""
     return _quick().override(env_params={"size_scale_min": 0.15, "size_scale_max": 1.0})
 
