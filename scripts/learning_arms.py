@@ -286,10 +286,11 @@ ARMS["avg-12"] = lambda c: ARMS["online-boot"](c).override(policy_average_from=2
 # did not: eps-100k).
 ARMS["avg-eps-100k"] = lambda c: ARMS["avg-12"](c).override(eps_decay_steps=100_000)
 # The quick preset as it is now (clip 1, targets from the online net, the tail average) with the sizes preset's size
-# randomisation: one change to 'avg-12', and the sizes preset since (presets._sizes); the earlier sizes preset,
+# randomisation: one change to 'avg-12', and the sizes preset until 'size-res64'; the earlier sizes preset,
 # 'size-small-1152k', kept the quick preset's settings of its time (norm 10, targets and policy from the target net).
 ARMS["size-quick"] = lambda c: _env(ARMS["avg-12"](c), size_scale_min=0.15, size_scale_max=1.0)
-# The sizes preset at 64x64 depth (an 8x8 first patch keeps the 4x4 token grid): small targets cover 4x the pixels.
+# 'size-quick' at 64x64 depth (an 8x8 first patch keeps the 4x4 token grid): small targets cover 4x the pixels. The
+# sizes preset since it scored higher on val-sizes (presets._sizes).
 ARMS["size-res64"] = lambda c: _res64(ARMS["size-quick"](c))
 
 
