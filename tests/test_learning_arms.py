@@ -103,6 +103,22 @@ def test_sizes_preset_is_the_arm_chosen_for_other_sizes():
     assert dict(sizes.env_params) == {"size_scale_min": 0.15, "size_scale_max": 1.0}
 
 
+def test_reproduce_flags_give_the_earlier_sizes_preset_back(monkeypatch):
+    """docs/reproduce.md's $S10, put after `--preset sizes`, parses (through the CLI) to the earlier sizes preset,
+    arm 'size-small-1152k', so the commands recorded before the preset changed still run as they ran."""
+    import re
+
+    from ramavt_jax import cli
+    from ramavt_jax.cli import train as cli_train
+
+    flags = re.search(r'^S10="([^"]*)"$', (ROOT / "docs" / "reproduce.md").read_text(), re.M).group(1).split()
+    seen = {}
+    monkeypatch.setattr(cli_train, "train_and_evaluate", lambda config, out, **kw: seen.update(config=config))
+    monkeypatch.setattr(cli_train, "_print_summary", lambda *a: None)
+    cli.main(["train", "--preset", "sizes", *flags, "--run.eval-episodes", "0", "--out", "x"])
+    assert seen["config"] == learning_arms.arm_config("size-small-1152k")
+
+
 def test_report_prints_the_seeds(tmp_path, capsys):
     names = list(learning_arms.targets_lib.TEST_TARGETS)
     seeds = [{"AEL": ael, "AER": aer, "lost": 0.0, "per_target": {n: {"AEL": ael, "AER": aer} for n in names}}
