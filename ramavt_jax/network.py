@@ -275,7 +275,8 @@ class QNetwork(nn.Module):
             obs, frames = stack_frames(obs, reset, state.frames)
         x = Encoder(cfg, name="encoder")(obs.reshape(b * t, *obs.shape[2:]), train)  # [B*T, F]
         if cfg.recurrent:
-            x = nn.relu(nn.Dense(cfg.dense, dtype=dtype, kernel_init=he_init, name="dense")(x)).reshape(b, t, -1)
+            x = nn.relu(_maybe_norm(cfg, "dense_norm", nn.Dense(cfg.dense, dtype=dtype, kernel_init=he_init,
+                                                                name="dense")(x))).reshape(b, t, -1)
             prev_action = state.prev_action
             if cfg.prev_action:
                 x = jnp.concatenate([x, previous_actions(cfg, reset, state, actions)], axis=-1)
@@ -286,7 +287,7 @@ class QNetwork(nn.Module):
             y, (h, c) = LSTMStack(cfg.lstm, cfg.lstm_layers, dtype=dtype, name="lstm")(x, reset, (state.h, state.c))
             if cfg.aux_outputs:  # [B, T, aux_outputs], read by auxiliary losses only
                 self.sow("intermediates", "aux", nn.Dense(cfg.aux_outputs, dtype=dtype, name="aux_head")(y))
-            y = nn.relu(nn.Dense(cfg.head, dtype=dtype, kernel_init=he_init, name="head")(y))
+            y = nn.relu(_maybe_norm(cfg, "head_norm", nn.Dense(cfg.head, dtype=dtype, kernel_init=he_init, name="head")(y)))
             q = q_outputs(cfg, y)
             new_state = RecurrentState(h=h, c=c, frames=frames, prev_action=prev_action)
         else:
@@ -299,6 +300,12 @@ class QNetwork(nn.Module):
             self.sow("intermediates", "quantiles", q.reshape(b, t, cfg.num_actions, cfg.quantiles))
             q = q.mean(-1)
         return q.reshape(b, t, cfg.num_actions).astype(jnp.float32), new_state
+
+
+def _maybe_norm(cfg: NetworkConfig, name: str, x: jax.Array) -> jax.Array:
+    """x [..., F] through a LayerNorm over F named ``name`` (inside QNetwork's compact call) with
+    ``cfg.dense_norm``; x unchanged without."""
+    return nn.LayerNorm(dtype=cfg.jnp_dtype, name=name)(x) if cfg.dense_norm else x
 
 
 def standoff_feature(standoff: jax.Array | None, shape: tuple[int, int]) -> jax.Array:

@@ -73,6 +73,10 @@ class NetworkConfig:
     # N quantiles of the return per action (QR-DQN, Dabney et al. 2018; 0 = expected values only): the head outputs
     # A * N values, sown as intermediates 'quantiles' [B, T, A, N] for the quantile loss; Q is their mean.
     quantiles: int = 0
+    # LayerNorm between the dense layer and its ReLU, and between the head and its ReLU (PQN's normalisation of the
+    # value network, Gallici et al. 2024): it bounds the features a Q-value is read from, which keeps bootstrapping
+    # from the online net stable. Recurrent variants only.
+    dense_norm: bool = False
 
     def __post_init__(self):
         def fail(msg):
@@ -126,6 +130,9 @@ class NetworkConfig:
         if self.silhouette_stats and not self.recurrent:
             fail("silhouette_stats needs a recurrent variant (one frame per encoder input), not 'drlavt', whose "
                  "encoder sees a stack of frames")
+        if self.dense_norm and not self.recurrent:
+            fail("dense_norm needs a recurrent variant (it normalises the dense layer and head around the LSTM), not "
+                 "'drlavt'")
         if self.prev_action and not self.recurrent:
             fail("prev_action needs a recurrent variant (the previous action is an LSTM input), not 'drlavt'")
         if isinstance(self.quantiles, bool) or not isinstance(self.quantiles, (int, np.integer)) or (

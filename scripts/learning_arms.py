@@ -293,6 +293,10 @@ ARMS["size-quick"] = lambda c: _env(ARMS["avg-12"](c), size_scale_min=0.15, size
 # sizes preset since it scored higher on val-sizes (presets._sizes).
 ARMS["size-res64"] = lambda c: _res64(ARMS["size-quick"](c))
 
+# PQN's LayerNorm (Gallici et al. 2024) in the dense layer and the head, one change to the quick preset ('avg-12'),
+# whose targets already come from the online net: the normalisation PQN pairs with such targets.
+ARMS["dense-norm"] = lambda c: _net(ARMS["avg-12"](c), dense_norm=True)
+
 
 def arm_config(name: str, preset: str = "quick", **overrides):
     base = presets.preset(preset, eval_episodes=0, **overrides)

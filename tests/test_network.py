@@ -549,3 +549,23 @@ def test_encoder_appends_the_silhouette_stats_last():
     assert with_stats.shape == (2, without.shape[1] + 8)
     np.testing.assert_allclose(with_stats[:, :-8], without, atol=1e-6)
     np.testing.assert_allclose(with_stats[:, -8:], silhouette_stats(obs), atol=1e-6)
+
+
+def test_dense_norm_makes_q_invariant_to_the_scale_of_the_dense_layer_and_head():
+    """With dense_norm a LayerNorm follows the dense layer and the head: scaling either layer's kernel and bias by
+    a positive factor leaves every Q-value as it was; without it, the same scaling changes them."""
+    b, t = 2, 3
+    for norm in (True, False):
+        cfg = small("ramavt", dense_norm=norm)
+        _, variables, obs = _setup(cfg, b=b, t=t)
+        reset, state = jnp.zeros((b, t), bool).at[:, 0].set(True), initial_state(cfg, b, obs.shape[2:])
+        params = variables["params"]
+        assert ("dense_norm" in params and "head_norm" in params) == norm
+        q, _ = _apply(cfg, variables, obs, reset, state)
+        scaled = {**params, **{name: jax.tree.map(lambda w: 3.0 * w, params[name]) for name in ("dense", "head")}}
+        q_scaled, _ = _apply(cfg, {**variables, "params": scaled}, obs, reset, state)
+        change = float(jnp.max(jnp.abs(q_scaled - q)) / jnp.max(jnp.abs(q)))
+        # with the norm only its epsilon (1e-6 beside the features' variance at init) tells the scales apart
+        assert change < 2e-3 if norm else change > 0.05, change
+    with pytest.raises(ValueError, match="dense_norm needs a recurrent variant"):
+        small("drlavt", dense_norm=True)

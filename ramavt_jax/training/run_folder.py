@@ -44,7 +44,8 @@ ADDED_FIELDS = ("network.depth_centre", "network.depth_gain", "learner.polyak_ta
                 "learner.polyak_tau_decay", "network.silhouette_stats", "replay.priority_exponent",
                 "replay.importance_exponent", "replay.priority_max_share", "network.standoff_input",
                 "network.command_gain_input", "network.quantiles", "learner.quantile_kappa",
-                "learner.bootstrap_from", "learner.td_lambda", "run.policy_average_from")
+                "learner.bootstrap_from", "learner.td_lambda", "run.policy_average_from",
+                "network.dense_norm")
 _SEED_DIR = re.compile(r"seed_\d+")
 
 
