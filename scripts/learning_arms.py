@@ -296,6 +296,10 @@ ARMS["size-res64"] = lambda c: _res64(ARMS["size-quick"](c))
 # PQN's LayerNorm (Gallici et al. 2024) in the dense layer and the head, one change to the quick preset ('avg-12'),
 # whose targets already come from the online net: the normalisation PQN pairs with such targets.
 ARMS["dense-norm"] = lambda c: _net(ARMS["avg-12"](c), dense_norm=True)
+# Twice the sequences per update (64), at the same number of updates (replay ratio 4: trained frames per env frame
+# double with the batch), one change to the quick preset: less noise in each gradient of the few-cm gaps between
+# actions' values, at about 1.6x the training time (the preset's main job takes 3 min 45 s of the 6 allowed).
+ARMS["batch-64"] = lambda c: ARMS["avg-12"](c).override(batch_size=64, replay_ratio=4.0)
 
 
 def arm_config(name: str, preset: str = "quick", **overrides):
