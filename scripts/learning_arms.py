@@ -305,6 +305,10 @@ ARMS["batch-64"] = lambda c: ARMS["avg-12"](c).override(batch_size=64, replay_ra
 # still trained twice on average (replay ratio 2). One change to the quick preset. (Had it held level, no burn-in
 # would have been next, since a window's stored state is that fresh.)
 ARMS["fresh-replay"] = lambda c: ARMS["avg-12"](c).override(capacity_steps=2560, learning_starts=2560)
+# For the start of learning only (trained for the first 10 chunks, whose training does not depend on the run's
+# length): the faster target average of 'polyak-002' (a chunk or two sooner to the depth tracker with targets from the
+# target net) on top of 'avg-eps-100k' (the earliest crossing so far, chunk 7 in the median).
+ARMS["eps-100k-polyak-002"] = lambda c: ARMS["avg-eps-100k"](c).override(polyak_tau=0.02)
 
 
 def arm_config(name: str, preset: str = "quick", **overrides):

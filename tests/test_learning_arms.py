@@ -79,6 +79,7 @@ def _changes(arm: str, reference: str) -> dict:
         ("dense-norm", "avg-12", {"network.dense_norm": True}),
         ("batch-64", "avg-12", {"replay.batch_size": 64, "learner.replay_ratio": 4.0}),
         ("fresh-replay", "avg-12", {"replay.capacity_steps": 2560, "learner.learning_starts": 2560}),
+        ("eps-100k-polyak-002", "avg-eps-100k", {"learner.polyak_tau": 0.02}),
         ("size-quick", "avg-12", {"env_params": (("size_scale_max", 1.0), ("size_scale_min", 0.15))}),
         ("size-res64", "size-quick", {"env.camera.resolution": 64, "network.kernels": (8, 2, 3),
                                       "network.strides": (8, 2, 1)}),
