@@ -74,8 +74,8 @@ class NetworkConfig:
     # A * N values, sown as intermediates 'quantiles' [B, T, A, N] for the quantile loss; Q is their mean.
     quantiles: int = 0
     # LayerNorm between the dense layer and its ReLU, and between the head and its ReLU (PQN's normalisation of the
-    # value network, Gallici et al. 2024): it bounds the features a Q-value is read from, which keeps bootstrapping
-    # from the online net stable. Recurrent variants only.
+    # value network, Gallici et al. 2024, who credit it with stable bootstrapping from the online net; on the quick
+    # preset it lost, docs/experiments.md arm dense-norm). Recurrent variants only.
     dense_norm: bool = False
 
     def __post_init__(self):

@@ -298,16 +298,19 @@ ARMS["size-res64"] = lambda c: _res64(ARMS["size-quick"](c))
 ARMS["dense-norm"] = lambda c: _net(ARMS["avg-12"](c), dense_norm=True)
 # Twice the sequences per update (64), at the same number of updates (replay ratio 4: trained frames per env frame
 # double with the batch), one change to the quick preset: less noise in each gradient of the few-cm gaps between
-# actions' values, at about 1.6x the training time (the preset's main job takes 3 min 45 s of the 6 allowed).
+# actions' values, at 1.4-1.7x the training time as measured (the preset's main job takes 3 min 45 s of the 6
+# allowed).
 ARMS["batch-64"] = lambda c: ARMS["avg-12"](c).override(batch_size=64, replay_ratio=4.0)
 # PQN's data flow within this learner: a replay of the last two rollouts only (64 envs x 40 steps; learning from
 # the second rollout on, as the buffer holds no more), so every window is at most two iterations old; each frame is
-# still trained twice on average (replay ratio 2). One change to the quick preset. (Had it held level, no burn-in
-# would have been next, since a window's stored state is that fresh.)
+# still trained twice on average (replay ratio 2). One change to the quick preset. Its stored states would allow no
+# burn-in; that was not tried, as this arm lost on its own.
 ARMS["fresh-replay"] = lambda c: ARMS["avg-12"](c).override(capacity_steps=2560, learning_starts=2560)
 # For the start of learning only (trained for the first 10 chunks, whose training does not depend on the run's
 # length): the faster target average of 'polyak-002' (a chunk or two sooner to the depth tracker with targets from the
-# target net) on top of 'avg-eps-100k' (the earliest crossing so far, chunk 7 in the median).
+# target net) on top of 'avg-eps-100k' (the earliest crossing so far, chunk 7 in the median). With targets from the
+# online net the target params feed no update and training acts with the online params, so this changes only the
+# policy flown: an average over about 50 updates instead of 100.
 ARMS["eps-100k-polyak-002"] = lambda c: ARMS["avg-eps-100k"](c).override(polyak_tau=0.02)
 
 
