@@ -38,11 +38,14 @@ VARIANTS = ("one program", "two in turn", "two in parallel")
 
 
 def _split_programs(trainer: Trainer):
-    """(acting, learning) jitted: acting(params, actor, replay, env_steps, key) -> (actor, replay, stats) and
-    learning(learner, replay, env_steps, key) -> (learner, replay, learned): Trainer.iteration in two programs."""
+    """(acting, learning) jitted: acting(params, actor, replay, env_steps, key) -> (actor, replay, stats,
+    env_steps after the rollout, the next iteration's key, the learning key) and learning(learner, replay, env_steps,
+    key) -> (learner, replay, learned): Trainer.iteration in two programs, the key split and step count inside."""
     def acting(params, actor, replay, env_steps, key):
-        actor, chunk, stats, _ = trainer.rollout(params, actor, env_steps, key)
-        return actor, trainer.replay.add(replay, chunk), stats
+        key, k_act, k_learn = jax.random.split(key, 3)
+        actor, chunk, stats, _ = trainer.rollout(params, actor, env_steps, k_act)
+        env_steps = env_steps + trainer.config.env_steps_per_iteration
+        return actor, trainer.replay.add(replay, chunk), stats, env_steps, key, k_learn
 
     return jax.jit(acting, donate_argnums=(1, 2)), jax.jit(trainer.learn, donate_argnums=(0, 1))
 
@@ -50,7 +53,7 @@ def _split_programs(trainer: Trainer):
 def _lowered(trainer: Trainer):
     """The lowered fused chunk, acting and learning programs for the preset's state shapes."""
     runner = jax.eval_shape(trainer.init, jax.random.PRNGKey(0))
-    key = jax.eval_shape(lambda: jax.random.PRNGKey(0))
+    key = runner.key  # the programs take the runner's key and keys split from it
     acting, learning = _split_programs(trainer)
     return (jax.jit(trainer.chunk, donate_argnums=0).lower(runner),
             acting.lower(runner.learner.params, runner.actor, runner.replay, runner.env_steps, key),
@@ -80,13 +83,11 @@ def run_both(preset: str, chunks: int) -> dict:
     trainer = Trainer(presets.preset(preset))
     fused = jax.jit(trainer.chunk, donate_argnums=0)
     acting, learning = _split_programs(trainer)
-    steps = trainer.config.env_steps_per_iteration
 
-    def split_chunk(runner):
+    def split_chunk(runner):  # two dispatches an iteration (the chunk's policy average, once a chunk, left out)
         for _ in range(trainer.config.run.iterations_per_chunk):
-            key, k_act, k_learn = jax.random.split(runner.key, 3)
-            actor, replay, _ = acting(runner.learner.params, runner.actor, runner.replay, runner.env_steps, k_act)
-            env_steps = runner.env_steps + steps
+            actor, replay, _, env_steps, key, k_learn = acting(runner.learner.params, runner.actor, runner.replay,
+                                                               runner.env_steps, runner.key)
             learner, replay, learned = learning(runner.learner, replay, env_steps, k_learn)
             runner = runner.replace(actor=actor, replay=replay, learner=learner, key=key, env_steps=env_steps)
         return runner, learned
@@ -118,6 +119,8 @@ def main(argv=None) -> None:
     p.add_argument("--out", type=Path, default=DEFAULT_OUT)
     p.add_argument("--child", choices=[*VARIANTS, "run"], help=argparse.SUPPRESS)
     a = p.parse_args(argv)
+    if a.rounds < 1 or a.chunks < 1:
+        p.error(f"--rounds and --chunks must be >= 1, got {a.rounds} and {a.chunks}")
     if a.child == "run":
         print(json.dumps(run_both(a.preset, a.chunks)))
         return
