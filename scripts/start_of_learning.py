@@ -49,9 +49,10 @@ def main(argv=None) -> None:
     fig, ax = plt.subplots(figsize=(7.0, 4.2))
     print(f"| arm | seeds | first chunk above the depth tracker (+{depth:.1f}), per seed | mean AER per chunk |")
     print("|---|---|---|---|")
-    for name, result in arms.items():
+    for i, (name, result) in enumerate(arms.items()):
         chunks, aer = arm_points(result)
-        (line,) = ax.plot(chunks, aer.mean(0), marker=".", lw=1.5, label=f"{name} ({len(aer)} seeds)")
+        style = ("-", "-.", ":")[i // 10 % 3]  # the colour cycle has 10 colours; past it, another line style
+        (line,) = ax.plot(chunks, aer.mean(0), marker=".", lw=1.5, ls=style, label=f"{name} ({len(aer)} seeds)")
         ax.fill_between(chunks, aer.min(0), aer.max(0), color=line.get_color(), alpha=0.15, lw=0)
         crossings = ", ".join("-" if c is None else str(c) for c in first_above(result, depth))
         means = ", ".join(f"{c}: {m:+.1f}" for c, m in zip(chunks, aer.mean(0)))
