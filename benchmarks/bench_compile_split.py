@@ -68,7 +68,8 @@ def compile_once(preset: str, variant: str) -> float:
     if variant == "one program":
         chunk.compile()
     elif variant == "two in turn":
-        acting.compile(), learning.compile()
+        acting.compile()
+        learning.compile()
     else:
         with ThreadPoolExecutor(1) as pool:  # XLA releases the GIL while it compiles
             pending = pool.submit(acting.compile)

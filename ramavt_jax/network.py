@@ -275,8 +275,8 @@ class QNetwork(nn.Module):
             obs, frames = stack_frames(obs, reset, state.frames)
         x = Encoder(cfg, name="encoder")(obs.reshape(b * t, *obs.shape[2:]), train)  # [B*T, F]
         if cfg.recurrent:
-            x = nn.relu(_maybe_norm(cfg, "dense_norm", nn.Dense(cfg.dense, dtype=dtype, kernel_init=he_init,
-                                                                name="dense")(x))).reshape(b, t, -1)
+            x = nn.Dense(cfg.dense, dtype=dtype, kernel_init=he_init, name="dense")(x)
+            x = nn.relu(_maybe_norm(cfg, "dense_norm", x)).reshape(b, t, -1)
             prev_action = state.prev_action
             if cfg.prev_action:
                 x = jnp.concatenate([x, previous_actions(cfg, reset, state, actions)], axis=-1)
@@ -287,7 +287,8 @@ class QNetwork(nn.Module):
             y, (h, c) = LSTMStack(cfg.lstm, cfg.lstm_layers, dtype=dtype, name="lstm")(x, reset, (state.h, state.c))
             if cfg.aux_outputs:  # [B, T, aux_outputs], read by auxiliary losses only
                 self.sow("intermediates", "aux", nn.Dense(cfg.aux_outputs, dtype=dtype, name="aux_head")(y))
-            y = nn.relu(_maybe_norm(cfg, "head_norm", nn.Dense(cfg.head, dtype=dtype, kernel_init=he_init, name="head")(y)))
+            y = nn.Dense(cfg.head, dtype=dtype, kernel_init=he_init, name="head")(y)
+            y = nn.relu(_maybe_norm(cfg, "head_norm", y))
             q = q_outputs(cfg, y)
             new_state = RecurrentState(h=h, c=c, frames=frames, prev_action=prev_action)
         else:

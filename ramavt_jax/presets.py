@@ -63,11 +63,15 @@ def _sizes() -> TrainConfig:
     patch, which keeps the quick preset's 4x4 attention tokens; everything else is the quick preset's
     (docs/experiments.md, arms size-quick and size-res64: 63 % of the ceiling on the resized validation models over ten
     seeds, against 62 % at 32x32 and 52 % for the earlier sizes preset)."""
-    quick = _quick()
-    camera = dataclasses.replace(quick.env.camera, resolution=64)
-    return quick.override(env=dataclasses.replace(quick.env, camera=camera),
-                          network=dataclasses.replace(quick.network, kernels=(8, 2, 3), strides=(8, 2, 1)),
-                          env_params={"size_scale_min": 0.15, "size_scale_max": 1.0})
+    return at_64x64(_quick()).override(env_params={"size_scale_min": 0.15, "size_scale_max": 1.0})
+
+
+def at_64x64(config: TrainConfig) -> TrainConfig:
+    """``config`` (a 32x32 one with a 4x4 first patch) at 64x64 depth with an 8x8 first patch, so that the attention
+    keeps its 4x4 token grid; everything else unchanged."""
+    camera = dataclasses.replace(config.env.camera, resolution=64)
+    return config.override(env=dataclasses.replace(config.env, camera=camera),
+                           network=dataclasses.replace(config.network, kernels=(8, 2, 3), strides=(8, 2, 1)))
 
 
 def _paper() -> TrainConfig:

@@ -42,10 +42,7 @@ def _env(cfg, **params):
     return cfg.override(env_params={**dict(cfg.env_params), **params})
 
 
-def _res64(cfg):
-    """64x64 depth with an 8x8 first patch, so the attention keeps the 4x4 token grid of 32x32 with a 4x4 patch."""
-    return _net(cfg, kernels=(8, 2, 3), strides=(8, 2, 1)).override(
-        env=dataclasses.replace(cfg.env, camera=dataclasses.replace(cfg.env.camera, resolution=64)))
+_res64 = presets.at_64x64  # 64x64 depth with an 8x8 first patch (the 4x4 token grid kept): the sizes preset's
 
 
 # One change per arm against 'base', the quick preset as it was before the learning fixes (a 2x2 final map, an

@@ -562,10 +562,11 @@ def test_dense_norm_makes_q_invariant_to_the_scale_of_the_dense_layer_and_head()
         params = variables["params"]
         assert ("dense_norm" in params and "head_norm" in params) == norm
         q, _ = _apply(cfg, variables, obs, reset, state)
-        scaled = {**params, **{name: jax.tree.map(lambda w: 3.0 * w, params[name]) for name in ("dense", "head")}}
-        q_scaled, _ = _apply(cfg, {**variables, "params": scaled}, obs, reset, state)
-        change = float(jnp.max(jnp.abs(q_scaled - q)) / jnp.max(jnp.abs(q)))
-        # with the norm only its epsilon (1e-6 beside the features' variance at init) tells the scales apart
-        assert change < 2e-3 if norm else change > 0.05, change
+        for layer in ("dense", "head"):
+            scaled = {**params, layer: jax.tree.map(lambda w: 3.0 * w, params[layer])}
+            q_scaled, _ = _apply(cfg, {**variables, "params": scaled}, obs, reset, state)
+            change = float(jnp.max(jnp.abs(q_scaled - q)) / jnp.max(jnp.abs(q)))
+            # with the norm only its epsilon (1e-6 beside the features' variance at init) tells the scales apart
+            assert change < 2e-3 if norm else change > 0.05, (layer, change)
     with pytest.raises(ValueError, match="dense_norm needs a recurrent variant"):
         small("drlavt", dense_norm=True)
