@@ -304,8 +304,7 @@ class QNetwork(nn.Module):
 
 
 def _maybe_norm(cfg: NetworkConfig, name: str, x: jax.Array) -> jax.Array:
-    """x [..., F] through a LayerNorm over F named ``name`` (inside QNetwork's compact call) with
-    ``cfg.dense_norm``; x unchanged without."""
+    """x [..., F] through a LayerNorm over F named ``name`` with ``cfg.dense_norm`` (in QNetwork's compact call)."""
     return nn.LayerNorm(dtype=cfg.jnp_dtype, name=name)(x) if cfg.dense_norm else x
 
 
