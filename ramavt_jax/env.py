@@ -63,6 +63,7 @@ class EnvState:
     episode_return: jax.Array  # []
     done: jax.Array  # [] bool, the last step ended the episode (used by next_step autoreset)
     scale: jax.Array  # [] stand-off scale k of this episode's target (standoff_scale; 1 for every catalogue target)
+    perturbed: jax.Array  # [3] 1.0 where this episode has actuator noise, time delay, blur (randomisation.perturbed)
 
 
 @struct.dataclass
@@ -229,6 +230,7 @@ class TrackingEnv:
             episode_return=jnp.zeros(()),
             done=jnp.zeros((), bool),
             scale=scale,
+            perturbed=randomisation.perturbed(key, params),
         )
 
     # ----------------------------------------------------------------------------------------- step
@@ -236,8 +238,9 @@ class TrackingEnv:
         """Physics only: apply the velocity command and advance target and chaser by one (possibly delayed) step."""
         k_noise, k_delay = jax.random.split(key)
         command_cam = jnp.asarray(ACTIONS)[action] * command_speed(state, params)
-        command_cam = command_cam * (1.0 + params.actuator_noise * jax.random.normal(k_noise, (3,)))
-        duration = params.dt + params.delay_max * jax.random.uniform(k_delay, ())
+        noise, delay = params.actuator_noise * state.perturbed[0], params.delay_max * state.perturbed[1]
+        command_cam = command_cam * (1.0 + noise * jax.random.normal(k_noise, (3,)))
+        duration = params.dt + delay * jax.random.uniform(k_delay, ())
         command = HILL_FROM_CAM @ command_cam
 
         # Chaser: first-order velocity lag (tau = 0 is instant), trapezoidal position update.
@@ -389,7 +392,8 @@ class TrackingEnv:
         if first is not None:  # a new episode starts with a history full of its first frame
             frames = jnp.where(first, jnp.broadcast_to(image, frames.shape), frames)
         k = frames.shape[0]
-        weights = (jnp.arange(k) >= k - params.blur_frames).astype(image.dtype)
+        blur_frames = jnp.where(state.perturbed[2] > 0, params.blur_frames, 1)
+        weights = (jnp.arange(k) >= k - blur_frames).astype(image.dtype)
         if k == 1:  # no averaging blur possible: the frame itself (the same value, without the weighted sum)
             return frames[0], state.replace(frames=frames)
         obs = jnp.tensordot(weights / weights.sum(), frames, axes=1)

@@ -139,6 +139,11 @@ class EnvParams:
     motion_blur_px: jax.Array = 0.0  # px, along the image-plane direction of the relative motion
     depth_noise_std: jax.Array = 0.0  # additive noise on target pixels (in observation units)
     frame_drop_prob: jax.Array = 0.0  # probability that the camera repeats its previous frame
+    # Perturbation randomisation (training): each of the three perturbations above that is configured (actuator
+    # noise, time delay, frame-averaging blur) is applied in an episode with this probability, drawn per
+    # perturbation and episode (randomisation.perturbed); 1, the default, applies them in every episode. Evaluation
+    # sets these four fields itself (evaluation.rollouts.EVAL_FIELDS): a Table II setting is on in every episode.
+    perturb_prob: jax.Array = 1.0
     sun_dir: jax.Array = struct.field(default_factory=lambda: jnp.array([0.5, -0.6, -0.62]) / 0.9993)
     ambient: jax.Array = 0.15
 
@@ -181,6 +186,7 @@ def validate_params(params: EnvParams, config: EnvConfig) -> EnvParams:
     check("target_probs", lambda v: (v >= 0).all() & (abs(v.sum() - 1) < 1e-4) & (v.shape == (len(config.targets),)),
           f"[{len(config.targets)}] non-negative probabilities summing to 1")
     check("frame_drop_prob", lambda v: (v >= 0) & (v <= 1), "in [0, 1]")
+    check("perturb_prob", lambda v: (v >= 0) & (v <= 1), "in [0, 1]")
     for name in ("actuator_noise", "delay_max", "gaussian_blur_sigma", "motion_blur_px", "depth_noise_std",
                  "target_vel_std", "target_spin_std", "target_accel_std", "init_xy_std", "mean_motion"):
         check(name, lambda v: v >= 0, ">= 0")

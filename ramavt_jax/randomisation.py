@@ -1,4 +1,5 @@
-"""Domain randomisation of an episode's target (training): its size (`size_factor`) and its shape (`stretch`).
+"""Domain randomisation (training): an episode's target size (`size_factor`) and shape (`stretch`), and which of
+the configured perturbations the episode has (`perturbed`).
 
 Each draw folds its own data into the episode's key, so the episode's other draws (target, pose, velocities) do not
 depend on these, and with the defaults (off) an episode is bit for bit the one without them.
@@ -14,6 +15,7 @@ from ramavt_jax.env_config import EnvParams
 
 SIZE_KEY = 0x5126  # fold_in data of the size draws (SIZE_KEY and SIZE_KEY + 1)
 STRETCH_KEY = 0x5714  # fold_in data of the shape draws (STRETCH_KEY and STRETCH_KEY + 1)
+PERTURB_KEY = 0x9E27  # fold_in data of the perturbation draws
 
 
 def size_factor(key: jax.Array, params: EnvParams) -> jax.Array:
@@ -40,3 +42,11 @@ def stretch(key: jax.Array, target: targets_lib.TargetModel, params: EnvParams) 
     """The episode's target, stretched (targets.stretched) when stretch_factors says so, else exactly itself."""
     factors, on = stretch_factors(key, params)
     return jax.tree.map(lambda s, t: jnp.where(on, s, t), targets_lib.stretched(target, factors), target)
+
+
+def perturbed(key: jax.Array, params: EnvParams) -> jax.Array:
+    """[3] float, 1.0 where the episode has the perturbation, else 0.0: actuator noise, time delay, frame-averaging
+    blur, each on with probability perturb_prob (always at the default 1). The env multiplies the configured
+    strengths by these, so a perturbation that is not configured stays off either way."""
+    draws = jax.random.uniform(jax.random.fold_in(key, PERTURB_KEY), (3,))
+    return (draws < params.perturb_prob).astype(jnp.float32)

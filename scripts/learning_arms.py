@@ -309,6 +309,16 @@ ARMS["fresh-replay"] = lambda c: ARMS["avg-12"](c).override(capacity_steps=2560,
 # online net the target params feed no update and training acts with the online params, so this changes only the
 # policy flown: an average over about 50 updates instead of 100.
 ARMS["eps-100k-polyak-002"] = lambda c: ARMS["avg-eps-100k"](c).override(polyak_tau=0.02)
+# Table II's perturbations in training (the preset trains on clean episodes): actuator noise 0.3, time delay up to
+# 0.5 s and the 3-frame average blur, each on in half the episodes, drawn per perturbation and episode, so an
+# eighth of the episodes stay clean and an eighth have all three. One change to the quick preset (the frame history
+# the blur needs comes with it; evaluation flies each Table II setting as it is, whatever a run trained with).
+def _table2_in_training(c, share: float):
+    c = c.override(env=dataclasses.replace(c.env, frame_history=3))
+    return _env(c, actuator_noise=0.3, delay_max=0.5, blur_frames=3, perturb_prob=share)
+
+
+ARMS["perturb-05"] = lambda c: _table2_in_training(ARMS["avg-12"](c), 0.5)
 
 
 def arm_config(name: str, preset: str = "quick", **overrides):

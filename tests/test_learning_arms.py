@@ -80,6 +80,8 @@ def _changes(arm: str, reference: str) -> dict:
         ("batch-64", "avg-12", {"replay.batch_size": 64, "learner.replay_ratio": 4.0}),
         ("fresh-replay", "avg-12", {"replay.capacity_steps": 2560, "learner.learning_starts": 2560}),
         ("eps-100k-polyak-002", "avg-eps-100k", {"learner.polyak_tau": 0.02}),
+        ("perturb-05", "avg-12", {"env.frame_history": 3, "env_params": (
+            ("actuator_noise", 0.3), ("blur_frames", 3), ("delay_max", 0.5), ("perturb_prob", 0.5))}),
         ("size-quick", "avg-12", {"env_params": (("size_scale_max", 1.0), ("size_scale_min", 0.15))}),
         ("size-res64", "size-quick", {"env.camera.resolution": 64, "network.kernels": (8, 2, 3),
                                       "network.strides": (8, 2, 1)}),
@@ -121,6 +123,21 @@ def test_reproduce_flags_give_the_earlier_sizes_preset_back(monkeypatch):
     monkeypatch.setattr(cli_train, "_print_summary", lambda *a: None)
     cli.main(["train", "--preset", "sizes", *flags, "--run.eval-episodes", "0", "--out", "x"])
     assert seen["config"] == learning_arms.arm_config("size-small-1152k")
+
+
+def test_table2_training_flags_give_the_perturb_arm(monkeypatch):
+    """docs/reproduce.md's $T2 flags, after `--preset quick`, parse to arm 'perturb-05' (Table II in training)."""
+    import re
+
+    from ramavt_jax import cli
+    from ramavt_jax.cli import train as cli_train
+
+    flags = re.search(r'^T2="([^"]*)"$', (ROOT / "docs" / "reproduce.md").read_text(), re.M).group(1).split()
+    seen = {}
+    monkeypatch.setattr(cli_train, "train_and_evaluate", lambda config, out, **kw: seen.update(config=config))
+    monkeypatch.setattr(cli_train, "_print_summary", lambda *a: None)
+    cli.main(["train", "--preset", "quick", *flags, "--run.eval-episodes", "0", "--out", "x"])
+    assert seen["config"] == learning_arms.arm_config("perturb-05")
 
 
 def test_report_prints_the_seeds(tmp_path, capsys):

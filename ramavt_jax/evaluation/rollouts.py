@@ -20,9 +20,10 @@ from ramavt_jax.evaluation import statistics
 from ramavt_jax.training import memory as memplan
 
 # EnvParams fields whose evaluation values (env.eval_params) replace a run's training values: each target at its own
-# size and shape (no randomisation), one command speed rule for every row of a table (`--speed-standoff-power`)
+# size and shape, one speed rule for every row of a table, and Table II's perturbations as the flown setting says
 EVAL_FIELDS = ("dist_weight", "lost_patience", "size_scale_min", "size_scale_max", "size_scale_prob", "stretch_max",
-               "stretch_prob", "speed_standoff_power", "small_standoff_power")
+               "stretch_prob", "speed_standoff_power", "small_standoff_power", "actuator_noise", "delay_max",
+               "blur_frames", "perturb_prob")
 
 
 def run_env_overrides(env_params) -> dict:
@@ -334,11 +335,8 @@ def evaluate_per_target(
 # observation = mean of the last 3 frames (the paper gives no frame count; 3 is our choice).
 PERTURBATION_VALUES = {"actuator_noise": 0.3, "delay_max": 0.5, "blur_frames": 3}
 PERTURBATIONS: dict[str, tuple[str, ...]] = {
-    "actuator_noise": ("actuator_noise",),
-    "time_delay": ("delay_max",),
-    "blur": ("blur_frames",),
-    "all": ("actuator_noise", "delay_max", "blur_frames"),
-    "none": (),
+    "actuator_noise": ("actuator_noise",), "time_delay": ("delay_max",), "blur": ("blur_frames",),
+    "all": ("actuator_noise", "delay_max", "blur_frames"), "none": (),
 }
 
 
