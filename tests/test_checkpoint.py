@@ -56,6 +56,73 @@ def test_store_round_trip_is_exact(tmp_path):
         store.restore({"just": jnp.zeros(3)})
 
 
+@struct.dataclass
+class _Env:
+    pos: jax.Array
+    perturbed: jax.Array
+
+
+@struct.dataclass
+class _Actor:
+    env_state: _Env
+
+
+@struct.dataclass
+class _Runner:  # the paths of the trainer's state that matter here: learner first, an added leaf inside actor
+    learner: dict
+    actor: _Actor
+    key: jax.Array
+
+
+def _runner(seed: int, with_added: bool = True):
+    k = jax.random.split(jax.random.PRNGKey(seed), 3)
+    env = _Env(pos=jax.random.normal(k[1], (4, 3)), perturbed=jnp.full((4, 3), 0.5) if with_added else None)
+    return _Runner(learner={"w": jax.random.normal(k[0], (2, 2))}, actor=_Actor(env), key=k[2])
+
+
+def _drop_leaf_paths(folder, step: int) -> None:
+    """Rewrite a checkpoint's meta as the store wrote it before it recorded the leaves' paths."""
+    meta_file = folder / str(step) / "meta" / "metadata"
+    meta = json.loads(meta_file.read_text())
+    del meta["_leaf_paths"]
+    meta_file.write_text(json.dumps(meta))
+
+
+def test_a_checkpoint_from_before_an_added_leaf_still_loads(tmp_path):
+    old = _runner(1, with_added=False)  # perturbed=None: the tree without the leaf added since
+    store = CheckpointStore(tmp_path / "ck")
+    store.save(1, old, {"step": 1})
+    _drop_leaf_paths(tmp_path / "ck", 1)
+    like = _runner(2)
+    restored, meta = CheckpointStore(tmp_path / "ck", create=False).restore(like)
+    assert meta == {"step": 1}
+    np.testing.assert_array_equal(restored.learner["w"], old.learner["w"])
+    np.testing.assert_array_equal(restored.actor.env_state.pos, old.actor.env_state.pos)
+    np.testing.assert_array_equal(restored.key, old.key)
+    np.testing.assert_array_equal(restored.actor.env_state.perturbed, like.actor.env_state.perturbed)  # kept
+    reader = CheckpointStore(tmp_path / "ck", create=False)  # as evaluation reads a run: only the params
+    np.testing.assert_array_equal(reader.restore_subtree(like, lambda t: t.learner)["w"], old.learner["w"])
+    with pytest.raises(ValueError, match="earlier code version"):
+        reader.restore_subtree(like, lambda t: t.actor.env_state)
+
+
+def test_leaves_are_read_by_path_and_another_tree_is_named(tmp_path):
+    tree = _runner(3)
+    store = CheckpointStore(tmp_path / "ck")
+    store.save(1, tree, {"step": 1})
+    restored, _ = store.restore(_runner(4))
+    _assert_trees_equal(restored, tree)
+    with pytest.raises(ValueError, match="differs at .actor.env_state.perturbed"):  # a recorded tree lacks nothing
+        store.restore(_runner(4, with_added=False))
+    other = {"learner": {"w": jnp.zeros((2, 2))}, "key": jnp.zeros(2, jnp.uint32)}
+    with pytest.raises(ValueError, match="another configuration"):
+        store.restore(other)
+    store.save(2, _runner(5, with_added=False), {"step": 2})
+    _drop_leaf_paths(tmp_path / "ck", 2)
+    with pytest.raises(ValueError, match="another configuration"):  # a legacy tree of another size
+        store.restore({"w": jnp.zeros(3)}, step=2)
+
+
 def test_missing_checkpoint_is_a_clear_error(tmp_path):
     with pytest.raises(CheckpointNotFoundError, match="no checkpoint found"):
         CheckpointStore(tmp_path / "nothing", create=False)

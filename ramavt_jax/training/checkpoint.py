@@ -41,10 +41,43 @@ def _leaf_key(i: int) -> str:
     return f"{i:05d}"
 
 
+# Leaves added to the trainer's state (RunnerState) since checkpoints record their leaves' paths: a checkpoint
+# written before (no "_leaf_paths" in its meta) is read as holding every current leaf but these, which keep the
+# values of the state restored into. The perturbation draws of each env's episode (2026-12-05) are 1.0 where a
+# run configures no perturbation, as every earlier run did, so a resumed run continues as it would have.
+ADDED_LEAVES = (".actor.env_state.perturbed",)
+
+
+def _paths(tree: Any) -> list[str]:
+    """The path of every leaf (``jax.tree.leaves`` order), as ``jax.tree_util.keystr`` writes it."""
+    return [jax.tree_util.keystr(path) for path, _ in jax.tree_util.tree_flatten_with_path(tree)[0]]
+
+
 def _flat(tree: Any) -> tuple[dict, int]:
     """Non-empty leaves as {index: array} (orbax refuses zero-size arrays) and the total leaf count."""
     leaves = jax.tree.leaves(tree)
     return {_leaf_key(i): leaf for i, leaf in enumerate(leaves) if np.size(leaf) > 0}, len(leaves)
+
+
+def _saved_indices(like: Any, meta: dict, where: str) -> list[int | None]:
+    """For each leaf of ``like``, the index of the checkpoint's leaf at its path, or None for an ADDED_LEAVES leaf
+    the checkpoint predates. Raises CheckpointError when the checkpoint holds another tree."""
+    paths = _paths(like)
+    saved = meta.get("_leaf_paths")
+    if saved is None:  # written before the paths were recorded: the current tree without the leaves added since
+        saved = [p for p in paths if not p.endswith(ADDED_LEAVES)]
+        if meta.get("_num_leaves") not in (len(paths), len(saved)):
+            raise CheckpointError(f"{where} holds a state with {meta.get('_num_leaves')} arrays, the current code "
+                                  f"and config expect {len(paths)}: it was written by another configuration or "
+                                  f"code version")
+        if meta.get("_num_leaves") == len(paths):
+            saved = paths
+    index = {p: i for i, p in enumerate(saved)}
+    differ = sorted(set(saved) ^ {p for p in paths if p in index or not p.endswith(ADDED_LEAVES)})
+    if differ:
+        raise CheckpointError(f"{where} holds another state (it differs at {', '.join(differ[:3])}): it was written "
+                              f"by another configuration or code version")
+    return [index.get(p) for p in paths]
 
 
 def _first_line(e: BaseException) -> str:
@@ -100,16 +133,10 @@ class CheckpointStore:
             state = jax.tree.map(np.asarray, jax.device_get(state))
         # else: a multi-host run; orbax writes each process's shards of the global arrays itself
         flat, count = _flat(state)
-        meta = dict(meta, _num_leaves=count)
+        meta = dict(meta, _num_leaves=count, _leaf_paths=_paths(state))
         self.manager.save(int(step), args=ocp.args.Composite(state=ocp.args.StandardSave(flat),
                                                              meta=ocp.args.JsonSave(meta)), force=force)
         self.manager.wait_until_finished()
-
-    def _check_leaves(self, step: int, meta: dict, count: int) -> None:
-        if meta.get("_num_leaves") != count:
-            raise CheckpointError(f"checkpoint {step} in {self.directory} holds a state with {meta.get('_num_leaves')} "
-                                  f"arrays, the current code and config expect {count}: it was written by another "
-                                  f"configuration or code version")
 
     def restore(self, like: Any, step: int | None = None) -> tuple[Any, dict]:
         """Restore into the structure/shapes/dtypes of ``like`` (a pytree of arrays). Returns (state, meta)."""
@@ -118,13 +145,15 @@ class CheckpointStore:
             raise CheckpointNotFoundError(f"no checkpoint found in {self.directory}")
         leaves, treedef = jax.tree.flatten(like)
         meta = self.read_meta(step)
-        self._check_leaves(step, meta, len(leaves))
-        flat, _ = _flat(like)
-        abstract = jax.tree.map(ocp.utils.to_shape_dtype_struct, flat)
+        saved = _saved_indices(like, meta, f"checkpoint {step} in {self.directory}")
+        stored = [(i, j) for i, j in enumerate(saved) if j is not None and np.size(leaves[i]) > 0]
+        abstract = {_leaf_key(j): ocp.utils.to_shape_dtype_struct(leaves[i]) for i, j in stored}
         restored = self.manager.restore(int(step), args=ocp.args.Composite(state=ocp.args.StandardRestore(abstract)))
-        data = restored["state"]
-        out = [data[_leaf_key(i)] if np.size(leaf) > 0 else leaf for i, leaf in enumerate(leaves)]
+        out = list(leaves)
+        for i, j in stored:
+            out[i] = restored["state"][_leaf_key(j)]
         meta.pop("_num_leaves", None)
+        meta.pop("_leaf_paths", None)
         return jax.tree.unflatten(treedef, out), meta
 
     def _newest_loadable(self, load, log, delete: bool):
@@ -171,13 +200,17 @@ class CheckpointStore:
         (default the latest) without reading the other arrays."""
         step = self.latest_step() if step is None else step
         leaves, treedef = jax.tree.flatten(like)
-        self._check_leaves(step, self.read_meta(step), len(leaves))
+        where = f"checkpoint {step} in {self.directory}"
+        saved = _saved_indices(like, self.read_meta(step), where)
         wanted = jax.tree.leaves(pick(jax.tree.unflatten(treedef, list(range(len(leaves))))))
-        abstract = {_leaf_key(i): jax.ShapeDtypeStruct(leaves[i].shape, leaves[i].dtype) for i in wanted}
+        if any(saved[i] is None for i in wanted):
+            raise CheckpointError(f"{where} predates a leaf asked for: it was written by an earlier code version")
+        keys = [_leaf_key(saved[i]) for i in wanted]
+        abstract = {k: jax.ShapeDtypeStruct(leaves[i].shape, leaves[i].dtype) for k, i in zip(keys, wanted)}
         restored = self.manager.restore(
             int(step), args=ocp.args.Composite(state=ocp.args.PyTreeRestore(abstract, partial_restore=True)))["state"]
         _, sub_def = jax.tree.flatten(pick(like))
-        return jax.tree.unflatten(sub_def, [restored[_leaf_key(i)] for i in wanted])
+        return jax.tree.unflatten(sub_def, [restored[k] for k in keys])
 
     def read_meta(self, step: int | None = None) -> dict:
         step = self.latest_step() if step is None else step
