@@ -109,35 +109,31 @@ def test_sizes_preset_is_the_arm_chosen_for_other_sizes():
     assert dict(sizes.env_params) == {"size_scale_min": 0.15, "size_scale_max": 1.0}
 
 
-def test_reproduce_flags_give_the_earlier_sizes_preset_back(monkeypatch):
-    """docs/reproduce.md's $S10, put after `--preset sizes`, parses (through the CLI) to the earlier sizes preset,
-    arm 'size-small-1152k', so the commands recorded before the preset changed still run as they ran."""
+def _config_of_reproduce_flags(monkeypatch, name: str, preset: str):
+    """The TrainConfig that `ramavt train --preset PRESET $NAME` builds, with $NAME's flags as docs/reproduce.md
+    sets them (NAME="..." on a line of its own)."""
     import re
 
     from ramavt_jax import cli
     from ramavt_jax.cli import train as cli_train
 
-    flags = re.search(r'^S10="([^"]*)"$', (ROOT / "docs" / "reproduce.md").read_text(), re.M).group(1).split()
+    flags = re.search(rf'^{name}="([^"]*)"$', (ROOT / "docs" / "reproduce.md").read_text(), re.M).group(1).split()
     seen = {}
     monkeypatch.setattr(cli_train, "train_and_evaluate", lambda config, out, **kw: seen.update(config=config))
     monkeypatch.setattr(cli_train, "_print_summary", lambda *a: None)
-    cli.main(["train", "--preset", "sizes", *flags, "--run.eval-episodes", "0", "--out", "x"])
-    assert seen["config"] == learning_arms.arm_config("size-small-1152k")
+    cli.main(["train", "--preset", preset, *flags, "--run.eval-episodes", "0", "--out", "x"])
+    return seen["config"]
+
+
+def test_reproduce_flags_give_the_earlier_sizes_preset_back(monkeypatch):
+    """docs/reproduce.md's $S10, put after `--preset sizes`, parses (through the CLI) to the earlier sizes preset,
+    arm 'size-small-1152k', so the commands recorded before the preset changed still run as they ran."""
+    assert _config_of_reproduce_flags(monkeypatch, "S10", "sizes") == learning_arms.arm_config("size-small-1152k")
 
 
 def test_table2_training_flags_give_the_perturb_arm(monkeypatch):
     """docs/reproduce.md's $T2 flags, after `--preset quick`, parse to arm 'perturb-05' (Table II in training)."""
-    import re
-
-    from ramavt_jax import cli
-    from ramavt_jax.cli import train as cli_train
-
-    flags = re.search(r'^T2="([^"]*)"$', (ROOT / "docs" / "reproduce.md").read_text(), re.M).group(1).split()
-    seen = {}
-    monkeypatch.setattr(cli_train, "train_and_evaluate", lambda config, out, **kw: seen.update(config=config))
-    monkeypatch.setattr(cli_train, "_print_summary", lambda *a: None)
-    cli.main(["train", "--preset", "quick", *flags, "--run.eval-episodes", "0", "--out", "x"])
-    assert seen["config"] == learning_arms.arm_config("perturb-05")
+    assert _config_of_reproduce_flags(monkeypatch, "T2", "quick") == learning_arms.arm_config("perturb-05")
 
 
 def test_report_prints_the_seeds(tmp_path, capsys):
