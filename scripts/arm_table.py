@@ -48,35 +48,43 @@ def _episodes(result: dict) -> tuple:
     return s["seed"], s["episodes_per_target"], tuple(s["targets"]), s["max_steps"]
 
 
-def load_arm(spec: str) -> Arm:
-    """One RESULTS_JSON:ARM argument (ARM may hold a colon itself: 'pretrained:ramavt_depth')."""
+def load_arm(spec: str, setting: str = "none") -> Arm:
+    """One RESULTS_JSON:ARM argument (ARM may hold a colon itself: 'pretrained:ramavt_depth'), in one Table II
+    setting ('none': no perturbation)."""
     path, sep, arm = spec.partition(".json:")
     path += ".json" if sep else ""
     result = json.loads(Path(path).read_text())
-    summary = seeds.summarise_arms(result)["arms"]
+    if setting not in result["settings"].get("perturbation_settings", ["none"]):
+        raise SystemExit(f"{path} has no setting {setting!r}; it has {result['settings']['perturbation_settings']}")
+    summary = seeds.summarise_arms(result, setting)["arms"]
     key = f"{arm} (seeds)" if f"{arm} (seeds)" in summary else arm
     if key not in summary:
         raise SystemExit(f"{path} has no arm {arm!r}; it has {sorted(summary)}")
-    runs = seeds.arms(result)[key]
+    runs = seeds.arms(result, setting)[key]
     targets = list(result["settings"]["targets"])
     scores = np.array([[r["per_target"][t]["return_mean"] for t in targets] for r in runs], np.float64)
     return Arm(arm, summary[key], scores, _episodes(result), _task(result))
 
 
-def ceiling_aer(path: Path) -> tuple[float, tuple, dict]:
-    """(the mpc row's AER, the episodes it flew, the evaluation fields it flew) of a results.json."""
+def ceiling_aer(path: Path, setting: str = "none") -> tuple[float, tuple, dict]:
+    """(the mpc row's AER in ``setting``, the episodes it flew, the evaluation fields it flew) of a results.json."""
     result = json.loads(path.read_text())
     row = next(r for r in result["rows"] if r.get("info", {}).get("variant") == "mpc")
-    return row["settings"]["none"]["overall"]["return_mean"], _episodes(result), _task(result)
+    if setting not in row["settings"]:
+        raise SystemExit(f"{path}'s ceiling has no setting {setting!r}; it has {sorted(row['settings'])}")
+    return row["settings"][setting]["overall"]["return_mean"], _episodes(result), _task(result)
 
 
 def main(argv=None) -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("arms", nargs="+", help="RESULTS_JSON:ARM, in the order of the table")
     p.add_argument("--ceiling", type=Path, default=None, help="a results.json with the mpc row on the same episodes")
+    p.add_argument("--setting", default="none", help="the Table II setting tabulated: none (default), "
+                   "actuator_noise, time_delay, blur or all (results of `ramavt eval --tables 2`)")
     a = p.parse_args(argv)
-    loaded = [load_arm(spec) for spec in a.arms]
-    ceiling, episodes, task = ceiling_aer(a.ceiling) if a.ceiling else (None, loaded[0].episodes, loaded[0].task)
+    loaded = [load_arm(spec, a.setting) for spec in a.arms]
+    ceiling, episodes, task = (ceiling_aer(a.ceiling, a.setting) if a.ceiling
+                               else (None, loaded[0].episodes, loaded[0].task))
     if any(arm.episodes != episodes for arm in loaded):
         raise SystemExit("the results did not fly the same episodes (seed, episodes per target, targets, cap differ)")
     for arm in loaded:  # a field both record must agree (a speed rule, say); older results record fewer
