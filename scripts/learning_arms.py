@@ -319,6 +319,8 @@ def _table2_in_training(c, share: float):
 
 
 ARMS["perturb-05"] = lambda c: _table2_in_training(ARMS["avg-12"](c), 0.5)
+# The same with all three in every training episode, as Table II's 'all' setting flies them.
+ARMS["perturb-1"] = lambda c: _table2_in_training(ARMS["avg-12"](c), 1.0)
 
 
 def arm_config(name: str, preset: str = "quick", **overrides):

@@ -82,6 +82,8 @@ def _changes(arm: str, reference: str) -> dict:
         ("eps-100k-polyak-002", "avg-eps-100k", {"learner.polyak_tau": 0.02}),
         ("perturb-05", "avg-12", {"env.frame_history": 3, "env_params": (
             ("actuator_noise", 0.3), ("blur_frames", 3), ("delay_max", 0.5), ("perturb_prob", 0.5))}),
+        ("perturb-1", "perturb-05", {"env_params": (
+            ("actuator_noise", 0.3), ("blur_frames", 3), ("delay_max", 0.5), ("perturb_prob", 1.0))}),
         ("size-quick", "avg-12", {"env_params": (("size_scale_max", 1.0), ("size_scale_min", 0.15))}),
         ("size-res64", "size-quick", {"env.camera.resolution": 64, "network.kernels": (8, 2, 3),
                                       "network.strides": (8, 2, 1)}),
