@@ -238,9 +238,9 @@ class TrackingEnv:
         """Physics only: apply the velocity command and advance target and chaser by one (possibly delayed) step."""
         k_noise, k_delay = jax.random.split(key)
         command_cam = jnp.asarray(ACTIONS)[action] * command_speed(state, params)
-        noise, delay = params.actuator_noise * state.perturbed[0], params.delay_max * state.perturbed[1]
-        command_cam = command_cam * (1.0 + noise * jax.random.normal(k_noise, (3,)))
-        duration = params.dt + delay * jax.random.uniform(k_delay, ())
+        on, noise = state.perturbed > 0, 1.0 + params.actuator_noise * jax.random.normal(k_noise, (3,))
+        command_cam = command_cam * jnp.where(on[0], noise, 1.0)  # selected, not multiplied: rounds as before the draws
+        duration = jnp.where(on[1], params.dt + params.delay_max * jax.random.uniform(k_delay, ()), params.dt)
         command = HILL_FROM_CAM @ command_cam
 
         # Chaser: first-order velocity lag (tau = 0 is instant), trapezoidal position update.

@@ -2,7 +2,8 @@
 the configured perturbations the episode has (`perturbed`).
 
 Each draw folds its own data into the episode's key, so the episode's other draws (target, pose, velocities) do not
-depend on these, and with the defaults (off) an episode is bit for bit the one without them.
+depend on these, and with the defaults (no resizing, no stretch, every configured perturbation on) an episode is bit
+for bit the one without them.
 """
 
 from __future__ import annotations

@@ -55,7 +55,7 @@ def load_arm(spec: str, setting: str = "none") -> Arm:
     path += ".json" if sep else ""
     result = json.loads(Path(path).read_text())
     if setting not in result["settings"].get("perturbation_settings", ["none"]):
-        raise SystemExit(f"{path} has no setting {setting!r}; it has {result['settings']['perturbation_settings']}")
+        raise SystemExit(f"{path} has no setting {setting!r}; it has {result['settings'].get('perturbation_settings', ['none'])}")
     summary = seeds.summarise_arms(result, setting)["arms"]
     key = f"{arm} (seeds)" if f"{arm} (seeds)" in summary else arm
     if key not in summary:

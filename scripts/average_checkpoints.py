@@ -67,7 +67,8 @@ def main(argv=None) -> None:
     mean, state, meta, config = average_params(args.run, first, last)
     averaged = None if state.learner.averaged_params is None else mean
     state = state.replace(learner=state.learner.replace(params=mean, target_params=mean, averaged_params=averaged))
-    # restore() leaves empty arrays as their shape structs (nothing to read): make them arrays again to save them
+    # restore() leaves empty arrays, and leaves the checkpoint predates (checkpoint.ADDED_LEAVES), as the template's
+    # shape structs: make them arrays again to save them (zeros; only the params of this state are ever read)
     state = jax.tree.map(lambda x: jnp.zeros(x.shape, x.dtype) if isinstance(x, jax.ShapeDtypeStruct) else x, state)
     args.out.mkdir(parents=True)
     saved = folders.read_config(args.run)

@@ -94,10 +94,33 @@ def test_each_flag_switches_only_its_perturbation(blur_env, episode):
     assert len(seen) >= 4, f"12 episodes at share 0.5 drew only {seen}"
 
 
-def test_evaluation_sets_the_perturbations_itself():
+def test_a_new_episode_draws_its_own_perturbations(blur_env):
+    """Auto-reset: with every episode one step long, each step's state is a fresh episode whose draws are those of
+    its own reset key (env.step splits its key into physics, observation, reset and first-frame keys)."""
+    params = _params(blur_env, perturb_prob=0.5, max_steps=1, **TABLE2)
+    step = jax.jit(blur_env.step)
+    _, state = blur_env.reset(jax.random.key(7), params)
+    seen = set()
+    for key in jax.random.split(jax.random.key(8), 8):
+        _, state, _, _, truncated, _ = step(key, state, jnp.asarray(5), params)
+        assert bool(truncated)
+        expected = randomisation.perturbed(jax.random.split(key, 4)[2], params)
+        np.testing.assert_array_equal(np.asarray(state.perturbed), np.asarray(expected))
+        seen.add(tuple(np.asarray(state.perturbed)))
+    assert len(seen) > 1
+
+
+def test_evaluation_sets_the_perturbations_itself(blur_env):
+    """A run trained with the perturbations drawn flies Table I without them and Table II's 'all' with all three in
+    every episode (the params as evaluation.tables.evaluate_setting builds them)."""
     trained = {"actuator_noise": 0.3, "delay_max": 0.5, "blur_frames": 3, "perturb_prob": 0.5, "target_spin_std": 0.2}
     assert rollouts.run_env_overrides(trained) == {"target_spin_std": 0.2}
-    assert rollouts.perturbation_overrides("all") == TABLE2
+    for setting, expected in (("none", (0.0, 0.0, 1, 1.0)), ("all", (0.3, 0.5, 3, 1.0))):
+        params = blur_env.eval_params(**rollouts.run_env_overrides(trained), **rollouts.perturbation_overrides(setting))
+        got = tuple(np.asarray(getattr(params, f)).item() for f in ("actuator_noise", "delay_max", "blur_frames",
+                                                                     "perturb_prob"))
+        np.testing.assert_allclose(got, expected, rtol=1e-6, err_msg=setting)
+        assert float(params.target_spin_std) == pytest.approx(0.2)
 
 
 def test_bad_share_is_refused(blur_env):
