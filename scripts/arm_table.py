@@ -53,6 +53,8 @@ def load_arm(spec: str, setting: str = "none") -> Arm:
     setting ('none': no perturbation)."""
     path, sep, arm = spec.partition(".json:")
     path += ".json" if sep else ""
+    if not Path(path).is_file():
+        raise SystemExit(f"{path}: no such results file (written by `ramavt eval --out DIR` as DIR/results.json)")
     result = json.loads(Path(path).read_text())
     if setting not in result["settings"].get("perturbation_settings", ["none"]):
         raise SystemExit(f"{path} has no setting {setting!r}; it has {result['settings'].get('perturbation_settings', ['none'])}")
