@@ -47,7 +47,7 @@ def stretch(key: jax.Array, target: targets_lib.TargetModel, params: EnvParams) 
 
 def perturbed(key: jax.Array, params: EnvParams) -> jax.Array:
     """[3] float, 1.0 where the episode has the perturbation, else 0.0: actuator noise, time delay, frame-averaging
-    blur, each on with probability perturb_prob (always at the default 1). The env multiplies the configured
-    strengths by these, so a perturbation that is not configured stays off either way."""
+    blur, each on with probability perturb_prob (always at the default 1). The env applies a configured
+    perturbation where its flag is 1, so one that is not configured stays off either way."""
     draws = jax.random.uniform(jax.random.fold_in(key, PERTURB_KEY), (3,))
     return (draws < params.perturb_prob).astype(jnp.float32)

@@ -56,8 +56,9 @@ def load_arm(spec: str, setting: str = "none") -> Arm:
     if not Path(path).is_file():
         raise SystemExit(f"{path}: no such results file (written by `ramavt eval --out DIR` as DIR/results.json)")
     result = json.loads(Path(path).read_text())
-    if setting not in result["settings"].get("perturbation_settings", ["none"]):
-        raise SystemExit(f"{path} has no setting {setting!r}; it has {result['settings'].get('perturbation_settings', ['none'])}")
+    settings = result["settings"].get("perturbation_settings", ["none"])
+    if setting not in settings:
+        raise SystemExit(f"{path} has no setting {setting!r}; it has {settings}")
     summary = seeds.summarise_arms(result, setting)["arms"]
     key = f"{arm} (seeds)" if f"{arm} (seeds)" in summary else arm
     if key not in summary:

@@ -65,14 +65,12 @@ def _saved_indices(like: Any, meta: dict, where: str) -> list[int | None]:
     the checkpoint predates. Raises CheckpointError when the checkpoint holds another tree."""
     paths = _paths(like)
     saved = meta.get("_leaf_paths")
-    if saved is None:  # written before the paths were recorded: the current tree without the leaves added since
-        saved = [p for p in paths if not p.endswith(ADDED_LEAVES)]
-        if meta.get("_num_leaves") not in (len(paths), len(saved)):
-            raise CheckpointError(f"{where} holds a state with {meta.get('_num_leaves')} arrays, the current code "
-                                  f"and config expect {len(paths)}: it was written by another configuration or "
-                                  f"code version")
-        if meta.get("_num_leaves") == len(paths):
-            saved = paths
+    if saved is None:  # written before the paths were recorded: the current tree, or it without the leaves added
+        count = meta.get("_num_leaves")
+        saved = paths if count == len(paths) else [p for p in paths if not p.endswith(ADDED_LEAVES)]
+        if count != len(saved):
+            raise CheckpointError(f"{where} holds a state with {count} arrays, the current code and config expect "
+                                  f"{len(paths)}: it was written by another configuration or code version")
     index = {p: i for i, p in enumerate(saved)}
     differ = sorted(set(saved) ^ {p for p in paths if p in index or not p.endswith(ADDED_LEAVES)})
     if differ:
