@@ -1,6 +1,7 @@
 """Where a policy's distance penalty comes from: the target centre's camera-frame position error, split into its
-mean (bias) and its spread (std) per axis, per target of a split, after the first 100 steps (the approach). Metres
-divided by the target's stand-off scale k (plain metres for the catalogue's sizes, k = 1).
+mean (bias) and its spread (std) per axis, per target of a split, after the first 100 steps (the approach), and the
+share of those steps on which the policy commands no motion (action 0; a policy that dithers about the desired point
+seldom holds still). Metres divided by the target's stand-off scale k (plain metres for the catalogue's sizes, k = 1).
 
     python scripts/position_error.py mpc depth runs/quick_now/seed_0 --targets val --episodes 8
 
@@ -36,7 +37,7 @@ def main() -> None:
     ap.add_argument("--targets", default="val", help="a split of targets_lib.split: val (default), test, ...")
     args = ap.parse_args()
     policies = {spec: load(spec, args.resolution) for spec in args.policies}
-    print(f"{'target':13s} {'policy':24s} {'AEL':>6s} {'AER':>7s}  bias x/y/z (m)       std x/y/z (m)      mean |e|")
+    print(f"{'target':13s} {'policy':24s} {'AEL':>6s} {'AER':>7s}  bias x/y/z (m)       std x/y/z (m)      mean |e|  still")
     names = targets_lib.split(args.targets)
     tracking_env = env_lib.TrackingEnv(env_lib.EnvConfig(camera=env_lib.CameraConfig(resolution=args.resolution),
                                                          targets=names))  # one env: each policy compiles once
@@ -49,9 +50,10 @@ def main() -> None:
             alive = np.asarray(rec.alive)[args.skip:]
             err = (np.asarray(rec.rel_pos) / k - np.asarray(params.desired_pos))[args.skip:][alive]  # [steps, 3]
             bias, std = np.round(err.mean(0), 2), np.round(err.std(0), 2)
+            still = float((np.asarray(rec.action)[args.skip:][alive] == 0).mean())
             print(f"{name:13s} {spec[-24:]:24s} {float(stats.length.mean()):6.1f} "
                   f"{float(stats.episode_return.mean()):7.1f}  {str(bias):20s} {str(std):18s} "
-                  f"{np.linalg.norm(err, axis=1).mean():.2f}")
+                  f"{np.linalg.norm(err, axis=1).mean():.2f}  {still:5.1%}")
 
 
 if __name__ == "__main__":

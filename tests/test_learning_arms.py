@@ -84,6 +84,8 @@ def _changes(arm: str, reference: str) -> dict:
             ("actuator_noise", 0.3), ("blur_frames", 3), ("delay_max", 0.5), ("perturb_prob", 0.5))}),
         ("perturb-1", "perturb-05", {"env_params": (
             ("actuator_noise", 0.3), ("blur_frames", 3), ("delay_max", 0.5), ("perturb_prob", 1.0))}),
+        ("avg-2304k", "avg-12", {"run.total_env_steps": 2_304_000, "run.policy_average_from": 60}),
+        ("dueling", "avg-12", {"network.dueling": True}),
         ("size-quick", "avg-12", {"env_params": (("size_scale_max", 1.0), ("size_scale_min", 0.15))}),
         ("size-res64", "size-quick", {"env.camera.resolution": 64, "network.kernels": (8, 2, 3),
                                       "network.strides": (8, 2, 1)}),
