@@ -135,6 +135,23 @@ def test_reproduce_flags_give_the_earlier_sizes_preset_back(monkeypatch):
     assert _config_of_reproduce_flags(monkeypatch, "S10", "sizes") == learning_arms.arm_config("size-small-1152k")
 
 
+def test_long_preset_is_the_arm_chosen_for_a_longer_budget():
+    assert learning_arms.arm_config("avg-2304k") == learning_arms.presets.preset("long", eval_episodes=0)
+
+
+def test_reproduce_flags_give_the_earlier_long_preset_back(monkeypatch):
+    """docs/reproduce.md's $L10, put after `--preset long`, parses to arm 'long-lr2', the long preset until
+    2026-12-06, whose seed 0 is the earlier shipped agent: its config.json reads back into that config."""
+    from ramavt_jax.evaluation import pretrained
+    from ramavt_jax.train_config import TrainConfig
+
+    earlier = learning_arms.arm_config("long-lr2")
+    assert _config_of_reproduce_flags(monkeypatch, "L10", "long") == earlier
+    record = json.loads((Path(pretrained.AGENTS_DIR) / "ramavt_depth_long" / "config.json").read_text())
+    im2col = dataclasses.replace(earlier.network, conv_impl="im2col")  # the default conv before the hybrid one
+    assert TrainConfig.from_dict(record["config"]) == earlier.override(network=im2col)
+
+
 def test_table2_training_flags_give_the_perturb_arm(monkeypatch):
     """docs/reproduce.md's $T2 flags, after `--preset quick`, parse to arm 'perturb-05' (Table II in training)."""
     assert _config_of_reproduce_flags(monkeypatch, "T2", "quick") == learning_arms.arm_config("perturb-05")
