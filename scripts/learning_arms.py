@@ -5,7 +5,7 @@ policy). Results go to OUT/<arm>/ (run folders seed_k/) and OUT/<arm>/heldout.js
     python scripts/learning_arms.py train base see grid boot all --seeds 3 --out runs/arms
     python scripts/learning_arms.py train rgbd color --seeds 3 --out runs/arms       # Table I's inputs
     python scripts/learning_arms.py eval base see grid boot all baselines --out runs/arms
-    python scripts/learning_arms.py train long-lr2 --seeds 3 --out runs/arms  # seed 0 is the shipped agent
+    python scripts/learning_arms.py train long-lr2 --seeds 3 --out runs/arms  # seed 0: ramavt_depth_long
     python scripts/learning_arms.py train q-rgbd q-color q-origin q-aug q-se q-mha --seeds 3 --out runs/arms  # Tables
     python scripts/learning_arms.py report --out runs/arms
 """
@@ -113,7 +113,7 @@ def _with_aux(cfg):
 # encoder and memory are taught where the target is, boresight distance above all, from the first update on.
 ARMS["prev-aux"] = lambda c: _with_aux(ARMS["prev"](c))
 # The same auxiliary loss on the long budget (one change to `long`); with twice the learning rate ('long-lr2',
-# below) it is the `long` preset and the shipped agent now.
+# below) it was the `long` preset until 2026-12-06 and the shipped agent until 2026-12-03 (ramavt_depth_long).
 ARMS["long-aux"] = lambda c: _with_aux(ARMS["long"](c))
 # Each one change to 'prev-aux' (the quick preset then): the auxiliary loss weighted 3x, twice the
 # learning rate (a decaying one cost AER: the agent is still learning at the end), a dueling head, advantage learning.
@@ -325,8 +325,9 @@ ARMS["perturb-1"] = lambda c: _table2_in_training(ARMS["avg-12"](c), 1.0)
 # the quick preset; the long preset since it scored higher on validation over ten seeds.
 ARMS["avg-2304k"] = lambda c: ARMS["avg-12"](c).override(total_env_steps=2_304_000, policy_average_from=60)
 # A dueling head (Q = V + A - mean A, Wang et al. 2016), one change to the quick preset: near the desired point the
-# actions' values differ by a few hundredths of the value itself, and the agent dithers there (no-op in 3 % of the
-# steady steps against the ceiling's 15 %); a head that learns the value apart from the advantages may resolve them.
+# actions' values differ by a few hundredths of the value itself, and the agent dithers there (no motion on 1-6 %
+# of the steps after the approach, against the ceiling's 17 %: scripts/position_error.py); a head that learns the
+# value apart from the advantages may resolve them.
 ARMS["dueling"] = lambda c: _net(ARMS["avg-12"](c), dueling=True)
 
 

@@ -37,7 +37,8 @@ def main() -> None:
     ap.add_argument("--targets", default="val", help="a split of targets_lib.split: val (default), test, ...")
     args = ap.parse_args()
     policies = {spec: load(spec, args.resolution) for spec in args.policies}
-    print(f"{'target':13s} {'policy':24s} {'AEL':>6s} {'AER':>7s}  bias x/y/z (m)       std x/y/z (m)      mean |e|  still")
+    print(f"{'target':13s} {'policy':24s} {'AEL':>6s} {'AER':>7s}  bias x/y/z (m)       std x/y/z (m)      "
+          "mean |e|  still")
     names = targets_lib.split(args.targets)
     tracking_env = env_lib.TrackingEnv(env_lib.EnvConfig(camera=env_lib.CameraConfig(resolution=args.resolution),
                                                          targets=names))  # one env: each policy compiles once
