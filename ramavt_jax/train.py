@@ -130,9 +130,14 @@ class Trainer:
                 frames=distributed.constrain_envs(ns.frames, m)))
 
     def epsilon(self, env_steps: jax.Array) -> jax.Array:
+        """The exploration rate after ``env_steps``: [] shared by all envs, or [N] one per env with a ladder
+        (ActingConfig.eps_ladder)."""
         c = self.config.acting
         frac = jnp.clip(env_steps / max(c.eps_decay_steps, 1), 0.0, 1.0) if c.eps_decay_steps else 1.0
-        return c.eps_start + (c.eps_end - c.eps_start) * frac
+        end = c.eps_end
+        if c.eps_ladder:
+            end = c.eps_end ** (1.0 + c.eps_ladder * jnp.arange(c.num_envs) / max(c.num_envs - 1, 1))
+        return c.eps_start + (end - c.eps_start) * frac
 
     def q_values(self, params, obs, reset, state, actions=None, standoff=None):
         """Online/target forward: obs [B, T, H, W, C], reset [B, T], actions [B, T] (the actions taken; used by
@@ -192,7 +197,8 @@ class Trainer:
         return (env_lib.relative_position(env_state) / env_state.scale - p.desired_pos) / p.desired_pos[2]
 
     def rollout(self, params, actor: ActorState, env_steps: jax.Array, key: jax.Array):
-        """``rollout_steps`` acting steps. Returns (actor, chunk [N, T, ...] in replay layout, summed stats, eps)."""
+        """``rollout_steps`` acting steps. Returns (actor, chunk [N, T, ...] in replay layout, summed stats, the last
+        step's exploration rate averaged over envs)."""
         c = self.config.acting
 
         def body(carry: _RolloutCarry, k):
@@ -202,7 +208,7 @@ class Trainer:
 
         last, (traj, stats, eps) = jax.lax.scan(body, _RolloutCarry(actor=actor, env_steps=env_steps),
                                                 jax.random.split(key, c.rollout_steps))
-        return last.actor, replay_lib.chunk_to_storage(traj), jax.tree.map(jnp.sum, stats), eps[-1]
+        return last.actor, replay_lib.chunk_to_storage(traj), jax.tree.map(jnp.sum, stats), eps[-1].mean()
 
     # ---------------------------------------------------------------- learning
     def _target_values(self, params, obs, reset, state, actions, standoff):

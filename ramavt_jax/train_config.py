@@ -35,6 +35,10 @@ class ActingConfig:
     eps_start: float = 0.9  # epsilon-greedy from eps_start to eps_end (the original schedule: 0.9 -> 0.1)
     eps_end: float = 0.1  # final exploration rate
     eps_decay_steps: int = 800_000  # linear over this many env steps (all envs together)
+    # Ape-X / R2D2 ladder of per-env rates: env i of N decays to eps_end ** (1 + eps_ladder * i / (N - 1)), so a few
+    # envs explore widely while most act almost greedily (Horgan et al. 2018 use eps_end 0.4, ladder 7); 0: every
+    # env decays to eps_end.
+    eps_ladder: float = 0.0
 
     def __post_init__(self):
         check_ints("ActingConfig", self, dict(num_envs=1, rollout_steps=1, eps_decay_steps=0))
@@ -42,6 +46,8 @@ class ActingConfig:
         for name in ("eps_start", "eps_end"):
             if not 0.0 <= getattr(self, name) <= 1.0:
                 raise ValueError(f"ActingConfig: {name} must be in [0, 1], got {getattr(self, name)}")
+        if not self.eps_ladder >= 0.0:
+            raise ValueError(f"ActingConfig: eps_ladder must be >= 0 (0: no ladder), got {self.eps_ladder}")
 
 
 @dataclasses.dataclass(frozen=True)

@@ -90,6 +90,7 @@ def test_invalid_configs_raise_clear_errors(overrides, message):
 
 @pytest.mark.parametrize("build, message", [
     (lambda: ActingConfig(eps_end=2.0), r"^ActingConfig: eps_end must be in \[0, 1\], got 2.0$"),
+    (lambda: ActingConfig(eps_ladder=-1.0), r"^ActingConfig: eps_ladder must be >= 0 \(0: no ladder\), got -1.0$"),
     (lambda: LearnerConfig(target_update="soft"), r"^LearnerConfig: target_update must be 'polyak' or 'period'"),
     (lambda: LearnerConfig(td_lambda=0.9), r"^LearnerConfig: td_lambda must be None \(n-step targets\) or in \[0, 1\] with n_step=1"),
     (lambda: LearnerConfig(bootstrap_from="both"), r"^LearnerConfig: bootstrap_from must be .target. or .online., got .both.$"),
@@ -117,6 +118,18 @@ def test_lr_final_decays_the_learning_rate_over_the_runs_gradient_steps():
     np.testing.assert_allclose([schedule(0), schedule(cfg.total_updates), schedule(10 * cfg.total_updates)],
                                [cfg.learner.lr, 1e-5, 1e-5], rtol=1e-5)
     assert 1e-5 < float(schedule(cfg.total_updates // 2)) < cfg.learner.lr
+
+
+def test_eps_ladder_gives_each_env_its_own_final_rate():
+    acting = dict(num_envs=4, eps_start=1.0, eps_end=0.4, eps_decay_steps=1000)
+    plain = T.Trainer(SMOKE.override(**acting))
+    assert np.shape(plain.epsilon(jnp.asarray(2000))) == ()  # one rate shared by all envs without a ladder
+    np.testing.assert_allclose(plain.epsilon(jnp.asarray(500)), 0.7, rtol=1e-6)
+    ladder = T.Trainer(SMOKE.override(**acting, eps_ladder=7.0))
+    np.testing.assert_allclose(ladder.epsilon(jnp.asarray(0)), [1.0] * 4, rtol=1e-6)
+    ends = 0.4 ** (1.0 + 7.0 * np.arange(4) / 3)  # Ape-X: eps_end ** (1 + ladder * i / (N - 1))
+    np.testing.assert_allclose(ladder.epsilon(jnp.asarray(1000)), ends, rtol=1e-4)
+    np.testing.assert_allclose(ladder.epsilon(jnp.asarray(500)), 0.5 * (1.0 + ends), rtol=1e-4)
 
 
 def test_polyak_tau_start_holds_then_moves_linearly_to_polyak_tau(learner):
