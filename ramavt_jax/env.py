@@ -197,7 +197,7 @@ class TrackingEnv:
     def initial_state(self, key: jax.Array, params: EnvParams) -> EnvState:
         """Initial distribution (original values): target at x,y ~ N(0, 1), z ~ U[2, 12) m in the camera frame,
         times the stand-off scale k of the episode's target (standoff_scale, after the shape and size draws of
-        randomisation.stretch and randomisation.size_factor),
+        randomisation.stretch and randomisation.size_factor, before the centre offset of randomisation.shift),
         velocity N(0, 0.2) m/s, random orientation, spin N(0, 0.1) rad/s per body axis; chaser at rest at the origin.
         The frame history is zeros (``reset`` fills it with the first observation)."""
         k_tgt, k_xy, k_z, k_vel, k_quat, k_spin, k_acc = jax.random.split(key, 7)
@@ -205,6 +205,7 @@ class TrackingEnv:
         target = randomisation.stretch(key, targets_lib.select(params.catalogue, index), params)
         target = targets_lib.scaled(target, randomisation.size_factor(key, params))
         scale = standoff_scale(target, params)
+        target = randomisation.shift(key, target, params)  # after the stand-off: k is the unshifted target's
         xy = params.init_xy_std * jax.random.normal(k_xy, (2,))
         z = jax.random.uniform(k_z, (), minval=params.init_z_min, maxval=params.init_z_max)
         pos_cam = jnp.array([xy[0], xy[1], z]) * scale

@@ -124,6 +124,13 @@ class EnvParams:
     # the models' own shapes (evaluation.rollouts.EVAL_FIELDS).
     stretch_max: jax.Array = 1.0
     stretch_prob: jax.Array = 1.0
+    # Centre-offset randomisation (training): in a share offset_prob of the episodes the target's geometry is moved
+    # off its centre of mass, the tracked point it spins about (targets.shifted), by a vector drawn uniformly in a
+    # ball of offset_max times its bounding radius: unseen mass, so the centre of what the camera sees is not the
+    # centre to hold, and only the rotation tells where that is. The stand-off is the unshifted target's. 0 is off
+    # (the default); evaluation flies the models as they are (evaluation.rollouts.EVAL_FIELDS).
+    offset_max: jax.Array = 0.0
+    offset_prob: jax.Array = 1.0
     init_xy_std: jax.Array = 1.0  # m
     init_z_min: jax.Array = 2.0  # m
     init_z_max: jax.Array = 12.0  # m
@@ -180,6 +187,8 @@ def validate_params(params: EnvParams, config: EnvConfig) -> EnvParams:
     check("size_scale_prob", lambda v: (v >= 0) & (v <= 1), "in [0, 1]")
     check("stretch_max", lambda v: v >= 1, ">= 1 (1: off)")
     check("stretch_prob", lambda v: (v >= 0) & (v <= 1), "in [0, 1]")
+    check("offset_max", lambda v: (v >= 0) & (v <= 1), "in [0, 1] (bounding radii; 0: off)")
+    check("offset_prob", lambda v: (v >= 0) & (v <= 1), "in [0, 1]")
     check("init_z_max", lambda v: v > np.asarray(params.init_z_min), "> init_z_min")
     check("init_z_min", lambda v: v > config.camera.near, f"> camera.near ({config.camera.near})")
     check("blur_frames", lambda v: (v >= 1) & (v <= config.frame_history), f"in [1, EnvConfig.frame_history={config.frame_history}]")

@@ -1,9 +1,9 @@
-"""Domain randomisation (training): an episode's target size (`size_factor`) and shape (`stretch`), and which of
-the configured perturbations the episode has (`perturbed`).
+"""Domain randomisation (training): an episode's target size (`size_factor`), shape (`stretch`) and centre offset
+(`shift`), and which of the configured perturbations the episode has (`perturbed`).
 
 Each draw folds its own data into the episode's key, so the episode's other draws (target, pose, velocities) do not
-depend on these, and with the defaults (no resizing, no stretch, every configured perturbation on) an episode is bit
-for bit the one without them.
+depend on these, and with the defaults (no resizing, no stretch, no offset, every configured perturbation on) an
+episode is bit for bit the one without them.
 """
 
 from __future__ import annotations
@@ -17,6 +17,7 @@ from ramavt_jax.env_config import EnvParams
 SIZE_KEY = 0x5126  # fold_in data of the size draws (SIZE_KEY and SIZE_KEY + 1)
 STRETCH_KEY = 0x5714  # fold_in data of the shape draws (STRETCH_KEY and STRETCH_KEY + 1)
 PERTURB_KEY = 0x9E27  # fold_in data of the perturbation draws
+OFFSET_KEY = 0x0FF5  # fold_in data of the centre-offset draws (OFFSET_KEY to OFFSET_KEY + 2)
 
 
 def size_factor(key: jax.Array, params: EnvParams) -> jax.Array:
@@ -43,6 +44,23 @@ def stretch(key: jax.Array, target: targets_lib.TargetModel, params: EnvParams) 
     """The episode's target, stretched (targets.stretched) when stretch_factors says so, else exactly itself."""
     factors, on = stretch_factors(key, params)
     return jax.tree.map(lambda s, t: jnp.where(on, s, t), targets_lib.stretched(target, factors), target)
+
+
+def centre_offset(key: jax.Array, radius: jax.Array, params: EnvParams) -> tuple[jax.Array, jax.Array]:
+    """([3] body-frame offset of the geometry, m, uniform in the ball of radius offset_max * radius, [] whether this
+    episode has it): in a share offset_prob of the episodes, never when offset_max is 0."""
+    direction = jax.random.normal(jax.random.fold_in(key, OFFSET_KEY), (3,))
+    direction = direction / jnp.maximum(jnp.linalg.norm(direction), 1e-12)
+    length = params.offset_max * radius * jax.random.uniform(jax.random.fold_in(key, OFFSET_KEY + 1), ()) ** (1 / 3)
+    drawn = jax.random.uniform(jax.random.fold_in(key, OFFSET_KEY + 2), ()) < params.offset_prob
+    return direction * length, drawn & (params.offset_max > 0.0)
+
+
+def shift(key: jax.Array, target: targets_lib.TargetModel, params: EnvParams) -> targets_lib.TargetModel:
+    """The episode's target with its geometry off its centre (targets.shifted) when centre_offset says so, else
+    exactly itself."""
+    offset, on = centre_offset(key, target.bound_radius, params)
+    return jax.tree.map(lambda s, t: jnp.where(on, s, t), targets_lib.shifted(target, offset), target)
 
 
 def perturbed(key: jax.Array, params: EnvParams) -> jax.Array:

@@ -86,6 +86,7 @@ def _changes(arm: str, reference: str) -> dict:
             ("actuator_noise", 0.3), ("blur_frames", 3), ("delay_max", 0.5), ("perturb_prob", 1.0))}),
         ("avg-2304k", "avg-12", {"run.total_env_steps": 2_304_000, "run.policy_average_from": 60}),
         ("dueling", "avg-12", {"network.dueling": True}),
+        ("offset-04", "avg-12", {"env_params": (("offset_max", 0.4),)}),
         ("eps-end-001", "avg-12", {"acting.eps_end": 0.01}),
         ("eps-ladder", "avg-12", {"acting.eps_end": 0.4, "acting.eps_ladder": 7.0}),
         ("avg-1536k", "avg-12", {"run.total_env_steps": 1_536_000, "run.policy_average_from": 36}),

@@ -22,8 +22,8 @@ from ramavt_jax.training import memory as memplan
 # EnvParams fields whose evaluation values (env.eval_params) replace a run's training values: each target at its own
 # size and shape, one speed rule for every row of a table, and Table II's perturbations as the flown setting says
 EVAL_FIELDS = ("dist_weight", "lost_patience", "size_scale_min", "size_scale_max", "size_scale_prob", "stretch_max",
-               "stretch_prob", "speed_standoff_power", "small_standoff_power", "actuator_noise", "delay_max",
-               "blur_frames", "perturb_prob")
+               "stretch_prob", "offset_max", "offset_prob", "speed_standoff_power", "small_standoff_power",
+               "actuator_noise", "delay_max", "blur_frames", "perturb_prob")
 
 
 def run_env_overrides(env_params) -> dict:
