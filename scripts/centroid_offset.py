@@ -1,7 +1,8 @@
 """How far what the camera sees of a target is centred from the centre it spins about (the tracked point): for each
-target, over random attitudes at the nominal 5 m stand-off, the centroid of the visible surface points (depth
-image back-projected), as a sideways offset of its direction at 5 m and as a 3-D distance. A policy that holds the
-visible centroid instead of the centre misses by about the sideways figure.
+target, over random attitudes at its stand-off (5 m times its stand-off scale k, env.standoff_scale), the centroid of
+the visible surface points (depth image back-projected), as a sideways offset of its direction at the stand-off and
+as a 3-D distance, both in stand-off units (metres / k: metres for every catalogue target, k = 1). A policy that
+holds the visible centroid instead of the centre misses by about the sideways figure.
 
     python scripts/centroid_offset.py --targets train,val,test --attitudes 48
 
@@ -16,6 +17,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ramavt_jax import env as env_lib
 from ramavt_jax import render, rotations
 from ramavt_jax import targets as targets_lib
 from ramavt_jax.evaluation import rollouts
@@ -54,10 +56,14 @@ def main() -> None:
     cam = render.CameraConfig(resolution=args.resolution)
     keys = jax.random.split(jax.random.PRNGKey(args.seed), args.attitudes)
     rotations_b = jax.vmap(lambda k: rotations.quat_to_mat(rotations.random_quaternion(k)))(keys)
-    print(f"{'target':28s} {'sideways mean':>13s} {'max':>6s} {'3-D mean':>9s}   (m, at 5 m)")
+    params = env_lib.TrackingEnv(env_lib.EnvConfig(camera=cam, targets=("Asteroid-v0",))).default_params()
+    print(f"{'target':36s} {'k':>5s} {'sideways mean':>13s} {'max':>6s} {'3-D mean':>9s}   (stand-off units)")
     for name in dict.fromkeys(items):
-        got = centroid_offsets(targets_lib.load(name), rotations_b, cam)
-        print(f"{name:28s} {got['sideways'].mean():13.2f} {got['sideways'].max():6.2f} {got['distance'].mean():9.2f}")
+        target = targets_lib.load(name)
+        k = float(env_lib.standoff_scale(target, params))
+        got = centroid_offsets(targets_lib.scaled(target, 1.0 / k), rotations_b, cam)  # seen as the env renders it
+        print(f"{name:36s} {k:5.2f} {got['sideways'].mean():13.2f} {got['sideways'].max():6.2f} "
+              f"{got['distance'].mean():9.2f}")
 
 
 if __name__ == "__main__":
