@@ -126,9 +126,10 @@ class EnvParams:
     stretch_prob: jax.Array = 1.0
     # Centre-offset randomisation (training): in a share offset_prob of the episodes the target's geometry is moved
     # off its centre of mass, the tracked point it spins about (targets.shifted), by a vector drawn uniformly in a
-    # ball of offset_max times its bounding radius: unseen mass, so the centre of what the camera sees is not the
-    # centre to hold, and only the rotation tells where that is. The stand-off is the unshifted target's. 0 is off
-    # (the default); evaluation flies the models as they are (evaluation.rollouts.EVAL_FIELDS).
+    # ball of offset_max times its bounding radius, so the centre of what the camera sees is not the centre to hold
+    # and only the rotation tells where that is (mass and inertia kept: a modelling shortcut; the centre may even
+    # lie outside a sparse model's geoms). The stand-off is the unshifted target's. 0 is off (the default);
+    # evaluation flies the models as they are (evaluation.rollouts.EVAL_FIELDS).
     offset_max: jax.Array = 0.0
     offset_prob: jax.Array = 1.0
     init_xy_std: jax.Array = 1.0  # m

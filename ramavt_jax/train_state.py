@@ -71,7 +71,7 @@ class ChunkMetrics:
     q_sum: jax.Array  # mean taken Q per update, summed
     grad_norm_sum: jax.Array
     updates: jax.Array  # gradient steps done this iteration
-    epsilon: jax.Array
+    epsilon: jax.Array  # exploration rate at the iteration's last step, averaged over envs (ActingConfig.eps_ladder)
     env_steps: jax.Array  # at the end of the iteration
 
 

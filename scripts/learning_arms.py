@@ -331,16 +331,16 @@ ARMS["avg-2304k"] = lambda c: ARMS["avg-12"](c).override(total_env_steps=2_304_0
 ARMS["dueling"] = lambda c: _net(ARMS["avg-12"](c), dueling=True)
 # Exploration at the end of training, one change each to the quick preset: a lower final rate (1 % of steps random
 # instead of 5 %: near the desired point one random step costs more than the agent's own error), and Ape-X's ladder of
-# per-env rates (eps_end 0.4, ladder 7: rates from 0.4 down to 0.2 %, 6 % on average over 64 envs, against 5 %).
+# per-env rates (eps_end 0.4, ladder 7: rates from 0.4 down to 0.07 %, 6 % on average over 64 envs, against 5 %).
 ARMS["eps-end-001"] = lambda c: ARMS["avg-12"](c).override(eps_end=0.01)
 ARMS["eps-ladder"] = lambda c: ARMS["avg-12"](c).override(eps_end=0.4, eps_ladder=7.0)
-# The quick preset at 1.54M env steps (48 chunks; the policy the average over chunks 37-48): the preset's main job
-# took 225 s of its 6 minutes (177 s of training, results/wall_times.json), so a third more env steps still fits.
 # Centre-offset randomisation, one change to the quick preset: each training target's geometry moved off its centre
 # of mass by up to 0.4 bounding radii (EnvParams.offset_max). The validation targets the preset tracks worst
 # (Satellite-val0, Station-val0) are those whose visible surface is centred farthest from their centre (0.43 and
-# 0.35 m to the side at 5 m, averaged over attitudes, against 0.03-0.18 m for the others).
+# 0.35 m to the side at 5 m, averaged over attitudes, against 0.03-0.18 m for the others: scripts/centroid_offset.py).
 ARMS["offset-04"] = lambda c: _env(ARMS["avg-12"](c), offset_max=0.4)
+# The quick preset at 1.54M env steps (48 chunks; the policy the average over chunks 37-48): the preset's main job
+# took 225 s of its 6 minutes (177 s of training, results/wall_times.json), so a third more env steps still fits.
 ARMS["avg-1536k"] = lambda c: ARMS["avg-12"](c).override(total_env_steps=1_536_000, policy_average_from=36)
 
 

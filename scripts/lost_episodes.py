@@ -1,11 +1,12 @@
 """Why episodes end early: for each episode a policy loses, where the target started, how fast it drifts against the
-command speed, how close it came to the camera and when it left the view. Lost episodes only; the others are counted.
+command speed, how close it came to the camera, when it first left the view and from when it stayed out. Lost
+episodes only; the others are counted. Steps are counted from 1 (step L is an episode's last, L its length).
 
     python scripts/lost_episodes.py mpc --targets examples/targets/cubesat-0.45m.xml --episodes 20 --seed 0
 
-The episodes are those of `ramavt eval --targets ... --episodes N --seed S` with no perturbation (same keys, the
-evaluation's reward rules, the stand-off speed rule unless --speed-standoff-power says otherwise), so a lost
-episode here is one of that table's. Policies: 'depth' / 'proportional' / 'mpc' (baselines), 'pretrained' (the
+The episodes are those of `ramavt eval --targets ... --episodes N --seed S --resolution 32` with no perturbation
+(same keys, the evaluation's task and a trained run's own env settings; --resolution is this script's, 32 by
+default, and matters to image-based baselines only), so a lost episode here is one of that table's. Policies: 'depth' / 'proportional' / 'mpc' (baselines), 'pretrained' (the
 shipped agent) or a training run folder. Distances are in metres (not stand-off units).
 """
 
@@ -23,25 +24,36 @@ from ramavt_jax.evaluation import pretrained, rollouts, runs, tables
 
 
 def load(spec: str, resolution: int, names: tuple[str, ...]):
-    """(policy, the env it flies on ``names``): a trained policy sees its own run's camera and inputs."""
+    """(policy, the env it flies on ``names``, EnvParams overrides): a trained policy sees its own run's camera,
+    inputs and env settings (those evaluation keeps: rollouts.run_env_overrides), as `ramavt eval` flies it."""
     if spec in ("depth", "proportional", "mpc"):
         camera = env_lib.CameraConfig(resolution=resolution)
-        return baselines.make_policy(spec, camera), env_lib.EnvConfig(camera=camera, targets=names)
+        return baselines.make_policy(spec, camera), env_lib.EnvConfig(camera=camera, targets=names), {}
     loaded = pretrained.load() if spec == "pretrained" else runs.load_policy(spec)
-    return loaded.policy, dataclasses.replace(loaded.config.env, targets=names)
+    return (loaded.policy, dataclasses.replace(loaded.config.env, targets=names),
+            rollouts.run_env_overrides(loaded.config.env_params))
 
 
 def describe(rec, stats, episode: int, dt: float, speed: float) -> str:
-    """One line on a lost episode: start, drift speed, closest approach, first step out of view, length."""
+    """One line on a lost episode of a record [T, N] (rollouts.EpisodeRecord; row t is after step t + 1): its
+    length, start (after step 1), drift speed, closest approach, first step out of view and the step from which it
+    stayed out (steps from 1)."""
     length = int(stats.length[episode])
-    rel = np.asarray(rec.rel_pos)[:length, episode]  # [T, 3] camera frame
+    rel = np.asarray(rec.rel_pos)[:length, episode]  # [L, 3] camera frame
     drift = np.linalg.norm(np.diff(np.asarray(rec.target_pos)[:2, episode], axis=0)[0]) / dt
     closest = int(np.argmin(np.linalg.norm(rel, axis=1)))
-    hidden = np.nonzero(~np.asarray(rec.in_view)[:length, episode])[0]
-    left = f"step {int(hidden[0])}" if hidden.size else "never"
+    seen = np.asarray(rec.in_view)[:length, episode]
+    hidden = np.nonzero(~seen)[0]
+    if hidden.size:
+        shown = np.nonzero(seen)[0]
+        stayed = (int(shown[-1]) + 2) if shown.size else 1
+        left = f"step {int(hidden[0]) + 1}, out for good from step {stayed}" if not seen[-1] else \
+            f"step {int(hidden[0]) + 1}, in view at the end"
+    else:
+        left = "never"
     return (f"  episode {episode:3d}: length {length:4d}, start {np.round(rel[0], 2)} m, target drift "
             f"{drift:.2f} m/s (commands {speed:.2f} m/s), closest {np.linalg.norm(rel[closest]):.2f} m at step "
-            f"{closest}, first out of view: {left}")
+            f"{closest + 1}, first out of view: {left}")
 
 
 def main() -> None:
@@ -56,10 +68,10 @@ def main() -> None:
     if args.episodes < 1:
         ap.error(f"--episodes must be >= 1, got {args.episodes}")
     names = rollouts.resolve_targets(args.targets)
-    policy, env_config = load(args.policy, args.resolution, names)
+    policy, env_config, run_overrides = load(args.policy, args.resolution, names)
     tracking_env = env_lib.TrackingEnv(env_config)
     task = {} if args.speed_standoff_power is None else {"speed_standoff_power": args.speed_standoff_power}
-    params = tracking_env.eval_params(**task)
+    params = tracking_env.eval_params(**run_overrides, **task)
     root = jax.random.PRNGKey(args.seed)
     for index, name in enumerate(names):
         pinned = tracking_env.pinned(params, index)

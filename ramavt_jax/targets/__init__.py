@@ -354,9 +354,9 @@ def stretched(target: TargetModel, factors: jax.Array) -> TargetModel:
 
 def shifted(target: TargetModel, offset: jax.Array) -> TargetModel:
     """The same target with its geometry moved by ``offset`` [3] (body frame, m; one target; may be traced) while its
-    centre of mass, the origin it spins about, stays put: every geom_pos + offset. Mass and inertia are kept (the
-    shift stands for unseen mass, not for a moved body); bound_radius is recomputed about the origin, so it still
-    encloses what is rendered."""
+    centre of mass, the origin it spins about, stays put: every geom_pos + offset. Mass and inertia are kept (a
+    modelling shortcut: moved mass would change the inertia); bound_radius is recomputed about the origin, so it
+    still encloses the geoms."""
     geom_pos = target.geom_pos + jnp.asarray(offset, target.geom_pos.dtype)
     reach = jnp.where(target.geom_mask, jnp.linalg.norm(geom_pos, axis=-1) + target.geom_rbound, 0.0)
     return target.replace(geom_pos=geom_pos, bound_radius=jnp.max(reach))
