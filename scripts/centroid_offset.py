@@ -28,7 +28,7 @@ STANDOFF = 5.0  # m, the nominal desired distance
 
 def centroid_offsets(target: targets_lib.TargetModel, rotations_b: jax.Array, cam: render.CameraConfig) -> dict:
     """Visible-surface centroid of ``target`` at (0, 0, 5 m) in each attitude of ``rotations_b`` [B, 3, 3]:
-    {'sideways': [B] m, 'distance': [B] m} (attitudes in which nothing is seen are left out)."""
+    {'sideways': [B'] m, 'distance': [B'] m} over the B' <= B attitudes in which the target is seen."""
     frames = jax.jit(jax.vmap(lambda r: render.render(target, jnp.array([0.0, 0.0, STANDOFF]), r, cam,
                                                       render.default_lighting(), False)))(rotations_b)
     depth, hit = np.asarray(frames.depth), np.asarray(frames.hit)
@@ -62,6 +62,9 @@ def main() -> None:
         target = targets_lib.load(name)
         k = float(env_lib.standoff_scale(target, params))
         got = centroid_offsets(targets_lib.scaled(target, 1.0 / k), rotations_b, cam)  # seen as the env renders it
+        if not got["sideways"].size:
+            print(f"{name:36s} {k:5.2f} not seen in any attitude")
+            continue
         print(f"{name:36s} {k:5.2f} {got['sideways'].mean():13.2f} {got['sideways'].max():6.2f} "
               f"{got['distance'].mean():9.2f}")
 

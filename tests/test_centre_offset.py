@@ -100,3 +100,22 @@ def test_centre_offset_is_for_training_only_and_checked(offset_env):
         offset_env.default_params(offset_prob=-0.1)
     _, on = randomisation.centre_offset(jax.random.key(0), jnp.asarray(2.0), offset_env.default_params())
     assert not bool(on)
+
+
+def test_offsets_are_uniform_in_their_ball_with_directions_and_lengths_drawn_apart(offset_env):
+    params = _params(offset_env, offset_max=0.5)
+    keys = jax.random.split(jax.random.key(9), 4000)
+    offsets, on = jax.vmap(randomisation.centre_offset, in_axes=(0, None, None))(keys, jnp.asarray(2.0), params)
+    length = np.linalg.norm(np.asarray(offsets), axis=-1) / 1.0  # the ball's radius: 0.5 * 2 m
+    assert np.asarray(on).all()
+    assert abs((length < 0.5).mean() - 1 / 8) < 0.03  # uniform in volume: an eighth lies within half the radius
+    np.testing.assert_allclose(np.asarray(offsets).mean(axis=0), 0.0, atol=0.05)  # no preferred direction
+    unit = np.asarray(offsets) / length[:, None]
+    assert abs(np.corrcoef(length, np.abs(unit[:, 0]))[0, 1]) < 0.06  # the length does not follow the direction
+
+
+def test_each_randomisation_folds_in_data_of_its_own():
+    """The episode's draws fold distinct data into its key, none below 7 (env.initial_state's split(key, 7))."""
+    data = [randomisation.SIZE_KEY, randomisation.SIZE_KEY + 1, randomisation.STRETCH_KEY,
+            randomisation.STRETCH_KEY + 1, randomisation.PERTURB_KEY] + [randomisation.OFFSET_KEY + i for i in range(3)]
+    assert len(set(data)) == len(data) and min(data) >= 7

@@ -132,6 +132,19 @@ def test_eps_ladder_gives_each_env_its_own_final_rate():
     np.testing.assert_allclose(ladder.epsilon(jnp.asarray(500)), 0.5 * (1.0 + ends), rtol=1e-4)
 
 
+def test_act_step_explores_at_each_envs_own_rate(trainer):
+    """epsilon [N]: an env at rate 0 acts greedily, one at rate 1 at random (a per-env ladder reaches act_step so)."""
+    state = trainer.init(jax.random.PRNGKey(2))
+    actor, params, n = state.actor, state.learner.params, SMOKE.acting.num_envs
+    q, _ = trainer.q_values(params, actor.obs[:, None], actor.is_first[:, None], actor.net_state)
+    greedy_actions = np.asarray(jnp.argmax(q[:, 0], axis=-1))
+    rates = jnp.asarray([0.0, 1.0] * (n // 2))
+    act = jax.jit(lambda k: trainer.act_step(params, actor, rates, k)[1].action)
+    taken = np.stack([np.asarray(act(jax.random.PRNGKey(k))) for k in range(6)])  # [6, N]
+    np.testing.assert_array_equal(taken[:, 0::2], np.broadcast_to(greedy_actions[0::2], taken[:, 0::2].shape))
+    assert (taken[:, 1::2] != greedy_actions[1::2]).mean() > 0.5  # 10 of 11 random actions differ from the greedy one
+
+
 def test_polyak_tau_start_holds_then_moves_linearly_to_polyak_tau(learner):
     assert T.Trainer(SMOKE).polyak_tau(jnp.int32(5)) == SMOKE.learner.polyak_tau  # constant by default
     cfg = SMOKE.override(polyak_tau=0.01, polyak_tau_start=0.05, polyak_tau_decay=(1000, 2000))
