@@ -307,7 +307,8 @@ def test_the_shipped_config_jsons_load_as_the_presets_they_were_trained_with():
         return TrainConfig.from_dict(record["config"])
 
     assert shipped(pretrained.DEFAULT_AGENT) == preset("quick", eval_episodes=0, bootstrap_from="target",
-                                                       policy_params="target", policy_average_from=None)
+                                                       policy_params="target", policy_average_from=None,
+                                                       total_env_steps=1_152_000)
 
 
 def test_seed_params_picks_one_seed_of_the_named_set():

@@ -108,7 +108,7 @@ def test_each_table_arm_is_one_change(arm, reference, change):
 
 
 def test_quick_preset_is_the_depth_row():
-    assert learning_arms.arm_config("avg-12") == learning_arms.presets.preset("quick", eval_episodes=0)
+    assert learning_arms.arm_config("avg-1536k") == learning_arms.presets.preset("quick", eval_episodes=0)
 
 
 def test_sizes_preset_is_the_arm_chosen_for_other_sizes():
@@ -117,15 +117,16 @@ def test_sizes_preset_is_the_arm_chosen_for_other_sizes():
     assert dict(sizes.env_params) == {"size_scale_min": 0.15, "size_scale_max": 1.0}
 
 
-def _config_of_reproduce_flags(monkeypatch, name: str, preset: str):
-    """The TrainConfig that `ramavt train --preset PRESET $NAME` builds, with $NAME's flags as docs/reproduce.md
-    sets them (NAME="..." on a line of its own)."""
+def _config_of_reproduce_flags(monkeypatch, names: str, preset: str):
+    """The TrainConfig that `ramavt train --preset PRESET $NAME ...` builds for the space-separated NAMEs, with each
+    one's flags as docs/reproduce.md sets them (NAME="..." on a line of its own)."""
     import re
 
     from ramavt_jax import cli
     from ramavt_jax.cli import train as cli_train
 
-    flags = re.search(rf'^{name}="([^"]*)"$', (ROOT / "docs" / "reproduce.md").read_text(), re.M).group(1).split()
+    text = (ROOT / "docs" / "reproduce.md").read_text()
+    flags = [f for name in names.split() for f in re.search(rf'^{name}="([^"]*)"$', text, re.M).group(1).split()]
     seen = {}
     monkeypatch.setattr(cli_train, "train_and_evaluate", lambda config, out, **kw: seen.update(config=config))
     monkeypatch.setattr(cli_train, "_print_summary", lambda *a: None)
@@ -157,8 +158,14 @@ def test_reproduce_flags_give_the_earlier_long_preset_back(monkeypatch):
 
 
 def test_table2_training_flags_give_the_perturb_arm(monkeypatch):
-    """docs/reproduce.md's $T2 flags, after `--preset quick`, parse to arm 'perturb-05' (Table II in training)."""
-    assert _config_of_reproduce_flags(monkeypatch, "T2", "quick") == learning_arms.arm_config("perturb-05")
+    """docs/reproduce.md's $T2 flags, after `--preset quick $Q36`, parse to arm 'perturb-05' (Table II in training)."""
+    assert _config_of_reproduce_flags(monkeypatch, "Q36 T2", "quick") == learning_arms.arm_config("perturb-05")
+
+
+def test_reproduce_flags_give_the_earlier_quick_preset_back(monkeypatch):
+    """docs/reproduce.md's $Q36, put after `--preset quick`, parses to arm 'avg-12', the quick preset until
+    'avg-1536k', so the commands recorded before still run as they ran."""
+    assert _config_of_reproduce_flags(monkeypatch, "Q36", "quick") == learning_arms.arm_config("avg-12")
 
 
 def test_report_prints_the_seeds(tmp_path, capsys):
