@@ -196,10 +196,9 @@ class TrackingEnv:
 
     def initial_state(self, key: jax.Array, params: EnvParams) -> EnvState:
         """Initial distribution (original values): target at x,y ~ N(0, 1), z ~ U[2, 12) m in the camera frame,
-        times the stand-off scale k of the episode's target (standoff_scale, after the shape and size draws of
-        randomisation.stretch and randomisation.size_factor, before the centre offset of randomisation.shift),
-        velocity N(0, 0.2) m/s, random orientation, spin N(0, 0.1) rad/s per body axis; chaser at rest at the origin.
-        The frame history is zeros (``reset`` fills it with the first observation)."""
+        times the stand-off scale k of the episode's target (standoff_scale, after randomisation.stretch and
+        size_factor, before randomisation.shift), velocity N(0, 0.2) m/s, random orientation, spin N(0, 0.1) rad/s
+        per body axis; chaser at rest at the origin. Frame history zeros (``reset`` fills it with the first obs)."""
         k_tgt, k_xy, k_z, k_vel, k_quat, k_spin, k_acc = jax.random.split(key, 7)
         index = jax.random.categorical(k_tgt, jnp.log(params.target_probs))
         target = randomisation.stretch(key, targets_lib.select(params.catalogue, index), params)
