@@ -25,10 +25,10 @@ def _quick() -> TrainConfig:
     layers (4x4 then 2x2: no im2col copies; 16 attention tokens), absolute depth and image position visible, the
     previous action into its LSTM; 'target lost' bootstrapped, an auxiliary tracking-error loss, replay ratio 2,
     gradients clipped at norm 1 (against late collapses), n-step targets bootstrapped from the online net's own pass
-    (no target-net pass: learns sooner, each update cheaper), 1.54M env steps (48 chunks; one seed trains and
-    evaluates within 6 minutes on 2 idle cores). The trained policy acts with the Polyak-averaged (target) params
-    averaged again over its last 12 chunks, 37-48 (higher AER, narrower spread over seeds; training itself acts with
-    the online params)."""
+    (no target-net pass: learns sooner, each update cheaper), 1.54M env steps (48 chunks; one seed trained and
+    evaluated in 6 min 0 s on a day the 1.15M preset took 4 min 30 s: results/wall_times.json). The trained policy
+    acts with the Polyak-averaged (target) params averaged again over its last 12 chunks, 37-48 (higher AER, narrower
+    spread over seeds; training itself acts with the online params)."""
     return TrainConfig(
         env=env_lib.EnvConfig(camera=CameraConfig(resolution=32), autoreset="next_step"),
         network=NetworkConfig(variant="ramavt", channels=(16, 32, 32), kernels=(4, 2, 3), strides=(4, 2, 1),
@@ -48,8 +48,9 @@ def _quick() -> TrainConfig:
 def _long() -> TrainConfig:
     """The quick preset trained longer: 2.30M env steps (72 chunks), the policy still the tail average over the last
     12 chunks (61-72). Higher AER than the quick preset at 1.15M env steps on validation (docs/experiments.md, arm
-    avg-2304k); one seed trains in 8 minutes, five as one program in under an hour on 2 CPU cores. The earlier long preset (3x3 convs with
-    max-pools, the earlier shipped agent's, ramavt_depth_long) is ``--preset long`` with docs/reproduce.md's $L10."""
+    avg-2304k); one seed trains and evaluates in 7 min 53 s, five as one program in under an hour on 2 CPU cores. The
+    earlier long preset (3x3 convs with max-pools, the earlier shipped agent's, ramavt_depth_long) is ``--preset long``
+    with docs/reproduce.md's $L10."""
     return _quick().override(total_env_steps=2_304_000, policy_average_from=60)
 
 

@@ -40,10 +40,15 @@ def stretch_factors(key: jax.Array, params: EnvParams) -> tuple[jax.Array, jax.A
     return factors, drawn & (params.stretch_max > 1.0)
 
 
+def _either(on: jax.Array, drawn: targets_lib.TargetModel, own: targets_lib.TargetModel) -> targets_lib.TargetModel:
+    """``drawn`` where ``on`` (a traced bool), else exactly ``own``."""
+    return jax.tree.map(lambda d, o: jnp.where(on, d, o), drawn, own)
+
+
 def stretch(key: jax.Array, target: targets_lib.TargetModel, params: EnvParams) -> targets_lib.TargetModel:
     """The episode's target, stretched (targets.stretched) when stretch_factors says so, else exactly itself."""
     factors, on = stretch_factors(key, params)
-    return jax.tree.map(lambda s, t: jnp.where(on, s, t), targets_lib.stretched(target, factors), target)
+    return _either(on, targets_lib.stretched(target, factors), target)
 
 
 def centre_offset(key: jax.Array, radius: jax.Array, params: EnvParams) -> tuple[jax.Array, jax.Array]:
@@ -60,7 +65,7 @@ def shift(key: jax.Array, target: targets_lib.TargetModel, params: EnvParams) ->
     """The episode's target with its geometry off its centre (targets.shifted) when centre_offset says so, else
     exactly itself."""
     offset, on = centre_offset(key, target.bound_radius, params)
-    return jax.tree.map(lambda s, t: jnp.where(on, s, t), targets_lib.shifted(target, offset), target)
+    return _either(on, targets_lib.shifted(target, offset), target)
 
 
 def perturbed(key: jax.Array, params: EnvParams) -> jax.Array:
