@@ -31,7 +31,7 @@ import jax.numpy as jnp
 import optax
 from flax import struct
 
-from ramavt_jax import distributed
+from ramavt_jax import baselines, distributed
 from ramavt_jax import env as env_lib
 from ramavt_jax import replay as replay_lib
 from ramavt_jax.augment import augment_batch
@@ -91,6 +91,7 @@ class Trainer:
         self.augment_fn = (functools.partial(augment_batch, config=learner.augment_config) if learner.augment
                            else None)
         self.replay = replay_lib.make_replay(config.replay, config.acting.num_envs, self._example_transition())
+        self.teacher = (baselines.mpc_policy(config.env, horizon=1, branch=1) if config.acting.teacher_envs else None)
 
     # ---------------------------------------------------------------- helpers
     def _example_transition(self) -> replay_lib.Transition:
@@ -167,6 +168,8 @@ class Trainer:
         """One epsilon-greedy step of all envs, epsilon [] or [N]: (actor, Transition [N, ...] (state [layers, N,
         units]), stats)."""
         c = self.config.acting
+        if c.teacher_envs:  # the split is the plain one without teachers, so their runs keep their draws
+            key, k_teach = jax.random.split(key)
         k_eps, k_rand, k_env = jax.random.split(key, 3)
         standoff = (jax.vmap(lambda s: standoff_signal(self.config.network, s, self.env_params))(actor.env_state)
                     if self.config.network.reads_standoff else None)  # [N]
@@ -175,6 +178,8 @@ class Trainer:
         greedy = jnp.argmax(q[:, 0], axis=-1).astype(jnp.int32)
         explore = jax.random.uniform(k_eps, (c.num_envs,)) < epsilon
         action = jnp.where(explore, jax.random.randint(k_rand, (c.num_envs,), 0, env_lib.NUM_ACTIONS), greedy)
+        if c.teacher_envs:
+            action = action.at[:c.teacher_envs].set(self.teacher_actions(actor.env_state, k_teach))
         obs, env_state, reward, terminated, truncated, info = self._per_device(
             jax.vmap(lambda k, s, a: self.env.step(k, s, a, self.env_params)))(
             jax.random.split(k_env, c.num_envs), actor.env_state, action)
@@ -186,10 +191,17 @@ class Trainer:
             standoff=standoff)
         new_actor = ActorState(env_state=env_state, obs=obs, is_first=info["is_first"],
                                net_state=record_action(net_state, action))
-        done = terminated | truncated
+        done = (terminated | truncated) & (jnp.arange(c.num_envs) >= c.teacher_envs)  # the agent's episodes only
         stats = EpisodeStats(episodes=done.sum(), length_sum=jnp.where(done, info["episode_length"], 0).sum(),
                              return_sum=jnp.where(done, info["episode_return"], 0.0).sum())
         return new_actor, transition, stats
+
+    def teacher_actions(self, env_state, key: jax.Array) -> jax.Array:
+        """[K] the true-state look-ahead's actions for the first K = teacher_envs envs of ``env_state`` [N, ...]."""
+        k = self.config.acting.teacher_envs
+        first = jax.tree.map(lambda x: x[:k], env_state)
+        return jax.vmap(lambda kk, s: self.teacher.act(kk, None, None, s, self.env_params)[0])(
+            jax.random.split(key, k), first)
 
     def _tracking_error(self, env_state) -> jax.Array:
         """[3] where the target centre is minus where it should be (camera frame), in stand-off distances: the

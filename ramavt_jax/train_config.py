@@ -39,9 +39,17 @@ class ActingConfig:
     # envs explore widely while most act almost greedily (Horgan et al. 2018 use eps_end 0.4, ladder 7); 0: every
     # env decays to eps_end.
     eps_ladder: float = 0.0
+    # The first teacher_envs envs act with a true-state one-step look-ahead (baselines.mpc_policy at horizon 1, which
+    # scores within 4 AER of the ceiling on validation) instead of the Q-net: demonstrations flown beside the
+    # agent's own episodes, into the same replay (as R2D3 mixes demonstrations into R2D2's). Their episodes are left
+    # out of the training-return statistics. 0: every env acts with the Q-net.
+    teacher_envs: int = 0
 
     def __post_init__(self):
-        check_ints("ActingConfig", self, dict(num_envs=1, rollout_steps=1, eps_decay_steps=0))
+        check_ints("ActingConfig", self, dict(num_envs=1, rollout_steps=1, eps_decay_steps=0, teacher_envs=0))
+        if self.teacher_envs >= self.num_envs:
+            raise ValueError(f"ActingConfig: teacher_envs must be < num_envs={self.num_envs} (some envs must act with "
+                             f"the Q-net), got {self.teacher_envs}")
         check_floats("ActingConfig", self)
         for name in ("eps_start", "eps_end"):
             if not 0.0 <= getattr(self, name) <= 1.0:

@@ -91,6 +91,9 @@ def test_invalid_configs_raise_clear_errors(overrides, message):
 @pytest.mark.parametrize("build, message", [
     (lambda: ActingConfig(eps_end=2.0), r"^ActingConfig: eps_end must be in \[0, 1\], got 2.0$"),
     (lambda: ActingConfig(eps_ladder=-1.0), r"^ActingConfig: eps_ladder must be >= 0 \(0: no ladder\), got -1.0$"),
+    (lambda: ActingConfig(num_envs=4, teacher_envs=4),
+     r"^ActingConfig: teacher_envs must be < num_envs=4 \(some envs must act with the Q-net\), got 4$"),
+    (lambda: ActingConfig(teacher_envs=-1), r"^ActingConfig: teacher_envs must be >= 0, got -1$"),
     (lambda: LearnerConfig(target_update="soft"), r"^LearnerConfig: target_update must be 'polyak' or 'period'"),
     (lambda: LearnerConfig(td_lambda=0.9), r"^LearnerConfig: td_lambda must be None \(n-step targets\) or in \[0, 1\] with n_step=1"),
     (lambda: LearnerConfig(bootstrap_from="both"), r"^LearnerConfig: bootstrap_from must be .target. or .online., got .both.$"),
@@ -143,6 +146,25 @@ def test_act_step_explores_at_each_envs_own_rate(trainer):
     taken = np.stack([np.asarray(act(jax.random.PRNGKey(k))) for k in range(6)])  # [6, N]
     np.testing.assert_array_equal(taken[:, 0::2], np.broadcast_to(greedy_actions[0::2], taken[:, 0::2].shape))
     assert (taken[:, 1::2] != greedy_actions[1::2]).mean() > 0.5  # 10 of 11 random actions differ from the greedy one
+
+
+def test_teacher_envs_fly_the_true_state_look_ahead_and_the_others_the_q_net():
+    """The first teacher_envs envs take the one-step look-ahead's action on their true state, whatever epsilon; the
+    rest explore as before. Checked against the look-ahead run env by env, outside the trainer. Episodes of one
+    step, so that every env ends one in the step: the training statistics count the agent's envs only."""
+    cfg = SMOKE.override(teacher_envs=3, env_params=(("max_steps", 1),))
+    trainer, k, n = T.Trainer(cfg), cfg.acting.teacher_envs, cfg.acting.num_envs
+    state = trainer.init(jax.random.PRNGKey(3))
+    step = jax.jit(lambda key: trainer.act_step(state.learner.params, state.actor, jnp.asarray(1.0), key)[1:])
+    steps = [step(jax.random.PRNGKey(s)) for s in range(6)]
+    taken = np.stack([np.asarray(tr.action) for tr, _ in steps])  # [6, N], all agent envs random
+    assert [int(stats.episodes) for _, stats in steps] == [n - k] * 6
+    look_ahead = baselines.mpc_policy(cfg.env, horizon=1, branch=1)
+    expected = [int(look_ahead.act(jax.random.PRNGKey(0), None, None,
+                                   jax.tree.map(lambda x: x[i], state.actor.env_state), trainer.env_params)[0])
+                for i in range(k)]
+    np.testing.assert_array_equal(taken[:, :k], np.broadcast_to(expected, (6, k)))
+    assert len({tuple(row) for row in taken[:, k:]}) > 1  # the agent's envs still explore at epsilon 1
 
 
 def test_polyak_tau_start_holds_then_moves_linearly_to_polyak_tau(learner):
