@@ -91,7 +91,8 @@ class Trainer:
         self.augment_fn = (functools.partial(augment_batch, config=learner.augment_config) if learner.augment
                            else None)
         self.replay = replay_lib.make_replay(config.replay, config.acting.num_envs, self._example_transition())
-        self.teacher = (baselines.mpc_policy(config.env, horizon=1, branch=1) if config.acting.teacher_envs else None)
+        self.teacher = (baselines.mpc_policy(self.env.config, horizon=1, branch=1) if config.acting.teacher_envs
+                        else None)
 
     # ---------------------------------------------------------------- helpers
     def _example_transition(self) -> replay_lib.Transition:
@@ -168,7 +169,7 @@ class Trainer:
         """One epsilon-greedy step of all envs, epsilon [] or [N]: (actor, Transition [N, ...] (state [layers, N,
         units]), stats)."""
         c = self.config.acting
-        if c.teacher_envs:  # the split is the plain one without teachers, so their runs keep their draws
+        if c.teacher_envs:  # runs without teachers keep the plain split below, and so their draws
             key, k_teach = jax.random.split(key)
         k_eps, k_rand, k_env = jax.random.split(key, 3)
         standoff = (jax.vmap(lambda s: standoff_signal(self.config.network, s, self.env_params))(actor.env_state)

@@ -348,6 +348,8 @@ ARMS["eps-ladder"] = lambda c: ARMS["avg-1536k"](c).override(eps_end=0.4, eps_la
 # Demonstrations flown beside the agent (ActingConfig.teacher_envs), one change to the quick preset at 1.54M env
 # steps: 8 of the 64 envs act with the true-state one-step look-ahead, so an eighth of the replay shows the target's
 # centre held at the desired point, which the agent's own episodes seldom reach (it circles it: scripts/position_error.py).
+# The budget counts every env's steps, so the agent itself flies 7/8 of the 1.54M, and its exploration decays on the
+# same clock.
 ARMS["teacher-8"] = lambda c: ARMS["avg-1536k"](c).override(teacher_envs=8)
 
 

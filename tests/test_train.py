@@ -152,12 +152,15 @@ def test_teacher_envs_fly_the_true_state_look_ahead_and_the_others_the_q_net():
     """The first teacher_envs envs take the one-step look-ahead's action on their true state, whatever epsilon; the
     rest explore as before. Checked against the look-ahead run env by env, outside the trainer. Episodes of one
     step, so that every env ends one in the step: the training statistics count the agent's envs only."""
-    cfg = SMOKE.override(teacher_envs=3, env_params=(("max_steps", 1),))
+    cfg = SMOKE.override(teacher_envs=3, env_params=(("max_steps", 1),),
+                         network=dataclasses.replace(SMOKE.network, prev_action=True))
     trainer, k, n = T.Trainer(cfg), cfg.acting.teacher_envs, cfg.acting.num_envs
     state = trainer.init(jax.random.PRNGKey(3))
-    step = jax.jit(lambda key: trainer.act_step(state.learner.params, state.actor, jnp.asarray(1.0), key)[1:])
-    steps = [step(jax.random.PRNGKey(s)) for s in range(6)]
+    step = jax.jit(lambda key: trainer.act_step(state.learner.params, state.actor, jnp.asarray(1.0), key))
+    steps = [step(jax.random.PRNGKey(s))[1:] for s in range(6)]
     taken = np.stack([np.asarray(tr.action) for tr, _ in steps])  # [6, N], all agent envs random
+    remembered = step(jax.random.PRNGKey(0))[0].net_state.prev_action  # [1, N]: what the LSTM is told it did
+    np.testing.assert_array_equal(np.asarray(remembered)[0], taken[0])
     assert [int(stats.episodes) for _, stats in steps] == [n - k] * 6
     look_ahead = baselines.mpc_policy(cfg.env, horizon=1, branch=1)
     expected = [int(look_ahead.act(jax.random.PRNGKey(0), None, None,
