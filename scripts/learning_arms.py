@@ -351,6 +351,9 @@ ARMS["eps-ladder"] = lambda c: ARMS["avg-1536k"](c).override(eps_end=0.4, eps_la
 # The budget counts every env's steps, so the agent itself flies 7/8 of the 1.54M, and its exploration decays on the
 # same clock.
 ARMS["teacher-8"] = lambda c: ARMS["avg-1536k"](c).override(teacher_envs=8)
+# The same with half the envs flying the look-ahead (32 of 64): teacher-8 was level (P = 0.48), so a share four
+# times as large shows whether the demonstrations move the agent at all, up or down.
+ARMS["teacher-32"] = lambda c: ARMS["avg-1536k"](c).override(teacher_envs=32)
 
 
 def arm_config(name: str, preset: str = "quick", **overrides):
