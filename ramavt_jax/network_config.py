@@ -67,7 +67,8 @@ class NetworkConfig:
     # quantity a frame cannot show, in a range that training on small sizes covers for every size.
     command_gain_input: bool = False
     # A linear head of this many outputs on the LSTM output, sown as intermediates 'aux' (apply with
-    # mutable=["intermediates"]): the trainer fits it to the true tracking error (LearnerConfig.aux_weight). 0 = none.
+    # mutable=["intermediates"]): the trainer fits it to the true tracking error (3), and with 6 also to the relative
+    # velocity (LearnerConfig.aux_weight). 0 = none.
     aux_outputs: int = 0
     dueling: bool = False  # Q = V + A - mean(A) (dueling head, Wang et al. 2016; see network.q_outputs)
     # N quantiles of the return per action (QR-DQN, Dabney et al. 2018; 0 = expected values only): the head outputs

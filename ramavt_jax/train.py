@@ -101,7 +101,7 @@ class Trainer:
             obs=jnp.zeros(self.obs_shape), action=jnp.zeros((), jnp.int32), reward=jnp.zeros(()),
             terminated=jnp.zeros((), bool), truncated=jnp.zeros((), bool), is_first=jnp.zeros((), bool),
             recurrent_state=unbatch_state(s).replace(frames=None),
-            privileged=jnp.zeros((3,)) if self.config.learner.aux_weight else None,
+            privileged=jnp.zeros((self.config.network.aux_outputs,)) if self.config.learner.aux_weight else None,
             standoff=jnp.ones(()) if self.config.network.reads_standoff else None)
 
     def _per_device(self, batched_fn):
@@ -188,7 +188,7 @@ class Trainer:
         transition = replay_lib.Transition(
             obs=actor.obs, action=action, reward=reward, terminated=terminated, truncated=truncated,
             is_first=actor.is_first, recurrent_state=actor.net_state.replace(frames=None),
-            privileged=jax.vmap(self._tracking_error)(actor.env_state) if self.config.learner.aux_weight else None,
+            privileged=jax.vmap(self._aux_label)(actor.env_state) if self.config.learner.aux_weight else None,
             standoff=standoff)
         new_actor = ActorState(env_state=env_state, obs=obs, is_first=info["is_first"],
                                net_state=record_action(net_state, action))
@@ -204,11 +204,16 @@ class Trainer:
         return jax.vmap(lambda kk, s: self.teacher.act(kk, None, None, s, self.env_params)[0])(
             jax.random.split(key, k), first)
 
-    def _tracking_error(self, env_state) -> jax.Array:
-        """[3] where the target centre is minus where it should be (camera frame), in stand-off distances: the
-        auxiliary loss's label for the obs this (unbatched) env state rendered."""
+    def _aux_label(self, env_state) -> jax.Array:
+        """[3] or [6] the auxiliary loss's label for the obs this (unbatched) env state rendered, in stand-off
+        distances: where the target centre is minus where it should be (camera frame), then with aux_outputs = 6 the
+        target's velocity relative to the chaser (camera frame, per second)."""
         p = self.env_params
-        return (env_lib.relative_position(env_state) / env_state.scale - p.desired_pos) / p.desired_pos[2]
+        error = (env_lib.relative_position(env_state) / env_state.scale - p.desired_pos) / p.desired_pos[2]
+        if self.config.network.aux_outputs == 3:
+            return error
+        velocity = env_lib.HILL_FROM_CAM.T @ (env_state.target_vel - env_state.chaser_vel)
+        return jnp.concatenate([error, velocity / env_state.scale / p.desired_pos[2]])
 
     def rollout(self, params, actor: ActorState, env_steps: jax.Array, key: jax.Array):
         """``rollout_steps`` acting steps. Returns (actor, chunk [N, T, ...] in replay layout, summed stats, the last

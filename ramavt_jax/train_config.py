@@ -79,6 +79,7 @@ class LearnerConfig:
     advantage_alpha: float = 0.0  # advantage learning: widen the action gaps (losses.TDConfig); 0 = off
     # Auxiliary loss weight (0 = off): the aux head (NetworkConfig.aux_outputs = 3) predicts the true tracking error
     # (camera frame, in stand-off distances) at each trained obs: simulator state, stored in the replay, never acted on.
+    # With aux_outputs = 6 it also predicts the target's velocity relative to the chaser (stand-off distances per s).
     aux_weight: float = 0.0
     reward_scale: float = 0.1  # rewards are multiplied by this in the TD targets
     target_update: str = "polyak"  # 'polyak' | 'period'
@@ -241,8 +242,8 @@ class TrainConfig:
                   f"and truncation bootstraps from it), got {self.env.autoreset!r}")
         if self.network.num_actions != env_lib.NUM_ACTIONS:
             _fail(f"network.num_actions={self.network.num_actions} but the env has {env_lib.NUM_ACTIONS} actions")
-        if (self.learner.aux_weight > 0) != (self.network.aux_outputs == 3):  # the tracking error's x, y, z
-            _fail(f"learner.aux_weight > 0 and network.aux_outputs = 3 go together (the head and its loss), got "
+        if (self.learner.aux_weight > 0) != (self.network.aux_outputs in (3, 6)):  # error x, y, z (+ velocity)
+            _fail(f"learner.aux_weight > 0 and network.aux_outputs = 3 or 6 go together (the head and its loss), got "
                   f"{self.learner.aux_weight} and {self.network.aux_outputs}")
         if self.network.quantiles and (self.learner.value_rescale or self.learner.advantage_alpha):
             _fail("network.quantiles (the quantile loss) does not combine with learner.value_rescale or "

@@ -82,7 +82,7 @@ def make_rollout(run: runs.LoadedRun, targets: tuple[str, ...], episodes: int, s
                                              c.net_state, standoff=standoff, mutable=["intermediates"],
                                              capture_intermediates=encoder_only)
             step = Step(truth=env_lib.relative_position(c.state) / c.state.scale - params.desired_pos,
-                        estimate=sown["intermediates"]["aux"][0][0, 0] * params.desired_pos[2],  # stand-off units
+                        estimate=sown["intermediates"]["aux"][0][0, 0, :3] * params.desired_pos[2],  # the error part
                         memory=net_state.h[-1, 0],
                         frame=sown["intermediates"]["encoder"]["__call__"][0][0],
                         alive=c.alive)

@@ -354,6 +354,11 @@ ARMS["teacher-8"] = lambda c: ARMS["avg-1536k"](c).override(teacher_envs=8)
 # The same with half the envs flying the look-ahead (32 of 64): teacher-8 was level (P = 0.48), so a share four
 # times as large shows whether the demonstrations move the agent at all, up or down.
 ARMS["teacher-32"] = lambda c: ARMS["avg-1536k"](c).override(teacher_envs=32)
+# The auxiliary head also fitted to the target's velocity relative to the chaser (NetworkConfig.aux_outputs = 6),
+# one change to the quick preset at 1.54M env steps: holding the centre still takes commands that match the target's
+# drift on average, which the agent must read from successive frames; the ceiling knows it and holds still on 17 %
+# of the steps, the agent on 1-6 % (scripts/position_error.py).
+ARMS["aux-velocity"] = lambda c: _net(ARMS["avg-1536k"](c), aux_outputs=6)
 
 
 def arm_config(name: str, preset: str = "quick", **overrides):

@@ -66,7 +66,7 @@ def test_presets():
         (dict(lr=0.0), "lr and adam_eps must be > 0"),
         (dict(lr_final=1.0), r"lr_final must be None \(constant lr\) or in \[0, lr="),
         (dict(advantage_alpha=1.0), r"advantage_alpha must be in \[0, 1\)"),
-        (dict(aux_weight=1.0), "aux_weight > 0 and network.aux_outputs = 3 go together"),
+        (dict(aux_weight=1.0), "aux_weight > 0 and network.aux_outputs = 3 or 6 go together"),
         (dict(network=dataclasses.replace(SMOKE.network, aux_outputs=3)), "go together"),
         (dict(n_step=9), "n_step=9 must be <= replay.train_len"),
         (dict(replay_ratio=0.3), "whole number"),
@@ -395,6 +395,22 @@ def test_auxiliary_loss_labels_are_the_true_tracking_error_and_train_the_aux_hea
     np.testing.assert_allclose(float(logged_w3["aux_loss"]), float(logged_w1["aux_loss"]), rtol=1e-6)
     np.testing.assert_allclose(float(loss_w3 - loss_w1), 2.0 * float(logged_w1["aux_loss"]), rtol=1e-5)
     assert "aux_head" not in jax.eval_shape(T.Trainer(SMOKE).init, jax.ShapeDtypeStruct((2,), jnp.uint32)).learner.params
+
+
+def test_six_aux_outputs_add_the_relative_velocity_whose_integral_is_the_errors_change():
+    """aux_outputs = 6: labels [N, T, 6], the tracking error as with 3, then the relative velocity in stand-off
+    distances per second; the error moves from one obs to the next by the step's mean velocity times dt."""
+    cfg = SMOKE.override(network=dataclasses.replace(SMOKE.network, aux_outputs=6), aux_weight=1.0)
+    tr = T.Trainer(cfg)
+    state = jax.jit(tr.init)(jax.random.PRNGKey(4))
+    _, chunk, _, _ = jax.jit(tr.rollout)(state.learner.params, state.actor, jnp.int32(0), jax.random.PRNGKey(5))
+    label = np.asarray(chunk.privileged)
+    assert label.shape[-1] == 6
+    same = ~np.asarray(chunk.is_first)[:, 1:]  # both obs in the same episode
+    moved = label[:, 1:, :3] - label[:, :-1, :3]
+    mean_velocity = 0.5 * (label[:, 1:, 3:] + label[:, :-1, 3:])
+    assert same.sum() > 10 and np.abs(moved[same]).max() > 1e-3  # it moves, so the check can fail
+    np.testing.assert_allclose(moved[same], mean_velocity[same] * float(tr.env_params.dt), atol=2e-4)
 
 
 def test_prev_action_is_stored_with_the_state_and_fed_back_by_the_greedy_policy():
