@@ -41,8 +41,8 @@ class ActingConfig:
     eps_ladder: float = 0.0
     # The first teacher_envs envs act with a true-state one-step look-ahead (baselines.mpc_policy at horizon 1, which
     # scores within 4 AER of the ceiling on validation) instead of the Q-net: demonstrations flown beside the
-    # agent's own episodes, into the same replay (as R2D3 mixes demonstrations into R2D2's). Their episodes are left
-    # out of the training-return statistics. 0: every env acts with the Q-net.
+    # agent's own episodes, into the same replay (R2D3 also mixes demonstrations into R2D2's training, from a buffer
+    # of their own). Their episodes are left out of the training-return statistics. 0: every env acts with the Q-net.
     teacher_envs: int = 0
 
     def __post_init__(self):

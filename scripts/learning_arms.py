@@ -343,11 +343,12 @@ ARMS["offset-04"] = lambda c: _env(ARMS["avg-12"](c), offset_max=0.4)
 # The quick preset since it scored higher on validation over ten seeds.
 ARMS["avg-1536k"] = lambda c: ARMS["avg-12"](c).override(total_env_steps=1_536_000, policy_average_from=36)
 # Ape-X's ladder of per-env exploration rates, one change to the quick preset at 1.54M env steps (eps_end 0.4,
-# ladder 7: final rates from 0.4 down to 0.07 %, 6 % on average over 64 envs, against 5 % for every env).
+# ladder 7: final rates from 40 % down to 0.07 %, 6 % on average over 64 envs, against 5 % for every env).
 ARMS["eps-ladder"] = lambda c: ARMS["avg-1536k"](c).override(eps_end=0.4, eps_ladder=7.0)
 # Demonstrations flown beside the agent (ActingConfig.teacher_envs), one change to the quick preset at 1.54M env
 # steps: 8 of the 64 envs act with the true-state one-step look-ahead, so an eighth of the replay shows the target's
-# centre held at the desired point, which the agent's own episodes seldom reach (it circles it: scripts/position_error.py).
+# centre held at the desired point, which the agent's own episodes seldom reach (it circles it:
+# scripts/position_error.py).
 # The budget counts every env's steps, so the agent itself flies 7/8 of the 1.54M, and its exploration decays on the
 # same clock.
 ARMS["teacher-8"] = lambda c: ARMS["avg-1536k"](c).override(teacher_envs=8)
@@ -356,8 +357,8 @@ ARMS["teacher-8"] = lambda c: ARMS["avg-1536k"](c).override(teacher_envs=8)
 ARMS["teacher-32"] = lambda c: ARMS["avg-1536k"](c).override(teacher_envs=32)
 # The auxiliary head also fitted to the target's velocity relative to the chaser (NetworkConfig.aux_outputs = 6),
 # one change to the quick preset at 1.54M env steps: holding the centre still takes commands that match the target's
-# drift on average, which the agent must read from successive frames; the ceiling knows it and holds still on 17 %
-# of the steps, the agent on 1-6 % (scripts/position_error.py).
+# drift on average, which the agent must read from successive frames; the ceiling knows it and after the approach
+# commands no motion on 17 % of the steps, the 1.15M preset on 1-6 % (scripts/position_error.py).
 ARMS["aux-velocity"] = lambda c: _net(ARMS["avg-1536k"](c), aux_outputs=6)
 # Half the learning rate (5e-4 instead of 1e-3), one change to the quick preset at 1.54M env steps: 1e-3 was chosen
 # at 384k env steps, before the clip, the online targets and the tail average; a longer run may prefer smaller steps.
