@@ -180,7 +180,7 @@ class Trainer:
         explore = jax.random.uniform(k_eps, (c.num_envs,)) < epsilon
         action = jnp.where(explore, jax.random.randint(k_rand, (c.num_envs,), 0, env_lib.NUM_ACTIONS), greedy)
         if c.teacher_envs:
-            action = action.at[:c.teacher_envs].set(self.teacher_actions(actor.env_state, k_teach))
+            action = action.at[:c.teacher_envs].set(self._teacher_actions(actor.env_state, k_teach))
         obs, env_state, reward, terminated, truncated, info = self._per_device(
             jax.vmap(lambda k, s, a: self.env.step(k, s, a, self.env_params)))(
             jax.random.split(k_env, c.num_envs), actor.env_state, action)
@@ -197,7 +197,7 @@ class Trainer:
                              return_sum=jnp.where(done, info["episode_return"], 0.0).sum())
         return new_actor, transition, stats
 
-    def teacher_actions(self, env_state, key: jax.Array) -> jax.Array:
+    def _teacher_actions(self, env_state, key: jax.Array) -> jax.Array:
         """[K] the true-state look-ahead's actions for the first K = teacher_envs envs of ``env_state`` [N, ...]."""
         k = self.config.acting.teacher_envs
         first = jax.tree.map(lambda x: x[:k], env_state)

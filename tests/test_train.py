@@ -157,11 +157,11 @@ def test_teacher_envs_fly_the_true_state_look_ahead_and_the_others_the_q_net():
     trainer, k, n = T.Trainer(cfg), cfg.acting.teacher_envs, cfg.acting.num_envs
     state = trainer.init(jax.random.PRNGKey(3))
     step = jax.jit(lambda key: trainer.act_step(state.learner.params, state.actor, jnp.asarray(1.0), key))
-    steps = [step(jax.random.PRNGKey(s))[1:] for s in range(6)]
-    taken = np.stack([np.asarray(tr.action) for tr, _ in steps])  # [6, N], all agent envs random
-    remembered = step(jax.random.PRNGKey(0))[0].net_state.prev_action  # [1, N]: what the LSTM is told it did
-    np.testing.assert_array_equal(np.asarray(remembered)[0], taken[0])
-    assert [int(stats.episodes) for _, stats in steps] == [n - k] * 6
+    steps = [step(jax.random.PRNGKey(s)) for s in range(6)]  # (actor, transition, stats) each
+    taken = np.stack([np.asarray(tr.action) for _, tr, _ in steps])  # [6, N], all agent envs random
+    remembered = np.asarray(steps[0][0].net_state.prev_action)[0]  # [N]: what the LSTM is told it did
+    np.testing.assert_array_equal(remembered, taken[0])
+    assert [int(stats.episodes) for _, _, stats in steps] == [n - k] * 6
     look_ahead = baselines.mpc_policy(cfg.env, horizon=1, branch=1)
     expected = [int(look_ahead.act(jax.random.PRNGKey(0), None, None,
                                    jax.tree.map(lambda x: x[i], state.actor.env_state), trainer.env_params)[0])
