@@ -363,6 +363,25 @@ ARMS["aux-velocity"] = lambda c: _net(ARMS["avg-1536k"](c), aux_outputs=6)
 # Half the learning rate (5e-4 instead of 1e-3), one change to the quick preset at 1.54M env steps: 1e-3 was chosen
 # at 384k env steps, before the clip, the online targets and the tail average; a longer run may prefer smaller steps.
 ARMS["lr-half"] = lambda c: ARMS["avg-1536k"](c).override(lr=5e-4)
+# The sizes preset at the quick preset's 1.54M env steps (48 chunks, the policy the average over chunks 37-48): one
+# change to 'size-res64', as 'avg-1536k' was to 'avg-12'.
+ARMS["size-1536k"] = lambda c: ARMS["size-res64"](c).override(total_env_steps=1_536_000, policy_average_from=36)
+# Shape variety, one change to the quick preset: the twelve catalogue training models and 48 procedural ones
+# (scripts/procedural_targets.py, seed 0: satellites with one or two wings, booms and dishes, stacks, module chains,
+# rocks), an episode drawing each of the 60 equally often. The validation models the agent tracks worst are those
+# whose silhouette is centred farthest off the centre of mass, and no change to the learner moved them; a wider
+# variety of such relations in training may.
+PROCEDURAL_DIR = Path(__file__).resolve().parents[1] / "runs" / "procedural"  # where the models are written
+
+
+def _procedural(c, count: int):
+    import procedural_targets  # a sibling script (build time, like this one)
+
+    paths = procedural_targets.write_models(PROCEDURAL_DIR, count, seed=0)
+    return c.override(env=dataclasses.replace(c.env, targets=c.env.targets + tuple(str(p) for p in paths)))
+
+
+ARMS["procedural-48"] = lambda c: _procedural(ARMS["avg-1536k"](c), 48)
 
 
 def arm_config(name: str, preset: str = "quick", **overrides):

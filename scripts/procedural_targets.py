@@ -1,0 +1,188 @@
+"""Procedural training targets: random spacecraft built from MuJoCo primitives, for training on more shapes than the
+catalogue's twelve training models (build time; the package does not import this).
+
+    python scripts/procedural_targets.py --count 48 --seed 0 --out runs/procedural
+    ramavt train --preset quick --env.targets $(python scripts/procedural_targets.py --list-train runs/procedural)
+
+Each model is one of four kinds, drawn with its parameters from ``numpy.random.default_rng([seed, index])`` so a
+model depends only on the seed and its index:
+
+- ``sat``: a box or cylinder bus with zero, one or two solar wings of 1-3 panels (one wing: the silhouette's
+  centre lies well off the centre of mass, as on the validation satellite), maybe a dish on a boom, instrument boxes
+  and an engine;
+- ``stack``: a rocket-like stack of 2-4 coaxial cylinders of varied radii with a nozzle and maybe side pods;
+- ``modules``: a station-like chain of 2-4 modules with wings on some of them and maybe a side module;
+- ``rock``: a cluster of 3-8 ellipsoids and spheres.
+
+Densities follow the catalogue's (panels light, buses and rock heavy), so light appendages move the silhouette's
+centre away from the centre of mass. Every model is scaled to a bounding radius (about its centre of mass) drawn
+uniformly in [1.0, 2.4] m (the catalogue has 0.56-2.4 m; a thin model much smaller covers few pixels), and has at
+most ``MAX_GEOMS`` geoms, the most a catalogue training model has, so that training on them pads the geom arrays no
+further (the renderer's cost grows with that pad).
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import numpy as np
+
+from catalogue_gen import (D_BOOM, D_BUS, D_DENSE, D_MODULE, D_PANEL, D_TANK, DARK, GOLD, GREY, OLIVE, PANEL, PANEL2,
+                           RADIATOR, SILVER, WHITE, bound_radius)
+from mjcf_builder import Target
+
+MAX_GEOMS = 21  # the most geoms of a catalogue training model (Station-v1): the pad training already has
+RADIUS_RANGE = (1.0, 2.4)  # m: bounding radii drawn (module docstring)
+KINDS = ("sat", "stack", "modules", "rock")
+BODY_COLOURS = (GOLD, SILVER, WHITE, GREY, OLIVE)
+PANEL_COLOURS = (PANEL, PANEL2)
+
+
+def _u(rng: np.random.Generator, low: float, high: float) -> float:
+    return float(rng.uniform(low, high))
+
+
+def _wing(t: Target, rng, tag: str, side: int, root_y: float, z: float) -> None:
+    """A solar wing along +-y (side 1 or -1) from y = root_y: a yoke, then 1-3 panels, maybe canted."""
+    panels, half_x, half_y = int(rng.integers(1, 4)), _u(rng, 0.35, 0.8), _u(rng, 0.35, 0.75)
+    yoke = _u(rng, 0.2, 0.6)
+    cant = [0, _u(rng, -30, 30), 0] if rng.random() < 0.4 else None
+    colour = PANEL_COLOURS[int(rng.integers(2))]
+    t.cylinder(f"yoke_{tag}", [0, side * root_y, z], [0, side * (root_y + yoke), z], 0.04, GREY, D_DENSE)
+    for i in range(panels):
+        y = root_y + yoke + half_y * (2 * i + 1) + 0.05 * i
+        t.box(f"wing_{tag}{i}", [0, side * y, z], [half_x, half_y, 0.015], colour, D_PANEL, euler=cant)
+
+
+def _satellite(t: Target, rng) -> None:
+    colour = BODY_COLOURS[int(rng.integers(len(BODY_COLOURS)))]
+    if rng.random() < 0.5:
+        half = [_u(rng, 0.3, 0.9), _u(rng, 0.3, 0.9), _u(rng, 0.3, 1.0)]
+        t.box("bus", [0, 0, 0], half, colour, D_BUS)
+    else:
+        radius, length = _u(rng, 0.35, 0.9), _u(rng, 0.4, 1.2)
+        t.cylinder("bus", [0, 0, -length], [0, 0, length], radius, colour, D_BUS)
+        half = [radius, radius, length]
+    sides = {0: (), 1: (int(rng.choice([-1, 1])),), 2: (1, -1)}[int(rng.choice(3, p=[0.15, 0.35, 0.5]))]
+    for side in sides:
+        _wing(t, rng, "p" if side > 0 else "m", side, half[1], _u(rng, -0.5, 0.5) * half[2])
+    if rng.random() < 0.6:  # a dish on a boom from a corner of the bus's top
+        start = np.array([rng.choice([-1, 1]) * half[0], 0.0, half[2]]) * _u(rng, 0.5, 1.0)
+        direction = np.array([start[0], _u(rng, -0.5, 0.5), _u(rng, 0.3, 1.5)])
+        end = start + direction / np.linalg.norm(direction) * _u(rng, 0.4, 1.8)
+        dish = _u(rng, 0.3, 1.2)
+        t.cylinder("boom", start, end, 0.04, GREY, D_BOOM)
+        t.ellipsoid("dish", end, [dish, dish, 0.06], WHITE, 60.0, euler=[0, _u(rng, -60, 60), 0])
+    for i in range(int(rng.integers(0, 3))):  # instrument boxes on the faces
+        face = np.eye(3)[int(rng.integers(3))] * rng.choice([-1, 1])
+        size = [_u(rng, 0.08, 0.35) for _ in range(3)]
+        t.box(f"instrument_{i}", face * (np.array(half) + size) + (1 - np.abs(face)) * rng.uniform(-0.3, 0.3, 3),
+              size, BODY_COLOURS[int(rng.integers(len(BODY_COLOURS)))], D_DENSE)
+    if rng.random() < 0.7:
+        t.cylinder("engine", [0, 0, -half[2]], [0, 0, -half[2] - _u(rng, 0.2, 0.5)], _u(rng, 0.1, 0.3), DARK,
+                   D_DENSE)
+
+
+def _stack(t: Target, rng) -> None:
+    z, radius = 0.0, _u(rng, 0.6, 1.6)
+    for i in range(int(rng.integers(2, 5))):
+        length = _u(rng, 0.8, 4.0)
+        colour = BODY_COLOURS[int(rng.integers(len(BODY_COLOURS)))]
+        t.cylinder(f"stage_{i}", [0, 0, z], [0, 0, z + length], radius, colour, D_TANK if i % 2 == 0 else 150.0)
+        z, radius = z + length, radius * _u(rng, 0.5, 1.2)
+    t.cylinder("nozzle", [0, 0, 0], [0, 0, -_u(rng, 0.5, 1.5)], _u(rng, 0.3, 0.8), DARK, D_DENSE)
+    for i in range(int(rng.integers(0, 3))):  # side pods at random heights and angles
+        angle, height, pod = _u(rng, 0, 2 * np.pi), _u(rng, 0.2, 0.8) * z, _u(rng, 0.15, 0.5)
+        centre = [np.cos(angle) * (1.2 + pod), np.sin(angle) * (1.2 + pod), height]
+        t.capsule(f"pod_{i}", centre, [centre[0], centre[1], height + _u(rng, 0.5, 2.0)], pod, GREY, D_DENSE)
+
+
+def _modules(t: Target, rng) -> None:
+    x = 0.0
+    count = int(rng.integers(2, 5))
+    for i in range(count):
+        length, radius = _u(rng, 2.0, 6.0), _u(rng, 0.8, 1.6)
+        colour = BODY_COLOURS[int(rng.integers(len(BODY_COLOURS)))]
+        t.cylinder(f"module_{i}", [x, 0, 0], [x + length, 0, 0], radius, colour, D_MODULE)
+        if rng.random() < 0.6:  # a pair of wings (or one) across this module
+            half_x, half_y = _u(rng, 0.6, 2.0), _u(rng, 1.0, 3.0)
+            colour = PANEL_COLOURS[int(rng.integers(2))]
+            for side in ((1, -1) if rng.random() < 0.7 else (int(rng.choice([-1, 1])),)):
+                t.box(f"wing_{i}{'p' if side > 0 else 'm'}", [x + length / 2, side * (radius + half_y + 0.2), 0],
+                      [half_x, half_y, 0.015], colour, D_PANEL)
+        x += length
+    if rng.random() < 0.5:  # a side module from a random point of the chain
+        at, length = _u(rng, 0.2, 0.8) * x, _u(rng, 2.0, 5.0)
+        side = rng.choice([-1, 1])
+        t.cylinder("side_module", [at, 0, side * 1.0], [at, 0, side * (1.0 + length)], _u(rng, 0.7, 1.3), WHITE,
+                   D_MODULE)
+    if rng.random() < 0.5:
+        t.box("radiator", [_u(rng, 0.2, 0.8) * x, 0, -_u(rng, 2.0, 3.5)], [_u(rng, 0.5, 1.5), _u(rng, 0.5, 1.5), 0.02],
+              RADIATOR, D_PANEL)
+
+
+def _rock(t: Target, rng) -> None:
+    colour = (_u(rng, 0.3, 0.6),) * 3
+    for i in range(int(rng.integers(3, 9))):
+        centre = rng.normal(0, 0.5, 3) * [1.0, 0.8, 0.6]
+        axes = rng.uniform(0.4, 1.1, 3)
+        euler = list(rng.uniform(-90, 90, 3))
+        if rng.random() < 0.3:
+            t.sphere(f"lobe_{i}", centre, float(axes.mean()), colour, _u(rng, 1800, 2300))
+        else:
+            t.ellipsoid(f"lobe_{i}", centre, axes, colour, _u(rng, 1800, 2300), euler=euler)
+
+
+BUILDERS = {"sat": _satellite, "stack": _stack, "modules": _modules, "rock": _rock}
+
+
+def procedural_target(seed: int, index: int) -> Target:
+    """Model ``index`` of ``seed``: its kind cycles through KINDS, its parameters from default_rng([seed, index]);
+    scaled to a bounding radius drawn in RADIUS_RANGE."""
+    rng = np.random.default_rng([seed, index])
+    kind = KINDS[index % len(KINDS)]
+    t = Target(f"Gen{seed}-{kind}{index:03d}", f"procedural {kind}, seed {seed}",
+               generator="scripts/procedural_targets.py")
+    BUILDERS[kind](t, rng)
+    if len(t.geoms) > MAX_GEOMS:  # the builders' counts stay below it; a change to them must too
+        raise ValueError(f"{t.name}: {len(t.geoms)} geoms, more than MAX_GEOMS = {MAX_GEOMS}")
+    radius = _u(rng, *RADIUS_RANGE)
+    t.scale, t.scale_reason = radius / bound_radius(t), f"bounding radius {radius:.2f} m drawn in {RADIUS_RANGE} m"
+    return t
+
+
+def write_models(out: Path, count: int, seed: int = 0) -> list[Path]:
+    """Write models 0..count-1 of ``seed`` to ``out`` (created if missing) -> their paths, in index order."""
+    if count < 1:
+        raise ValueError(f"count must be at least 1, got {count}")
+    out.mkdir(parents=True, exist_ok=True)
+    paths = []
+    for index in range(count):
+        t = procedural_target(seed, index)
+        paths.append(out / f"{t.name}.xml")
+        paths[-1].write_text(t.xml())
+    return paths
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--count", type=int, default=48, help="models to write (their kinds cycle through KINDS)")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--out", type=Path, default=Path("runs/procedural"))
+    parser.add_argument("--list-train", type=Path, metavar="DIR",
+                        help="print the catalogue's training targets and every .xml in DIR, space-separated, and exit")
+    args = parser.parse_args()
+    if args.list_train is not None:
+        from ramavt_jax.targets import TRAIN_TARGETS
+
+        print(" ".join([*TRAIN_TARGETS, *sorted(str(p) for p in args.list_train.glob("*.xml"))]))
+        return
+    if args.count < 1:
+        parser.error("--count must be at least 1")
+    for path in write_models(args.out, args.count, args.seed):
+        print(f"wrote {path}")
+
+
+if __name__ == "__main__":
+    main()

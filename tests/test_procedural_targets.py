@@ -1,0 +1,83 @@
+"""Procedural training targets (scripts/procedural_targets.py): reproducible from their seed, loadable, within the
+catalogue's sizes and geom pad, and the learning arm that trains on them changes only the training targets."""
+
+import dataclasses
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from ramavt_jax import targets
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "scripts"))
+import learning_arms  # noqa: E402
+import procedural_targets  # noqa: E402
+
+
+@pytest.fixture(scope="module")
+def models(tmp_path_factory):
+    """Models 0-7 of seed 0 (two of each kind) written to a folder -> their paths."""
+    return procedural_targets.write_models(tmp_path_factory.mktemp("procedural"), 8, seed=0)
+
+
+def test_a_model_depends_only_on_its_seed_and_index():
+    first, again = procedural_targets.procedural_target(0, 5), procedural_targets.procedural_target(0, 5)
+    assert first.xml() == again.xml()
+    assert first.xml() != procedural_targets.procedural_target(0, 9).xml()  # same kind, another index
+    assert first.xml() != procedural_targets.procedural_target(1, 5).xml()  # another seed
+
+
+def test_models_load_within_the_catalogue_sizes_and_pad(models):
+    _, infos = targets.load_many(models)
+    kinds = [p.stem.split("-")[1].rstrip("0123456789") for p in models]
+    assert kinds == list(procedural_targets.KINDS) * 2
+    low, high = procedural_targets.RADIUS_RANGE
+    for path, info in zip(models, infos):
+        assert low - 1e-3 <= info.bound_radius <= high + 1e-3, (path.name, info.bound_radius)
+        assert 1 <= info.num_geoms <= procedural_targets.MAX_GEOMS, (path.name, info.num_geoms)
+    radii = [info.bound_radius for info in infos]
+    assert np.std(radii) > 0.1  # drawn, not one size
+    pad = targets.load_many(targets.TRAIN_TARGETS)[0].geom_mask.shape[-1]
+    assert procedural_targets.MAX_GEOMS == pad  # training on them pads no further than the catalogue does
+
+
+def test_one_winged_satellites_are_centred_off_their_centre_of_mass():
+    """The point of the 'sat' kind: a light wing on one side moves the geometry's centre well off the centre of mass
+    (the loader puts the centre of mass at the origin)."""
+    offsets = []
+    for index in range(0, 80, len(procedural_targets.KINDS)):
+        t = procedural_targets.procedural_target(0, index)
+        wings = {name[len("wing_")] for _, name, *_ in t.geoms if name.startswith("wing_")}
+        if wings == {"p"} or wings == {"m"}:
+            arrays, info = targets.load_numpy(_written(t))
+            mask = arrays["geom_mask"] > 0
+            centre = np.average(arrays["geom_pos"][mask], axis=0, weights=arrays["geom_rbound"][mask])
+            offsets.append(np.linalg.norm(centre) / info.bound_radius)
+    assert len(offsets) >= 5
+    assert min(offsets) > 0.15  # in bounding radii; two-winged ones: 0.02-0.25
+
+
+def _written(target) -> Path:
+    import tempfile
+
+    path = Path(tempfile.mkdtemp()) / f"{target.name}.xml"
+    path.write_text(target.xml())
+    return path
+
+
+def test_the_arm_adds_the_models_to_the_training_targets_only(tmp_path, monkeypatch):
+    monkeypatch.setattr(learning_arms, "PROCEDURAL_DIR", tmp_path)
+    arm, reference = learning_arms.arm_config("procedural-48"), learning_arms.arm_config("avg-1536k")
+    assert arm.env.targets[:len(targets.TRAIN_TARGETS)] == targets.TRAIN_TARGETS
+    added = arm.env.targets[len(targets.TRAIN_TARGETS):]
+    assert len(added) == 48 and all(Path(p).parent == tmp_path and Path(p).is_file() for p in added)
+    assert dataclasses.replace(arm, env=dataclasses.replace(arm.env, targets=targets.TRAIN_TARGETS)) == reference
+
+
+def test_command_line_refuses_no_models(tmp_path):
+    result = subprocess.run([sys.executable, str(ROOT / "scripts" / "procedural_targets.py"), "--count", "0",
+                             "--out", str(tmp_path)], capture_output=True, text=True)
+    assert result.returncode != 0 and "--count must be at least 1" in result.stderr
