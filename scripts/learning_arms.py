@@ -382,6 +382,9 @@ def _procedural(c, count: int):
 
 
 ARMS["procedural-48"] = lambda c: _procedural(ARMS["avg-1536k"](c), 48)
+# The same 48 models added to the sizes preset's training targets at 1.54M env steps (one change to 'size-1536k'):
+# the user models are shapes the catalogue does not have, flown at sizes it does not have.
+ARMS["size-procedural-48"] = lambda c: _procedural(ARMS["size-1536k"](c), 48)
 
 
 def arm_config(name: str, preset: str = "quick", **overrides):

@@ -68,9 +68,10 @@ def _written(target) -> Path:
     return path
 
 
-def test_the_arm_adds_the_models_to_the_training_targets_only(tmp_path, monkeypatch):
+@pytest.mark.parametrize("arm, reference", [("procedural-48", "avg-1536k"), ("size-procedural-48", "size-1536k")])
+def test_the_arm_adds_the_models_to_the_training_targets_only(arm, reference, tmp_path, monkeypatch):
     monkeypatch.setattr(learning_arms, "PROCEDURAL_DIR", tmp_path)
-    arm, reference = learning_arms.arm_config("procedural-48"), learning_arms.arm_config("avg-1536k")
+    arm, reference = learning_arms.arm_config(arm), learning_arms.arm_config(reference)
     assert arm.env.targets[:len(targets.TRAIN_TARGETS)] == targets.TRAIN_TARGETS
     added = arm.env.targets[len(targets.TRAIN_TARGETS):]
     assert len(added) == 48 and all(Path(p).parent == tmp_path and Path(p).is_file() for p in added)
