@@ -367,7 +367,7 @@ ARMS["lr-half"] = lambda c: ARMS["avg-1536k"](c).override(lr=5e-4)
 # change to 'size-res64', as 'avg-1536k' was to 'avg-12'.
 ARMS["size-1536k"] = lambda c: ARMS["size-res64"](c).override(total_env_steps=1_536_000, policy_average_from=36)
 # Shape variety, one change to the quick preset: the twelve catalogue training models and 48 procedural ones
-# (scripts/procedural_targets.py, seed 0: satellites with one or two wings, booms and dishes, stacks, module chains,
+# (scripts/procedural_targets.py, seed 0: satellites with up to two wings, booms and dishes, stacks, module chains,
 # rocks), an episode drawing each of the 60 equally often. The validation models the agent tracks worst are those
 # whose silhouette is centred farthest off the centre of mass, and no change to the learner moved them; a wider
 # variety of such relations in training may.
@@ -383,7 +383,8 @@ def _procedural(c, count: int):
 
 ARMS["procedural-48"] = lambda c: _procedural(ARMS["avg-1536k"](c), 48)
 # The same 48 models added to the sizes preset's training targets at 1.54M env steps (one change to 'size-1536k'):
-# the user models are shapes the catalogue does not have, flown at sizes it does not have.
+# the user models are shapes the catalogue does not have, flown at sizes it does not have, so more shapes in training
+# may carry further there than on the catalogue's validation sizes.
 ARMS["size-procedural-48"] = lambda c: _procedural(ARMS["size-1536k"](c), 48)
 
 

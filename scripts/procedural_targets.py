@@ -4,15 +4,15 @@ catalogue's twelve training models (build time; the package does not import this
     python scripts/procedural_targets.py --count 48 --seed 0 --out runs/procedural
     ramavt train --preset quick --env.targets $(python scripts/procedural_targets.py --list-train runs/procedural)
 
-Each model is one of four kinds, drawn with its parameters from ``numpy.random.default_rng([seed, index])`` so a
-model depends only on the seed and its index:
+Model ``index`` is of kind ``KINDS[index % 4]``, its parameters drawn from ``numpy.random.default_rng([seed,
+index])``, so a model depends only on the seed and its index:
 
 - ``sat``: a box or cylinder bus with zero, one or two solar wings of 1-3 panels (one wing: the silhouette's
   centre lies well off the centre of mass, as on the validation satellite), maybe a dish on a boom, instrument boxes
   and an engine;
 - ``stack``: a rocket-like stack of 2-4 coaxial cylinders of varied radii with a nozzle and maybe side pods;
 - ``modules``: a station-like chain of 2-4 modules with wings on some of them and maybe a side module;
-- ``rock``: a cluster of 3-8 ellipsoids and spheres.
+- ``rock``: a cluster of 3-8 overlapping ellipsoids and spheres.
 
 Densities follow the catalogue's (panels light, buses and rock heavy), so light appendages move the silhouette's
 centre away from the centre of mass. Every model is scaled to a bounding radius (about its centre of mass) drawn
@@ -24,6 +24,7 @@ further (the renderer's cost grows with that pad).
 from __future__ import annotations
 
 import argparse
+import re
 from pathlib import Path
 
 import numpy as np
@@ -67,15 +68,16 @@ def _satellite(t: Target, rng) -> None:
     sides = {0: (), 1: (int(rng.choice([-1, 1])),), 2: (1, -1)}[int(rng.choice(3, p=[0.15, 0.35, 0.5]))]
     for side in sides:
         _wing(t, rng, "p" if side > 0 else "m", side, half[1], _u(rng, -0.5, 0.5) * half[2])
-    if rng.random() < 0.6:  # a dish on a boom from a corner of the bus's top
+    if rng.random() < 0.6:  # a dish on a boom from the edge of the bus's top, pulled in towards its middle
         start = np.array([rng.choice([-1, 1]) * half[0], 0.0, half[2]]) * _u(rng, 0.5, 1.0)
         direction = np.array([start[0], _u(rng, -0.5, 0.5), _u(rng, 0.3, 1.5)])
         end = start + direction / np.linalg.norm(direction) * _u(rng, 0.4, 1.8)
         dish = _u(rng, 0.3, 1.2)
         t.cylinder("boom", start, end, 0.04, GREY, D_BOOM)
-        t.ellipsoid("dish", end, [dish, dish, 0.06], WHITE, 60.0, euler=[0, _u(rng, -60, 60), 0])
+        t.ellipsoid("dish", end, [dish, dish, 0.06], WHITE, D_PANEL, euler=[0, _u(rng, -60, 60), 0])
+    faces = 3 if t.geoms[0][0] == "box" else 1  # a cylinder's flat faces are its ends (+-z) only
     for i in range(int(rng.integers(0, 3))):  # instrument boxes on the faces
-        face = np.eye(3)[int(rng.integers(3))] * rng.choice([-1, 1])
+        face = np.eye(3)[2 - int(rng.integers(faces))] * rng.choice([-1, 1])
         size = [_u(rng, 0.08, 0.35) for _ in range(3)]
         t.box(f"instrument_{i}", face * (np.array(half) + size) + (1 - np.abs(face)) * rng.uniform(-0.3, 0.3, 3),
               size, BODY_COLOURS[int(rng.integers(len(BODY_COLOURS)))], D_DENSE)
@@ -85,53 +87,61 @@ def _satellite(t: Target, rng) -> None:
 
 
 def _stack(t: Target, rng) -> None:
-    z, radius = 0.0, _u(rng, 0.6, 1.6)
+    stages, z, radius = [], 0.0, _u(rng, 0.6, 1.6)  # (bottom, top, radius) of each coaxial stage
     for i in range(int(rng.integers(2, 5))):
         length = _u(rng, 0.8, 4.0)
         colour = BODY_COLOURS[int(rng.integers(len(BODY_COLOURS)))]
-        t.cylinder(f"stage_{i}", [0, 0, z], [0, 0, z + length], radius, colour, D_TANK if i % 2 == 0 else 150.0)
+        density = D_TANK if i % 2 == 0 else D_MODULE  # tanks alternate with denser inter-stage structure
+        t.cylinder(f"stage_{i}", [0, 0, z], [0, 0, z + length], radius, colour, density)
+        stages.append((z, z + length, radius))
         z, radius = z + length, radius * _u(rng, 0.5, 1.2)
     t.cylinder("nozzle", [0, 0, 0], [0, 0, -_u(rng, 0.5, 1.5)], _u(rng, 0.3, 0.8), DARK, D_DENSE)
-    for i in range(int(rng.integers(0, 3))):  # side pods at random heights and angles
-        angle, height, pod = _u(rng, 0, 2 * np.pi), _u(rng, 0.2, 0.8) * z, _u(rng, 0.15, 0.5)
-        centre = [np.cos(angle) * (1.2 + pod), np.sin(angle) * (1.2 + pod), height]
-        t.capsule(f"pod_{i}", centre, [centre[0], centre[1], height + _u(rng, 0.5, 2.0)], pod, GREY, D_DENSE)
+    for i in range(int(rng.integers(0, 3))):  # side pods against the stage at their height
+        angle, bottom, top, stage_radius = _u(rng, 0, 2 * np.pi), *stages[int(rng.integers(len(stages)))]
+        pod = _u(rng, 0.15, 0.5)
+        low = _u(rng, bottom, max(bottom, top - pod))
+        centre = [np.cos(angle) * (stage_radius + pod), np.sin(angle) * (stage_radius + pod), low]
+        t.capsule(f"pod_{i}", centre, [centre[0], centre[1], min(top, low + _u(rng, 0.5, 2.0))], pod, GREY, D_DENSE)
 
 
 def _modules(t: Target, rng) -> None:
-    x = 0.0
-    count = int(rng.integers(2, 5))
-    for i in range(count):
+    chain, x = [], 0.0  # (start, end, radius) of each module along x
+    for i in range(int(rng.integers(2, 5))):
         length, radius = _u(rng, 2.0, 6.0), _u(rng, 0.8, 1.6)
         colour = BODY_COLOURS[int(rng.integers(len(BODY_COLOURS)))]
         t.cylinder(f"module_{i}", [x, 0, 0], [x + length, 0, 0], radius, colour, D_MODULE)
-        if rng.random() < 0.6:  # a pair of wings (or one) across this module
+        if rng.random() < 0.6:  # a pair of wings (or one) across this module, their roots on its hull
             half_x, half_y = _u(rng, 0.6, 2.0), _u(rng, 1.0, 3.0)
             colour = PANEL_COLOURS[int(rng.integers(2))]
             for side in ((1, -1) if rng.random() < 0.7 else (int(rng.choice([-1, 1])),)):
-                t.box(f"wing_{i}{'p' if side > 0 else 'm'}", [x + length / 2, side * (radius + half_y + 0.2), 0],
-                      [half_x, half_y, 0.015], colour, D_PANEL)
+                t.box(f"wing_{i}{'p' if side > 0 else 'm'}", [x + length / 2, side * (radius + half_y), 0],
+                      [min(half_x, length / 2), half_y, 0.015], colour, D_PANEL)
+        chain.append((x, x + length, radius))
         x += length
-    if rng.random() < 0.5:  # a side module from a random point of the chain
-        at, length = _u(rng, 0.2, 0.8) * x, _u(rng, 2.0, 5.0)
-        side = rng.choice([-1, 1])
-        t.cylinder("side_module", [at, 0, side * 1.0], [at, 0, side * (1.0 + length)], _u(rng, 0.7, 1.3), WHITE,
-                   D_MODULE)
-    if rng.random() < 0.5:
-        t.box("radiator", [_u(rng, 0.2, 0.8) * x, 0, -_u(rng, 2.0, 3.5)], [_u(rng, 0.5, 1.5), _u(rng, 0.5, 1.5), 0.02],
-              RADIATOR, D_PANEL)
+    if rng.random() < 0.5:  # a side module rising from a module's hull
+        start, end, radius = chain[int(rng.integers(len(chain)))]
+        at, length, side = _u(rng, start, end), _u(rng, 2.0, 5.0), rng.choice([-1, 1])
+        t.cylinder("side_module", [at, 0, side * radius], [at, 0, side * (radius + length)],
+                   _u(rng, 0.5, 1.0) * radius, WHITE, D_MODULE)
+    if rng.random() < 0.5:  # a radiator panel flat against a module's underside
+        start, end, radius = chain[int(rng.integers(len(chain)))]
+        half = [_u(rng, 0.3, 0.5) * (end - start), _u(rng, 0.5, 1.5), 0.02]
+        t.box("radiator", [(start + end) / 2, 0, -radius - 0.02], half, RADIATOR, D_PANEL)
 
 
 def _rock(t: Target, rng) -> None:
-    colour = (_u(rng, 0.3, 0.6),) * 3
-    for i in range(int(rng.integers(3, 9))):
-        centre = rng.normal(0, 0.5, 3) * [1.0, 0.8, 0.6]
-        axes = rng.uniform(0.4, 1.1, 3)
-        euler = list(rng.uniform(-90, 90, 3))
+    """A cluster of lobes, each centred inside an earlier one's smallest half-axis so that the rock is one piece."""
+    colour, density = (_u(rng, 0.3, 0.6),) * 3, _u(rng, 1800, 2300)
+    centres, axes = [np.zeros(3)], [rng.uniform(0.6, 1.1, 3)]
+    for i in range(int(rng.integers(2, 8))):
+        k, direction = int(rng.integers(len(centres))), rng.normal(size=3)
+        centres.append(centres[k] + direction / np.linalg.norm(direction) * axes[k].min() * _u(rng, 0.5, 0.9))
+        axes.append(rng.uniform(0.3, 0.9, 3))
+    for i, (centre, half) in enumerate(zip(centres, axes)):
         if rng.random() < 0.3:
-            t.sphere(f"lobe_{i}", centre, float(axes.mean()), colour, _u(rng, 1800, 2300))
+            t.sphere(f"lobe_{i}", centre, float(half.mean()), colour, density)
         else:
-            t.ellipsoid(f"lobe_{i}", centre, axes, colour, _u(rng, 1800, 2300), euler=euler)
+            t.ellipsoid(f"lobe_{i}", centre, half, colour, density, euler=list(rng.uniform(-90, 90, 3)))
 
 
 BUILDERS = {"sat": _satellite, "stack": _stack, "modules": _modules, "rock": _rock}
@@ -165,18 +175,38 @@ def write_models(out: Path, count: int, seed: int = 0) -> list[Path]:
     return paths
 
 
+_NAME = re.compile(r"^Gen(?P<seed>\d+)-[a-z]+(?P<index>\d+)$")
+
+
+def training_targets(folder: Path) -> list[str]:
+    """The catalogue's training targets, then every .xml in ``folder``: the generated ones by seed and index (the
+    order `write_models` returns; a target's list index is what an episode draws), any other file after them by name.
+    Raises ValueError for a folder without models."""
+    from ramavt_jax.targets import TRAIN_TARGETS
+
+    def order(path: Path):
+        match = _NAME.match(path.stem)
+        return (0, int(match["seed"]), int(match["index"]), "") if match else (1, 0, 0, path.name)
+
+    paths = sorted(folder.glob("*.xml"), key=order)
+    if not paths:
+        raise ValueError(f"no .xml models in {folder}; write them first (--out {folder})")
+    return [*TRAIN_TARGETS, *(str(p) for p in paths)]
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--count", type=int, default=48, help="models to write (their kinds cycle through KINDS)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--out", type=Path, default=Path("runs/procedural"))
     parser.add_argument("--list-train", type=Path, metavar="DIR",
-                        help="print the catalogue's training targets and every .xml in DIR, space-separated, and exit")
+                        help="print the catalogue's training targets and the models in DIR (training_targets), and exit")
     args = parser.parse_args()
     if args.list_train is not None:
-        from ramavt_jax.targets import TRAIN_TARGETS
-
-        print(" ".join([*TRAIN_TARGETS, *sorted(str(p) for p in args.list_train.glob("*.xml"))]))
+        try:
+            print(" ".join(training_targets(args.list_train)))
+        except ValueError as exc:
+            parser.error(str(exc))
         return
     if args.count < 1:
         parser.error("--count must be at least 1")

@@ -44,7 +44,7 @@ def test_models_load_within_the_catalogue_sizes_and_pad(models):
     assert procedural_targets.MAX_GEOMS == pad  # training on them pads no further than the catalogue does
 
 
-def test_one_winged_satellites_are_centred_off_their_centre_of_mass():
+def test_one_winged_satellites_are_centred_off_their_centre_of_mass(tmp_path):
     """The point of the 'sat' kind: a light wing on one side moves the geometry's centre well off the centre of mass
     (the loader puts the centre of mass at the origin)."""
     offsets = []
@@ -52,7 +52,7 @@ def test_one_winged_satellites_are_centred_off_their_centre_of_mass():
         t = procedural_targets.procedural_target(0, index)
         wings = {name[len("wing_")] for _, name, *_ in t.geoms if name.startswith("wing_")}
         if wings == {"p"} or wings == {"m"}:
-            arrays, info = targets.load_numpy(_written(t))
+            arrays, info = targets.load_numpy(_written(t, tmp_path))
             mask = arrays["geom_mask"] > 0
             centre = np.average(arrays["geom_pos"][mask], axis=0, weights=arrays["geom_rbound"][mask])
             offsets.append(np.linalg.norm(centre) / info.bound_radius)
@@ -60,10 +60,8 @@ def test_one_winged_satellites_are_centred_off_their_centre_of_mass():
     assert min(offsets) > 0.15  # in bounding radii; two-winged ones: 0.02-0.25
 
 
-def _written(target) -> Path:
-    import tempfile
-
-    path = Path(tempfile.mkdtemp()) / f"{target.name}.xml"
+def _written(target, folder: Path) -> Path:
+    path = folder / f"{target.name}.xml"
     path.write_text(target.xml())
     return path
 
@@ -78,7 +76,31 @@ def test_the_arm_adds_the_models_to_the_training_targets_only(arm, reference, tm
     assert dataclasses.replace(arm, env=dataclasses.replace(arm.env, targets=targets.TRAIN_TARGETS)) == reference
 
 
+def test_the_listed_targets_are_the_arms_in_its_order(models):
+    """What the reproduce command passes to `ramavt train --env.targets` (--list-train) is the arm's list, in the
+    same order: an episode draws its target by list index."""
+    folder = models[0].parent
+    listed = _script("--list-train", str(folder))
+    assert listed.returncode == 0, listed.stderr
+    assert listed.stdout.split() == [*targets.TRAIN_TARGETS, *(str(p) for p in models)]
+    (folder / "zz-user.xml").write_text(models[0].read_text())  # a file of another name comes last
+    assert _script("--list-train", str(folder)).stdout.split()[-1] == str(folder / "zz-user.xml")
+    (folder / "zz-user.xml").unlink()
+
+
 def test_command_line_refuses_no_models(tmp_path):
-    result = subprocess.run([sys.executable, str(ROOT / "scripts" / "procedural_targets.py"), "--count", "0",
-                             "--out", str(tmp_path)], capture_output=True, text=True)
+    result = _script("--count", "0", "--out", str(tmp_path))
     assert result.returncode != 0 and "--count must be at least 1" in result.stderr
+    result = _script("--list-train", str(tmp_path))
+    assert result.returncode != 0 and "no .xml models in" in result.stderr
+
+
+def test_too_many_geoms_is_an_error(monkeypatch):
+    monkeypatch.setattr(procedural_targets, "MAX_GEOMS", 2)
+    with pytest.raises(ValueError, match="more than MAX_GEOMS"):
+        procedural_targets.procedural_target(0, 0)
+
+
+def _script(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, str(ROOT / "scripts" / "procedural_targets.py"), *args],
+                          capture_output=True, text=True)
