@@ -288,7 +288,7 @@ ARMS["avg-eps-100k"] = lambda c: ARMS["avg-12"](c).override(eps_decay_steps=100_
 # 'size-small-1152k', kept the quick preset's settings of its time (norm 10, targets and policy from the target net).
 ARMS["size-quick"] = lambda c: _env(ARMS["avg-12"](c), size_scale_min=0.15, size_scale_max=1.0)
 # 'size-quick' at 64x64 depth (an 8x8 first patch keeps the 4x4 token grid): small targets cover 4x the pixels. The
-# sizes preset since it scored higher on val-sizes (presets._sizes).
+# sizes preset from when it scored higher on val-sizes until 'size-1536k'.
 ARMS["size-res64"] = lambda c: _res64(ARMS["size-quick"](c))
 
 # PQN's LayerNorm (Gallici et al. 2024) in the dense layer and the head, one change to the quick preset ('avg-12'),
@@ -364,7 +364,8 @@ ARMS["aux-velocity"] = lambda c: _net(ARMS["avg-1536k"](c), aux_outputs=6)
 # at 384k env steps, before the clip, the online targets and the tail average; a longer run may prefer smaller steps.
 ARMS["lr-half"] = lambda c: ARMS["avg-1536k"](c).override(lr=5e-4)
 # The sizes preset at the quick preset's 1.54M env steps (48 chunks, the policy the average over chunks 37-48): one
-# change to 'size-res64', as 'avg-1536k' was to 'avg-12'.
+# change to 'size-res64', as 'avg-1536k' was to 'avg-12'. The sizes preset since it scored higher on val-sizes and
+# val over ten seeds.
 ARMS["size-1536k"] = lambda c: ARMS["size-res64"](c).override(total_env_steps=1_536_000, policy_average_from=36)
 # Shape variety, one change to the quick preset: the twelve catalogue training models and 48 procedural ones
 # (scripts/procedural_targets.py, seed 0: satellites with up to two wings, booms and dishes, stacks, module chains,

@@ -118,7 +118,7 @@ def test_quick_preset_is_the_depth_row():
 
 def test_sizes_preset_is_the_arm_chosen_for_other_sizes():
     sizes = learning_arms.presets.preset("sizes", eval_episodes=0)
-    assert learning_arms.arm_config("size-res64") == sizes
+    assert learning_arms.arm_config("size-1536k") == sizes
     assert dict(sizes.env_params) == {"size_scale_min": 0.15, "size_scale_max": 1.0}
 
 
@@ -143,6 +143,11 @@ def test_reproduce_flags_give_the_earlier_sizes_preset_back(monkeypatch):
     """docs/reproduce.md's $S10, put after `--preset sizes`, parses (through the CLI) to the earlier sizes preset,
     arm 'size-small-1152k', so the commands recorded before the preset changed still run as they ran."""
     assert _config_of_reproduce_flags(monkeypatch, "S10", "sizes") == learning_arms.arm_config("size-small-1152k")
+
+
+def test_reproduce_flags_give_the_sizes_preset_at_1152k_back(monkeypatch):
+    """$Q36 after `--preset sizes` is the sizes preset before it trained 1.54M env steps (arm 'size-res64')."""
+    assert _config_of_reproduce_flags(monkeypatch, "Q36", "sizes") == learning_arms.arm_config("size-res64")
 
 
 def test_long_preset_is_the_arm_chosen_for_a_longer_budget():
