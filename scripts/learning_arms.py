@@ -28,6 +28,8 @@ from ramavt_jax import targets as targets_lib
 from ramavt_jax.evaluation import runs, statistics
 from ramavt_jax.training.driver import run as train_run
 
+import procedural_targets  # a sibling script in scripts/, on the path when this one runs or is imported
+
 
 def _net(cfg, **kw):
     return dataclasses.replace(cfg, network=dataclasses.replace(cfg.network, **kw))
@@ -376,8 +378,6 @@ PROCEDURAL_DIR = Path(__file__).resolve().parents[1] / "runs" / "procedural"  # 
 
 
 def _procedural(c, count: int):
-    import procedural_targets  # a sibling script (build time, like this one)
-
     paths = procedural_targets.write_models(PROCEDURAL_DIR, count, seed=0)
     return c.override(env=dataclasses.replace(c.env, targets=c.env.targets + tuple(str(p) for p in paths)))
 

@@ -1,5 +1,6 @@
 """Writing MJCF target files from primitives: :class:`Target` collects geoms (at full size) and writes them
-scaled by its ``scale``. Used by ``scripts/catalogue_gen.py`` (build time; the package does not import it)."""
+scaled by its ``scale``. Used by ``scripts/catalogue_gen.py`` and ``scripts/procedural_targets.py`` (build time; the
+package does not import it)."""
 
 from __future__ import annotations
 
@@ -20,7 +21,8 @@ _LENGTHS = ("pos", "size", "fromto")  # attributes in metres, multiplied by the 
 
 class Target:
     """Collects the geoms of one target and writes the MJCF. Geometry is given at full size and written times
-    ``scale`` (set by :func:`all_targets` from the size rule)."""
+    ``scale`` (set by catalogue_gen.all_targets from the size rule, or by procedural_targets.procedural_target to a
+    drawn bounding radius)."""
 
     def __init__(self, name: str, comment: str, generator: str = "scripts/catalogue_gen.py"):
         self.name, self.comment, self.geoms, self.scale = name, comment, [], 1.0

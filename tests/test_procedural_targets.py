@@ -76,16 +76,15 @@ def test_the_arm_adds_the_models_to_the_training_targets_only(arm, reference, tm
     assert dataclasses.replace(arm, env=dataclasses.replace(arm.env, targets=targets.TRAIN_TARGETS)) == reference
 
 
-def test_the_listed_targets_are_the_arms_in_its_order(models):
+def test_the_listed_targets_are_the_arms_in_its_order(tmp_path, monkeypatch):
     """What the reproduce command passes to `ramavt train --env.targets` (--list-train) is the arm's list, in the
-    same order: an episode draws its target by list index."""
-    folder = models[0].parent
-    listed = _script("--list-train", str(folder))
+    same order (an episode draws its target by list index); a file of another name comes last."""
+    monkeypatch.setattr(learning_arms, "PROCEDURAL_DIR", tmp_path)
+    arm_targets = list(learning_arms.arm_config("procedural-48").env.targets)
+    (tmp_path / "a-user-model.xml").write_text((tmp_path / "Gen0-sat000.xml").read_text())
+    listed = _script("--list-train", str(tmp_path))
     assert listed.returncode == 0, listed.stderr
-    assert listed.stdout.split() == [*targets.TRAIN_TARGETS, *(str(p) for p in models)]
-    (folder / "zz-user.xml").write_text(models[0].read_text())  # a file of another name comes last
-    assert _script("--list-train", str(folder)).stdout.split()[-1] == str(folder / "zz-user.xml")
-    (folder / "zz-user.xml").unlink()
+    assert listed.stdout.split() == [*arm_targets, str(tmp_path / "a-user-model.xml")]
 
 
 def test_command_line_refuses_no_models(tmp_path):
