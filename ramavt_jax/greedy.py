@@ -12,7 +12,8 @@ from ramavt_jax import env as env_lib
 from ramavt_jax.baselines import Policy
 from ramavt_jax.network import NetworkConfig, RecurrentState, initial_state, make_network, record_action
 
-__all__ = ["GreedyState", "greedy_policy", "GreedyPolicyOf", "unbatch_state", "batch_state"]
+__all__ = ["GreedyState", "greedy_policy", "GreedyPolicyOf", "unbatch_state", "batch_state", "standoff_signal",
+           "true_tracking_state"]
 
 
 def standoff_signal(network: NetworkConfig, env_state: env_lib.EnvState, env_params: env_lib.EnvParams):
@@ -23,6 +24,17 @@ def standoff_signal(network: NetworkConfig, env_state: env_lib.EnvState, env_par
     if network.command_gain_input:
         return env_lib.command_gain(env_state, env_params)
     return None
+
+
+def true_tracking_state(env_state: env_lib.EnvState, env_params: env_lib.EnvParams) -> jax.Array:
+    """[6] One env's true tracking state in stand-off distances (metres / (k * desired_pos[2])): where the target
+    centre is minus where it should be (camera frame), then the target's velocity relative to the chaser (camera
+    frame, per second). The auxiliary loss's label (its first aux_outputs entries) and a state_input network's
+    input."""
+    p = env_params
+    error = (env_lib.relative_position(env_state) / env_state.scale - p.desired_pos) / p.desired_pos[2]
+    velocity = env_lib.HILL_FROM_CAM.T @ (env_state.target_vel - env_state.chaser_vel)
+    return jnp.concatenate([error, velocity / env_state.scale / p.desired_pos[2]])
 
 
 def unbatch_state(s: RecurrentState) -> RecurrentState:
@@ -53,8 +65,9 @@ def greedy_policy(network: NetworkConfig, params, obs_shape: tuple, name: str = 
     def act(key, pstate: GreedyState, obs, env_state, env_params):
         signal = standoff_signal(network, env_state, env_params)
         standoff = None if signal is None else signal[None, None]  # [1, 1]
+        true_state = true_tracking_state(env_state, env_params)[None, None] if network.state_input else None
         q, new = net.apply({"params": params}, obs[None, None], pstate.first[None, None],
-                           batch_state(pstate.net_state), standoff=standoff)
+                           batch_state(pstate.net_state), standoff=standoff, true_state=true_state)
         action = jnp.argmax(q[0, 0]).astype(jnp.int32)
         new = unbatch_state(record_action(new, action[None]))
         return action, GreedyState(net_state=new, first=jnp.zeros((), bool))

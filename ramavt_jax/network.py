@@ -52,10 +52,19 @@ from ramavt_jax.layers import (
     make_conv,
     max_pool2,
 )
+from ramavt_jax.network_inputs import (  # noqa: F401 (re-exported: the encoder's input helpers)
+    coordinate_planes,
+    hit_mask,
+    silhouette_stats,
+    with_coordinates,
+    with_depth_rescaled,
+    with_hit_mask,
+)
 from ramavt_jax.network_config import (  # noqa: F401 (re-exported: network.NetworkConfig is the public name)
     CONV_IMPLS,
     DTYPES,
     NORMS,
+    TRUE_STATE_SIZE,
     VARIANTS,
     NetworkConfig,
 )
@@ -131,79 +140,6 @@ def stack_frames(obs: jax.Array, reset: jax.Array, frames: jax.Array) -> tuple[j
     return jnp.swapaxes(stacked, 0, 1), hist
 
 
-def hit_mask(x: jax.Array) -> jax.Array:
-    """[N, H, W, C] -> [N, H, W, 1]: 1 where any channel > 0 (the background is 0 in every observation mode)."""
-    return (jnp.max(x, axis=-1, keepdims=True) > 0).astype(x.dtype)
-
-
-def with_hit_mask(x: jax.Array) -> jax.Array:
-    """[N, H, W, C] -> [N, H, W, C + 1]: the frame and its hit mask."""
-    return jnp.concatenate([x, hit_mask(x)], axis=-1)
-
-
-def with_depth_rescaled(x: jax.Array, hit: jax.Array, centre: float, gain: float) -> jax.Array:
-    """[N, H, W, C] -> the same with the depth channel (the last; C = 1 'depth' or 4 'rgbd') of the hit pixels
-    (hit [N, H, W, 1], 1 on the target) mapped to (depth - centre) * gain; the background stays 0."""
-    if x.shape[-1] not in (1, 4):
-        raise ValueError(f"depth_centre / depth_gain need a depth channel (1 'depth' or 4 'rgbd' channels), got "
-                         f"{x.shape[-1]} channels")
-    depth = (x[..., -1:] - centre) * gain * hit
-    return jnp.concatenate([x[..., :-1], depth], axis=-1)
-
-
-def coordinate_planes(h: int, w: int, dtype=jnp.float32) -> jax.Array:
-    """[H, W, 2]: the column and the row coordinate of each pixel in [-1, 1] (CoordConv)."""
-    cols = jnp.broadcast_to(jnp.linspace(-1.0, 1.0, w, dtype=dtype)[None, :], (h, w))
-    rows = jnp.broadcast_to(jnp.linspace(-1.0, 1.0, h, dtype=dtype)[:, None], (h, w))
-    return jnp.stack([cols, rows], axis=-1)
-
-
-def with_coordinates(x: jax.Array) -> jax.Array:
-    """[N, H, W, C] -> [N, H, W, C + 3]: the frame, its hit mask and the coordinate planes, as the encoder's
-    first conv sees them (coord_channels). The mask and the coordinates do not scale with the depth values, so a
-    conv over all channels followed by a per-frame norm still tells a near small target from a far large one, and
-    where in the image it is."""
-    planes = coordinate_planes(*x.shape[1:3], x.dtype)
-    return jnp.concatenate([with_hit_mask(x), jnp.broadcast_to(planes, (*x.shape[:3], 2))], axis=-1)
-
-
-# Depth observations are depth / far with far = 20 m (the default camera): 0.25 is the 5 m stand-off, and 20 turns
-# observation units into metres (NetworkConfig.depth_centre / depth_gain say why the raw units are too small). A
-# resized target is rendered in stand-off units (env: depths divided by its scale k), so these read metres / k.
-STATS_DEPTH_CENTRE, STATS_DEPTH_GAIN = 0.25, 20.0
-
-
-def silhouette_stats(x: jax.Array) -> jax.Array:
-    """[N, H, W, C] single raw frames (depth last: C = 1 'depth' or 4 'rgbd'; not frame stacks) -> [N, 8] float32
-    statistics of the hit pixels: sqrt(count) (a linear size, px); centroid column and row and their standard
-    deviations (the coordinate planes' [-1, 1] times half the image size: px from the centre, to within
-    W / (W - 1)); mean, nearest and standard deviation of depth (STATS_DEPTH_*: metres from the 5 m stand-off, in
-    stand-off units for a resized target). The statistics have the observation's precision (a uint8 replay stores
-    depth in 20 m / 255 steps). Every statistic is 0 in a frame without a hit pixel."""
-    if x.shape[-1] not in (1, 4):
-        raise ValueError(f"silhouette_stats needs a depth channel (1 'depth' or 4 'rgbd' channels), got {x.shape[-1]}")
-    x = x.astype(jnp.float32)
-    hit = hit_mask(x)[..., 0]  # [N, H, W]
-    depth = x[..., -1]
-    h, w = hit.shape[1:]
-    planes = coordinate_planes(h, w) * jnp.array([w / 2.0, h / 2.0])  # [H, W, 2] px from the centre
-    count = jnp.sum(hit, axis=(1, 2))  # [N]
-    seen = count > 0
-    weight = hit / jnp.maximum(count, 1.0)[:, None, None]  # [N, H, W], sums to 1 on a frame with hits
-
-    def mean_std(values):  # values [N, H, W] or [H, W] -> mean [N], std [N] over the hit pixels
-        mean = jnp.sum(weight * values, axis=(1, 2))
-        var = jnp.sum(weight * (values - mean[:, None, None]) ** 2, axis=(1, 2))
-        return mean, jnp.sqrt(var + 1e-12)
-
-    (col, col_std), (row, row_std) = mean_std(planes[..., 0]), mean_std(planes[..., 1])
-    metres = (depth - STATS_DEPTH_CENTRE) * STATS_DEPTH_GAIN
-    depth_mean, depth_std = mean_std(metres)
-    nearest = jnp.min(jnp.where(hit > 0, metres, jnp.inf), axis=(1, 2))
-    stats = jnp.stack([jnp.sqrt(count), col, row, col_std, row_std, depth_mean, nearest, depth_std], axis=-1)
-    return jnp.where(seen[:, None], stats, 0.0)
-
-
 class Encoder(nn.Module):
     """Conv backbone (+ MHA gate): [N, H, W, C] -> [N, h * w * C_last (+ C_1 with pooled_skip) (+ 8 with
     silhouette_stats)].
@@ -253,7 +189,8 @@ class QNetwork(nn.Module):
     None) -> (q [B, T, A] float32, state). ``actions`` (taken at each step) matter only with ``prev_action``: the
     returned state's prev_action is then ``actions[:, T - 1]``, else unchanged (acting code records its pick:
     record_action). ``standoff`` (each step's stand-off signal, greedy.standoff_signal: the scale k or the command
-    gain, 1 for catalogue targets) is needed with ``standoff_input`` or ``command_gain_input``, ignored without."""
+    gain, 1 for catalogue targets) is needed with ``standoff_input`` or ``command_gain_input``, ignored without;
+    ``true_state`` [B, T, 6] (greedy.true_tracking_state per step) with ``state_input``, ignored without."""
 
     config: NetworkConfig
 
@@ -262,7 +199,8 @@ class QNetwork(nn.Module):
 
     @nn.compact
     def __call__(self, obs: jax.Array, reset: jax.Array, state: RecurrentState, train: bool = False,
-                 actions: jax.Array | None = None, standoff: jax.Array | None = None):
+                 actions: jax.Array | None = None, standoff: jax.Array | None = None,
+                 true_state: jax.Array | None = None):
         cfg = self.config
         if obs.ndim != 5 or reset.shape != obs.shape[:2]:
             raise ValueError(f"QNetwork: expected obs [B, T, H, W, C] and reset [B, T], got {obs.shape} and {reset.shape}")
@@ -284,6 +222,8 @@ class QNetwork(nn.Module):
                 prev_action = actions[:, -1:].T.astype(jnp.int32) if taken else state.prev_action
             if cfg.reads_standoff:
                 x = jnp.concatenate([x, standoff_feature(standoff, reset.shape)[..., None].astype(dtype)], axis=-1)
+            if cfg.state_input:
+                x = jnp.concatenate([x, true_state_feature(true_state, reset.shape).astype(dtype)], axis=-1)
             y, (h, c) = LSTMStack(cfg.lstm, cfg.lstm_layers, dtype=dtype, name="lstm")(x, reset, (state.h, state.c))
             if cfg.aux_outputs:  # [B, T, aux_outputs], read by auxiliary losses only
                 self.sow("intermediates", "aux", nn.Dense(cfg.aux_outputs, dtype=dtype, name="aux_head")(y))
@@ -317,6 +257,17 @@ def standoff_feature(standoff: jax.Array | None, shape: tuple[int, int]) -> jax.
     return jnp.log(standoff)
 
 
+def true_state_feature(true_state: jax.Array | None, shape: tuple[int, int]) -> jax.Array:
+    """[B, T, 6] the true state as given; refuses a missing or misshapen one (zeros would pass for a target held
+    exactly in place)."""
+    want = (*shape, TRUE_STATE_SIZE)
+    if true_state is None or true_state.shape != want:
+        got = None if true_state is None else true_state.shape
+        raise ValueError(f"QNetwork: a state_input network needs true_state [B, T, {TRUE_STATE_SIZE}] = {want} "
+                         f"(greedy.true_tracking_state per step), got {got}")
+    return true_state
+
+
 def q_outputs(cfg: NetworkConfig, y: jax.Array) -> jax.Array:
     """Q-values [..., A] from features y [..., F] (inside QNetwork's compact call): one linear layer 'q'; with
     ``cfg.quantiles`` N of them per action [..., A, N]; with ``cfg.dueling`` a value 'value' plus the mean-centred
@@ -329,6 +280,11 @@ def q_outputs(cfg: NetworkConfig, y: jax.Array) -> jax.Array:
         return q
     value = nn.Dense(1, dtype=cfg.jnp_dtype, kernel_init=lecun_init, name="value")(y)
     return value + q - q.mean(axis=-1, keepdims=True)
+
+
+def _dummy_signals() -> dict:
+    """Per-step signals for a single-frame call that only needs shapes or the encoder (init, cost, maps)."""
+    return dict(standoff=jnp.ones((1, 1)), true_state=jnp.zeros((1, 1, TRUE_STATE_SIZE)))
 
 
 def make_network(config: NetworkConfig) -> QNetwork:
@@ -346,7 +302,7 @@ def _init_jit(config: NetworkConfig, obs_shape: tuple, key: jax.Array) -> dict:
     net = make_network(config)
     obs = jnp.zeros((1, 1, *obs_shape), jnp.float32)
     reset = jnp.ones((1, 1), bool)
-    variables = net.init(key, obs, reset, initial_state(config, 1, obs_shape), standoff=jnp.ones((1, 1)))
+    variables = net.init(key, obs, reset, initial_state(config, 1, obs_shape), **_dummy_signals())
     return {k: v for k, v in variables.items() if k != "intermediates"}
 
 
@@ -365,7 +321,7 @@ def flops_per_frame(config: NetworkConfig, obs_shape: tuple) -> int:
     obs = jax.ShapeDtypeStruct((1, 1, *obs_shape), jnp.float32)
     reset = jax.ShapeDtypeStruct((1, 1), jnp.bool_)
     state = jax.eval_shape(lambda: initial_state(config, 1, obs_shape))
-    fn = jax.jit(lambda v, o, r, s: net.apply(v, o, r, s, standoff=jnp.ones((1, 1)))[0])
+    fn = jax.jit(lambda v, o, r, s: net.apply(v, o, r, s, **_dummy_signals())[0])
     cost = fn.lower(variables, obs, reset, state).compile().cost_analysis()
     if isinstance(cost, (list, tuple)):
         cost = cost[0]
@@ -384,7 +340,7 @@ def attention_maps(params, config: NetworkConfig, obs: jax.Array, variables: dic
     net = make_network(config)
     obs = jnp.asarray(obs, jnp.float32)
     state = initial_state(config, 1, obs.shape)
-    _, mut = net.apply(variables, obs[None, None], jnp.ones((1, 1), bool), state, standoff=jnp.ones((1, 1)),
+    _, mut = net.apply(variables, obs[None, None], jnp.ones((1, 1), bool), state, **_dummy_signals(),
                        mutable=["intermediates"])
     inter = mut["intermediates"]["encoder"]
     maps = {}

@@ -14,6 +14,7 @@ VARIANTS = ("ramavt", "drlavt", "origin", "se", "mha")
 NORMS = ("batch", "layer", "none")
 CONV_IMPLS = ("hybrid", "im2col", "lax")
 DTYPES = {"float32": jnp.float32, "bfloat16": jnp.bfloat16}
+TRUE_STATE_SIZE = 6  # NetworkConfig.state_input: tracking error [3] and relative velocity [3]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -78,6 +79,12 @@ class NetworkConfig:
     # value network, Gallici et al. 2024, who credit it with stable bootstrapping from the online net; on the quick
     # preset it lost, docs/experiments.md arm dense-norm). Recurrent variants only.
     dense_norm: bool = False
+    # A diagnostic, not a tracker: the true tracking error and relative velocity (TRUE_STATE_SIZE numbers in
+    # stand-off distances, greedy.true_tracking_state) beside the encoder's features at the LSTM's input, read from
+    # the simulator at every step (the caller passes true_state [B, T, 6]). Trained so, the agent measures how far
+    # this learner gets with perfect perception at a budget: the part of the gap to the ceiling that is not in the
+    # images. Recurrent variants only.
+    state_input: bool = False
 
     def __post_init__(self):
         def fail(msg):
@@ -145,6 +152,8 @@ class NetworkConfig:
             fail("standoff_input and command_gain_input are two forms of one input: choose one")
         if self.reads_standoff and not self.recurrent:
             fail("standoff_input / command_gain_input need a recurrent variant (an LSTM input), not 'drlavt'")
+        if self.state_input and not self.recurrent:
+            fail("state_input needs a recurrent variant (an LSTM input), not 'drlavt'")
         if self.use_mha and self.channels[-1] % self.attention_heads != 0:
             fail(
                 f"attention_heads={self.attention_heads} must divide the last block's channels "

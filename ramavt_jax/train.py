@@ -35,9 +35,9 @@ from ramavt_jax import baselines, distributed
 from ramavt_jax import env as env_lib
 from ramavt_jax import replay as replay_lib
 from ramavt_jax.augment import augment_batch
-from ramavt_jax.greedy import standoff_signal, unbatch_state
+from ramavt_jax.greedy import standoff_signal, true_tracking_state, unbatch_state
 from ramavt_jax.losses import TDBatch, masked_mean, sequence_priority, td_loss
-from ramavt_jax.network import init_params, initial_state, make_network, record_action
+from ramavt_jax.network import TRUE_STATE_SIZE, init_params, initial_state, make_network, record_action
 from ramavt_jax.train_config import TrainConfig
 from ramavt_jax.train_state import (ActorState, ChunkMetrics, EpisodeStats, LearnerState, LearnStats, PreparedBatch,
                                     RunnerState)
@@ -101,7 +101,7 @@ class Trainer:
             obs=jnp.zeros(self.obs_shape), action=jnp.zeros((), jnp.int32), reward=jnp.zeros(()),
             terminated=jnp.zeros((), bool), truncated=jnp.zeros((), bool), is_first=jnp.zeros((), bool),
             recurrent_state=unbatch_state(s).replace(frames=None),
-            privileged=jnp.zeros((self.config.network.aux_outputs,)) if self.config.learner.aux_weight else None,
+            privileged=jnp.zeros((self._privileged_size,)) if self._privileged_size else None,
             standoff=jnp.ones(()) if self.config.network.reads_standoff else None)
 
     def _per_device(self, batched_fn):
@@ -141,11 +141,23 @@ class Trainer:
             end = c.eps_end ** (1.0 + c.eps_ladder * jnp.arange(c.num_envs) / max(c.num_envs - 1, 1))
         return c.eps_start + (end - c.eps_start) * frac
 
-    def q_values(self, params, obs, reset, state, actions=None, standoff=None):
+    def q_values(self, params, obs, reset, state, actions=None, standoff=None, privileged=None):
         """Online/target forward: obs [B, T, H, W, C], reset [B, T], actions [B, T] (the actions taken; used by
-        prev_action networks), standoff [B, T] (networks that read it: greedy.standoff_signal) -> (q [B, T, A],
-        state)."""
-        return self.net.apply({"params": params}, obs, reset, state, actions=actions, standoff=standoff)
+        prev_action networks), standoff [B, T] (networks that read it: greedy.standoff_signal), privileged [B, T, K]
+        (the stored true state; read by state_input networks) -> (q [B, T, A], state)."""
+        return self.net.apply({"params": params}, obs, reset, state, actions=actions, standoff=standoff,
+                              true_state=self._true_state(privileged))
+
+    @property
+    def _privileged_size(self) -> int:
+        """K, the true-state entries kept per obs: all six for a state_input network, else the auxiliary head's
+        outputs (0: nothing kept)."""
+        network = self.config.network
+        return TRUE_STATE_SIZE if network.state_input else network.aux_outputs if self.config.learner.aux_weight else 0
+
+    def _true_state(self, privileged):
+        """A state_input network's input from the kept true state [B, T, K]; None for other networks."""
+        return privileged if self.config.network.state_input else None
 
     # ---------------------------------------------------------------- init
     def init(self, key: jax.Array) -> RunnerState:
@@ -174,8 +186,11 @@ class Trainer:
         k_eps, k_rand, k_env = jax.random.split(key, 3)
         standoff = (jax.vmap(lambda s: standoff_signal(self.config.network, s, self.env_params))(actor.env_state)
                     if self.config.network.reads_standoff else None)  # [N]
+        kept, true_state = self._privileged_size, functools.partial(true_tracking_state, env_params=self.env_params)
+        privileged = jax.vmap(true_state)(actor.env_state)[:, :kept] if kept else None  # [N, K], aux label or input
         q, net_state = self.q_values(params, actor.obs[:, None], actor.is_first[:, None], actor.net_state,
-                                     standoff=None if standoff is None else standoff[:, None])
+                                     standoff=None if standoff is None else standoff[:, None],
+                                     privileged=None if privileged is None else privileged[:, None])
         greedy = jnp.argmax(q[:, 0], axis=-1).astype(jnp.int32)
         explore = jax.random.uniform(k_eps, (c.num_envs,)) < epsilon
         action = jnp.where(explore, jax.random.randint(k_rand, (c.num_envs,), 0, env_lib.NUM_ACTIONS), greedy)
@@ -188,8 +203,7 @@ class Trainer:
         transition = replay_lib.Transition(
             obs=actor.obs, action=action, reward=reward, terminated=terminated, truncated=truncated,
             is_first=actor.is_first, recurrent_state=actor.net_state.replace(frames=None),
-            privileged=jax.vmap(self._aux_label)(actor.env_state) if self.config.learner.aux_weight else None,
-            standoff=standoff)
+            privileged=privileged, standoff=standoff)
         new_actor = ActorState(env_state=env_state, obs=obs, is_first=info["is_first"],
                                net_state=record_action(net_state, action))
         done = (terminated | truncated) & (jnp.arange(c.num_envs) >= c.teacher_envs)  # the agent's episodes only
@@ -203,17 +217,6 @@ class Trainer:
         first = jax.tree.map(lambda x: x[:k], env_state)
         return jax.vmap(lambda kk, s: self.teacher.act(kk, None, None, s, self.env_params)[0])(
             jax.random.split(key, k), first)
-
-    def _aux_label(self, env_state) -> jax.Array:
-        """[3] or [6] the auxiliary loss's label for the obs this (unbatched) env state rendered, in stand-off
-        distances: where the target centre is minus where it should be (camera frame), then with aux_outputs = 6 the
-        target's velocity relative to the chaser (camera frame, per second)."""
-        p = self.env_params
-        error = (env_lib.relative_position(env_state) / env_state.scale - p.desired_pos) / p.desired_pos[2]
-        if self.config.network.aux_outputs == 3:
-            return error
-        velocity = env_lib.HILL_FROM_CAM.T @ (env_state.target_vel - env_state.chaser_vel)
-        return jnp.concatenate([error, velocity / env_state.scale / p.desired_pos[2]])
 
     def rollout(self, params, actor: ActorState, env_steps: jax.Array, key: jax.Array):
         """``rollout_steps`` acting steps. Returns (actor, chunk [N, T, ...] in replay layout, summed stats, the last
@@ -230,13 +233,13 @@ class Trainer:
         return last.actor, replay_lib.chunk_to_storage(traj), jax.tree.map(jnp.sum, stats), eps[-1].mean()
 
     # ---------------------------------------------------------------- learning
-    def _target_values(self, params, obs, reset, state, actions, standoff):
+    def _target_values(self, params, obs, reset, state, actions, standoff, privileged):
         """The target net's values over a window: q [B, L, A], or its quantiles [B, L, A, N] for a quantile network
         (NetworkConfig.quantiles), which the quantile loss takes."""
         if not self.config.network.quantiles:
-            return self.q_values(params, obs, reset, state, actions, standoff)[0]
+            return self.q_values(params, obs, reset, state, actions, standoff, privileged)[0]
         _, sown = self.net.apply({"params": params}, obs, reset, state, actions=actions, standoff=standoff,
-                                 mutable=["intermediates"])
+                                 true_state=self._true_state(privileged), mutable=["intermediates"])
         return sown["intermediates"]["quantiles"][0]
 
     def prepare(self, params, target_params, batch: replay_lib.SequenceBatch, key: jax.Array) -> PreparedBatch:
@@ -255,10 +258,12 @@ class Trainer:
         standoff = batch.standoff  # [B, L] or None
         q_target = None  # bootstrap_from='online': trained_loss takes the trained pass's values
         if c.learner.bootstrap_from == "target":
-            q_target = sg(self._target_values(target_params, obs, batch.reset, state, batch.action, standoff))[:, burn:]
+            q_target = sg(self._target_values(target_params, obs, batch.reset, state, batch.action, standoff,
+                                              batch.privileged))[:, burn:]
         if burn:
             _, state = self.q_values(params, obs[:, :burn], batch.reset[:, :burn], state, batch.action[:, :burn],
-                                     None if standoff is None else standoff[:, :burn])
+                                     None if standoff is None else standoff[:, :burn],
+                                     None if batch.privileged is None else batch.privileged[:, :burn])
         terminated, truncated = batch.terminated[:, burn:], batch.truncated[:, burn:]
         if c.learner.bootstrap_lost:  # see LearnerConfig.bootstrap_lost
             terminated, truncated = jnp.zeros_like(terminated), truncated | terminated
@@ -275,6 +280,7 @@ class Trainer:
         with a prioritised replay each window's priority [B] (losses.sequence_priority)."""
         (q_online, _), sown = self.net.apply({"params": params}, prepared.obs, prepared.reset, prepared.state,
                                              actions=prepared.td.action, standoff=prepared.standoff,
+                                             true_state=self._true_state(prepared.privileged),
                                              mutable=["intermediates"])
         if self.config.network.quantiles:  # the quantile loss (losses.sequence_quantile_loss)
             q_online = sown["intermediates"]["quantiles"][0]
@@ -285,7 +291,8 @@ class Trainer:
         mask = prepared.td.mask.astype(jnp.float32)
         aux_loss = jnp.zeros(())
         if self.config.learner.aux_weight:  # the aux head's squared error at the trained obs (LearnerConfig)
-            miss = jnp.square(sown["intermediates"]["aux"][0][:, :-1] - prepared.privileged[:, :-1]).sum(-1)
+            label = prepared.privileged[:, :-1, :self.config.network.aux_outputs]
+            miss = jnp.square(sown["intermediates"]["aux"][0][:, :-1] - label).sum(-1)
             aux_loss = masked_mean(miss, mask)
             loss = loss + self.config.learner.aux_weight * aux_loss
         aux = dict(aux, q_mean=masked_mean(aux["q_taken"], mask), aux_loss=aux_loss)

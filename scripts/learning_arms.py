@@ -383,6 +383,14 @@ def _procedural(c, count: int):
 
 
 ARMS["procedural-48"] = lambda c: _procedural(ARMS["avg-1536k"](c), 48)
+# The depth in metres from the stand-off (NetworkConfig.depth_centre / depth_gain) again, one change to the quick
+# preset at 1.54M env steps: at 768k, before the gradient clip, four of five seeds ended above the preset's and one
+# collapsed, and the agents' largest error is along the boresight.
+ARMS["depth-metres-1536k"] = lambda c: _net(ARMS["avg-1536k"](c), depth_centre=0.25, depth_gain=20.0)
+# A diagnostic, not a candidate: the quick preset at 1.54M env steps with the true tracking error and relative
+# velocity at the LSTM's input (NetworkConfig.state_input). What the learner reaches at this budget with perfect
+# perception splits the gap to the ceiling into what the images do not give and what the learning does not reach.
+ARMS["state-input"] = lambda c: _net(ARMS["avg-1536k"](c), state_input=True)
 # The same 48 models added to the sizes preset's training targets at 1.54M env steps (one change to 'size-1536k'):
 # the user models are shapes the catalogue does not have, flown at sizes it does not have, so more shapes in training
 # may carry further there than on the catalogue's validation sizes.

@@ -413,6 +413,50 @@ def test_six_aux_outputs_add_the_relative_velocity_whose_integral_is_the_errors_
     np.testing.assert_allclose(moved[same], mean_velocity[same] * float(tr.env_params.dt), atol=2e-4)
 
 
+def test_state_input_network_reads_the_stored_true_state_when_acting_learning_and_flying_greedily():
+    """state_input: the rollout keeps greedy.true_tracking_state [6] per obs (whatever the aux head takes), the
+    network's values depend on it, the learner's loss reads the stored one, and the greedy policy acts as the
+    trainer's values over the env states it is given."""
+    cfg = SMOKE.override(network=dataclasses.replace(SMOKE.network, state_input=True))
+    tr = T.Trainer(cfg)
+    state = jax.jit(tr.init)(jax.random.PRNGKey(4))
+    params = state.learner.params
+    _, chunk, _, _ = jax.jit(tr.rollout)(params, state.actor, jnp.int32(0), jax.random.PRNGKey(5))
+    assert chunk.privileged.shape[-1] == 6
+    first = jax.vmap(greedy.true_tracking_state, (0, None))(state.actor.env_state, tr.env_params)
+    np.testing.assert_allclose(np.asarray(chunk.privileged[:, 0]), np.asarray(first), atol=1e-6)
+    obs, reset = state.actor.obs[:, None], jnp.ones((cfg.acting.num_envs, 1), bool)
+    start = initial_state(cfg.network, cfg.acting.num_envs)
+    q_true, _ = tr.q_values(params, obs, reset, start, privileged=first[:, None])
+    q_zero, _ = tr.q_values(params, obs, reset, start, privileged=jnp.zeros_like(first)[:, None])
+    assert float(jnp.abs(q_true - q_zero).max()) > 1e-4
+    with pytest.raises(ValueError, match="needs true_state"):
+        tr.q_values(params, obs, reset, start)
+    window = _window(jax.random.PRNGKey(1), cfg)
+    shape = (cfg.replay.batch_size, cfg.sequence_length, 6)
+    losses = [float(tr.trained_loss(params, tr.prepare(params, params, _as_batch(window.replace(
+        privileged=scale * jax.random.normal(jax.random.PRNGKey(2), shape)), cfg), jax.random.PRNGKey(0)))[0])
+        for scale in (0.0, 1.0)]
+    assert abs(losses[0] - losses[1]) > 1e-6
+    # beside an aux head of 3 outputs the head is fitted to the first three entries, the error
+    aux = T.Trainer(cfg.override(network=dataclasses.replace(cfg.network, aux_outputs=3), aux_weight=1.0))
+    aux_params = init_params(aux.config.network, jax.random.PRNGKey(3), aux.obs_shape)["params"]
+    labels = jax.random.normal(jax.random.PRNGKey(2), shape)
+    prepared = aux.prepare(aux_params, aux_params, _as_batch(window.replace(privileged=labels), cfg),
+                           jax.random.PRNGKey(0))
+    (_, logged), sown = aux.trained_loss(aux_params, prepared), aux.net.apply(
+        {"params": aux_params}, prepared.obs, prepared.reset, prepared.state, actions=prepared.td.action,
+        true_state=prepared.privileged, mutable=["intermediates"])[1]
+    miss = np.square(np.asarray(sown["intermediates"]["aux"][0] - prepared.privileged[..., :3]))[:, :-1].sum(-1)
+    mask = np.asarray(prepared.td.mask, np.float32)  # [B, T - 1], as the loss's per-step terms
+    assert mask.sum() > 0 and np.isclose(float(logged["aux_loss"]), (miss * mask).sum() / mask.sum(), rtol=1e-4)
+    policy = greedy.greedy_policy(cfg.network, params, cfg.env.obs_shape)
+    one = jax.tree.map(lambda x: x[0], state.actor.env_state)
+    action, _ = policy.act(jax.random.PRNGKey(0), policy.init(jax.random.PRNGKey(0)), state.actor.obs[0], one,
+                           tr.env_params)
+    assert int(action) == int(jnp.argmax(q_true[0, 0]))
+
+
 def test_prev_action_is_stored_with_the_state_and_fed_back_by_the_greedy_policy():
     """With a prev_action network the stored state before step t+1 holds the action taken at step t, and the
     greedy policy acts as the network does over the same sequence with its own actions given."""
