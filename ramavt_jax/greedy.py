@@ -55,7 +55,8 @@ class GreedyState:
 
 
 def greedy_policy(network: NetworkConfig, params, obs_shape: tuple, name: str = "greedy") -> Policy:
-    """A ``baselines.Policy`` acting greedily with a trained Q-network (per env; evaluate.run_episodes vmaps it)."""
+    """A ``baselines.Policy`` acting greedily with a trained Q-network (per env; evaluate.run_episodes vmaps it). A
+    state_input network (a diagnostic, not a deployable tracker) also reads the simulator's state through env_state."""
     net = make_network(network)
 
     def init(key):

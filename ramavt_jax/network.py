@@ -186,11 +186,11 @@ class Encoder(nn.Module):
 
 class QNetwork(nn.Module):
     """Q-network. __call__(obs [B, T, H, W, C], reset [B, T] bool, state, actions [B, T] | None, standoff [B, T] |
-    None) -> (q [B, T, A] float32, state). ``actions`` (taken at each step) matter only with ``prev_action``: the
-    returned state's prev_action is then ``actions[:, T - 1]``, else unchanged (acting code records its pick:
-    record_action). ``standoff`` (each step's stand-off signal, greedy.standoff_signal: the scale k or the command
-    gain, 1 for catalogue targets) is needed with ``standoff_input`` or ``command_gain_input``, ignored without;
-    ``true_state`` [B, T, 6] (greedy.true_tracking_state per step) with ``state_input``, ignored without."""
+    None, true_state [B, T, 6] | None) -> (q [B, T, A] float32, state). ``actions`` (taken at each step) matter
+    only with ``prev_action``: the returned state's prev_action is then ``actions[:, T - 1]``, else unchanged (acting
+    code records its pick: record_action). ``standoff`` (each step's stand-off signal, greedy.standoff_signal: the
+    scale k or the command gain, 1 for catalogue targets) is needed with ``standoff_input`` or
+    ``command_gain_input``, ignored without; ``true_state`` [B, T, 6] (greedy.true_tracking_state per step) with ``state_input``, ignored without."""
 
     config: NetworkConfig
 
@@ -283,7 +283,8 @@ def q_outputs(cfg: NetworkConfig, y: jax.Array) -> jax.Array:
 
 
 def _dummy_signals() -> dict:
-    """Per-step signals for a single-frame call that only needs shapes or the encoder (init, cost, maps)."""
+    """Per-step signals (standoff [1, 1], true_state [1, 1, 6]) for a single-frame call that only needs shapes or
+    the encoder (init, cost, maps)."""
     return dict(standoff=jnp.ones((1, 1)), true_state=jnp.zeros((1, 1, TRUE_STATE_SIZE)))
 
 

@@ -52,7 +52,7 @@ class NetworkConfig:
     depth_centre: float = 0.0
     depth_gain: float = 1.0
     # Append eight statistics of the target's silhouette in the current frame to the encoder's output (see
-    # network.silhouette_stats): its size, centroid and spread in pixels, and its mean, nearest and spread of depth
+    # network_inputs.silhouette_stats): its size, centroid and spread in pixels, and its mean, nearest and spread of depth
     # in metres from the stand-off. Convs with patch strides see the silhouette at 4-pixel granularity, and depth
     # within a target only as a small offset; these carry both at the observation's precision, as the classical
     # tracker reads them. Recurrent variants only ('drlavt' stacks frames before the encoder).

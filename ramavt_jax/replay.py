@@ -84,8 +84,8 @@ class Transition:
       is_first: ``[]`` bool, obs t is an episode's first observation (carry reset; transition t-1 masked).
       recurrent_state: the actor's state *before* consuming obs t, any pytree with leaves ``[layers, units]``; the
         trainer stores the network's own ``RecurrentState`` (LSTM ``h``, ``c``; no frame history).
-      privileged: ``[K]`` float32 simulator state at obs t for auxiliary training losses only (the trainer's true
-        tracking error); ``None`` = not stored.
+      privileged: ``[K]`` float32 simulator state at obs t (greedy.true_tracking_state's first K entries): the
+        auxiliary loss's label, and all six the input of a diagnostic state_input network; ``None`` = not stored.
       standoff: ``[]`` float32 stand-off scale k of obs t's episode, for networks that read it
         (NetworkConfig.reads_standoff: k or the command gain); ``None`` = not stored.
     """

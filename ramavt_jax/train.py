@@ -186,8 +186,8 @@ class Trainer:
         k_eps, k_rand, k_env = jax.random.split(key, 3)
         standoff = (jax.vmap(lambda s: standoff_signal(self.config.network, s, self.env_params))(actor.env_state)
                     if self.config.network.reads_standoff else None)  # [N]
-        kept, true_state = self._privileged_size, functools.partial(true_tracking_state, env_params=self.env_params)
-        privileged = jax.vmap(true_state)(actor.env_state)[:, :kept] if kept else None  # [N, K], aux label or input
+        kept, state_of = self._privileged_size, functools.partial(true_tracking_state, env_params=self.env_params)
+        privileged = jax.vmap(state_of)(actor.env_state)[:, :kept] if kept else None  # [N, K], aux label or input
         q, net_state = self.q_values(params, actor.obs[:, None], actor.is_first[:, None], actor.net_state,
                                      standoff=None if standoff is None else standoff[:, None],
                                      privileged=None if privileged is None else privileged[:, None])

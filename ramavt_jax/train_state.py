@@ -102,8 +102,9 @@ class PreparedBatch:
     obs: ``[B, T+1, H, W, C]`` (augmented) observations after burn-in; reset: ``[B, T+1]`` bool; state: the online
     net's ``RecurrentState`` after burn-in (h, c ``[layers, B, units]``); td: the :class:`TDBatch` of the ``T``
     trained transitions (``q_target [B, T+1, A]``, or None when the trained pass gives it: bootstrap_from='online';
-    the rest ``[B, T]``); privileged: ``[B, T+1, K]`` the aux label per obs (K = NetworkConfig.aux_outputs: the
-    true tracking error, then with 6 the relative velocity; None without the auxiliary loss); standoff: ``[B, T+1]``
+    the rest ``[B, T]``); privileged: ``[B, T+1, K]`` the kept true state per obs (greedy.true_tracking_state:
+    the tracking error, then the relative velocity; K = 6 for a state_input network, else NetworkConfig.aux_outputs;
+    None when neither needs it); standoff: ``[B, T+1]``
     the stand-off signal per obs (greedy.standoff_signal; None unless the network reads it).
     """
 
