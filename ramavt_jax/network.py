@@ -190,7 +190,8 @@ class QNetwork(nn.Module):
     only with ``prev_action``: the returned state's prev_action is then ``actions[:, T - 1]``, else unchanged (acting
     code records its pick: record_action). ``standoff`` (each step's stand-off signal, greedy.standoff_signal: the
     scale k or the command gain, 1 for catalogue targets) is needed with ``standoff_input`` or
-    ``command_gain_input``, ignored without; ``true_state`` [B, T, 6] (greedy.true_tracking_state per step) with ``state_input``, ignored without."""
+    ``command_gain_input``, ignored without; ``true_state`` [B, T, 6] (greedy.true_tracking_state per step) with
+    ``state_input``, ignored without."""
 
     config: NetworkConfig
 
