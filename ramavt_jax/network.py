@@ -100,6 +100,15 @@ def initial_state(config: NetworkConfig, batch: int, obs_shape: tuple | None = N
     return RecurrentState(h=h, c=h, frames=frames, prev_action=prev_action)
 
 
+def window_start_frames(config: NetworkConfig, obs: jax.Array) -> jax.Array:
+    """The frame history a stored window obs [B, L, H, W, C] starts from: none ([B, 0]) for the recurrent variants;
+    for 'drlavt', whose history the replay does not store, copies of the window's first frame [B, K-1, H, W, C],
+    replaced with real frames during burn-in (burn_in >= frame_stack - 1 is validated)."""
+    if config.recurrent:
+        return jnp.zeros((obs.shape[0], 0), jnp.float32)
+    return jnp.repeat(obs[:, :1], config.frame_stack - 1, axis=1)
+
+
 def record_action(state: RecurrentState, action: jax.Array) -> RecurrentState:
     """``state`` with ``action`` [B] recorded as the last action taken (no-op without the previous-action input)."""
     return state if state.prev_action is None else state.replace(prev_action=action[None].astype(jnp.int32))
@@ -355,4 +364,5 @@ def attention_maps(params, config: NetworkConfig, obs: jax.Array, variables: dic
 __all__ = [
     "NetworkConfig", "RecurrentState", "QNetwork", "initial_state", "make_network", "init_params",
     "count_params", "flops_per_frame", "attention_maps", "stack_frames", "with_coordinates",
+    "window_start_frames",
 ]

@@ -37,7 +37,8 @@ from ramavt_jax import replay as replay_lib
 from ramavt_jax.augment import augment_batch
 from ramavt_jax.greedy import standoff_signal, true_tracking_state, unbatch_state
 from ramavt_jax.losses import TDBatch, masked_mean, sequence_priority, td_loss
-from ramavt_jax.network import TRUE_STATE_SIZE, init_params, initial_state, make_network, record_action
+from ramavt_jax.network import (TRUE_STATE_SIZE, init_params, initial_state, make_network, record_action,
+                                window_start_frames)
 from ramavt_jax.train_config import TrainConfig
 from ramavt_jax.train_state import (ActorState, ChunkMetrics, EpisodeStats, LearnerState, LearnStats, PreparedBatch,
                                     RunnerState)
@@ -250,11 +251,7 @@ class Trainer:
         burn, obs = batch.burn_in, batch.obs
         if self.augment_fn is not None:
             obs = self.augment_fn(key, obs)
-        if c.network.recurrent:
-            frames = jnp.zeros((obs.shape[0], 0), jnp.float32)
-        else:  # the frame history is not stored: rebuilt during burn-in (burn_in >= frame_stack - 1 is validated)
-            frames = jnp.repeat(obs[:, :1], c.network.frame_stack - 1, axis=1)
-        state = batch.start_state.replace(frames=frames)
+        state = batch.start_state.replace(frames=window_start_frames(c.network, obs))
         standoff = batch.standoff  # [B, L] or None
         q_target = None  # bootstrap_from='online': trained_loss takes the trained pass's values
         if c.learner.bootstrap_from == "target":
@@ -267,9 +264,11 @@ class Trainer:
         terminated, truncated = batch.terminated[:, burn:], batch.truncated[:, burn:]
         if c.learner.bootstrap_lost:  # see LearnerConfig.bootstrap_lost
             terminated, truncated = jnp.zeros_like(terminated), truncated | terminated
-        td = TDBatch(q_target=q_target, action=batch.action[:, burn:],
-                     reward=sg(batch.reward[:, burn:] * c.learner.reward_scale), terminated=terminated,
-                     truncated=truncated, mask=batch.loss_mask[:, burn:], weight=batch.weights)
+        reward, action = batch.reward[:, burn:], batch.action[:, burn:]
+        if c.learner.command_cost:  # see LearnerConfig.command_cost
+            reward = reward - c.learner.command_cost * jnp.linalg.norm(jnp.asarray(env_lib.ACTIONS), axis=-1)[action]
+        td = TDBatch(q_target=q_target, action=action, reward=sg(reward * c.learner.reward_scale),
+                     terminated=terminated, truncated=truncated, mask=batch.loss_mask[:, burn:], weight=batch.weights)
         privileged = None if batch.privileged is None else batch.privileged[:, burn:]
         return PreparedBatch(obs=obs[:, burn:], reset=batch.reset[:, burn:], state=sg(state), td=td,
                              privileged=privileged, standoff=None if standoff is None else standoff[:, burn:])

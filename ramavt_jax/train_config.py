@@ -83,6 +83,11 @@ class LearnerConfig:
     # With aux_outputs = 6 it also predicts the target's velocity relative to the chaser (stand-off distances per s).
     aux_weight: float = 0.0
     reward_scale: float = 0.1  # rewards are multiplied by this in the TD targets
+    # Reward shaping in training only (0 = off): each transition's reward, before reward_scale, less command_cost
+    # times its command's size in units of the full speed (0 holding still, 1 along an axis, sqrt 2 diagonally): a
+    # move must buy more than this in tracking to be worth it, so noise in where the agent thinks the target is
+    # costs it. The env's reward (and so evaluation) is unchanged.
+    command_cost: float = 0.0
     target_update: str = "polyak"  # 'polyak' | 'period'
     # 'target' (net, over the whole window) | 'online': the targets bootstrap from the online net's own trained pass
     # under stop_gradient (no target pass); the target net is still averaged, for RunConfig.policy_params='target'.
@@ -118,6 +123,7 @@ class LearnerConfig:
                                ("max_grad_norm", self.max_grad_norm >= 0, ">= 0 (0 = no clipping)"),
                                ("aux_weight", self.aux_weight >= 0, ">= 0 (0 = no auxiliary loss)"),
                                ("reward_scale", self.reward_scale > 0, "> 0"),
+                               ("command_cost", self.command_cost >= 0, ">= 0 (0 = no shaping)"),
                                ("quantile_kappa", self.quantile_kappa > 0, "> 0"),
                                ("replay_ratio", self.replay_ratio > 0, "> 0"),
                                ("target_update", self.target_update in ("polyak", "period"), "'polyak' or 'period'"),

@@ -96,6 +96,7 @@ def _changes(arm: str, reference: str) -> dict:
         ("depth-metres-1536k", "avg-1536k", {"network.depth_centre": 0.25, "network.depth_gain": 20.0}),
         ("state-input", "avg-1536k", {"network.state_input": True}),
         ("gamma-099", "avg-1536k", {"learner.gamma": 0.99}),
+        ("command-cost-005", "avg-1536k", {"learner.command_cost": 0.05}),
         ("size-1536k", "size-res64", {"run.total_env_steps": 1_536_000, "run.policy_average_from": 36}),
         ("avg-1536k", "avg-12", {"run.total_env_steps": 1_536_000, "run.policy_average_from": 36}),
         ("size-quick", "avg-12", {"env_params": (("size_scale_max", 1.0), ("size_scale_min", 0.15))}),

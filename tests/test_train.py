@@ -457,6 +457,22 @@ def test_state_input_network_reads_the_stored_true_state_when_acting_learning_an
     assert int(action) == int(jnp.argmax(q_true[0, 0]))
 
 
+def test_command_cost_charges_each_transition_its_commands_size_in_the_targets_only(trainer):
+    """LearnerConfig.command_cost: the prepared rewards are the stored ones less cost x |command| (0 holding still,
+    1 on an axis, sqrt 2 diagonally), scaled; 0 leaves them exactly as stored; a negative cost is refused."""
+    params = jax.jit(trainer.init)(jax.random.PRNGKey(4)).learner.params
+    window = _window(jax.random.PRNGKey(1), SMOKE)
+    batch, burn = _as_batch(window), SMOKE.replay.burn_in
+    plain = trainer.prepare(params, params, batch, jax.random.PRNGKey(0)).td
+    costly = T.Trainer(SMOKE.override(command_cost=0.05)).prepare(params, params, batch, jax.random.PRNGKey(0)).td
+    size = np.linalg.norm(env_lib.ACTIONS, axis=-1)[np.asarray(batch.action[:, burn:])]
+    assert {0.0, 1.0}.issubset(np.round(size, 3).ravel().tolist()) and np.isclose(size.max(), np.sqrt(2.0))
+    np.testing.assert_allclose(np.asarray(plain.reward), np.asarray(batch.reward[:, burn:]) * 0.1, rtol=1e-6)
+    np.testing.assert_allclose(np.asarray(costly.reward), np.asarray(plain.reward) - 0.1 * 0.05 * size, atol=1e-6)
+    with pytest.raises(ValueError, match="command_cost must be >= 0"):
+        SMOKE.override(command_cost=-0.1)
+
+
 def test_prev_action_is_stored_with_the_state_and_fed_back_by_the_greedy_policy():
     """With a prev_action network the stored state before step t+1 holds the action taken at step t, and the
     greedy policy acts as the network does over the same sequence with its own actions given."""

@@ -45,7 +45,8 @@ ADDED_FIELDS = ("network.depth_centre", "network.depth_gain", "learner.polyak_ta
                 "replay.importance_exponent", "replay.priority_max_share", "network.standoff_input",
                 "network.command_gain_input", "network.quantiles", "learner.quantile_kappa",
                 "learner.bootstrap_from", "learner.td_lambda", "run.policy_average_from",
-                "network.dense_norm", "acting.eps_ladder", "acting.teacher_envs", "network.state_input")
+                "network.dense_norm", "acting.eps_ladder", "acting.teacher_envs", "network.state_input",
+                "learner.command_cost")
 _SEED_DIR = re.compile(r"seed_\d+")
 
 
