@@ -384,8 +384,8 @@ def _procedural(c, count: int):
 
 ARMS["procedural-48"] = lambda c: _procedural(ARMS["avg-1536k"](c), 48)
 # The depth in metres from the stand-off (NetworkConfig.depth_centre / depth_gain) again, one change to the quick
-# preset at 1.54M env steps: at 768k, before the gradient clip, four of five seeds ended above the preset's and one
-# collapsed, and the agents' largest error is along the boresight.
+# preset at 1.54M env steps: at 768k, before the gradient clip, three of five seeds ended above the preset's mean and
+# one collapsed, and the agents' largest error is along the boresight.
 ARMS["depth-metres-1536k"] = lambda c: _net(ARMS["avg-1536k"](c), depth_centre=0.25, depth_gain=20.0)
 # A diagnostic, not a candidate: the quick preset at 1.54M env steps with the true tracking error and relative
 # velocity at the LSTM's input (NetworkConfig.state_input). What the learner reaches at this budget with perfect
@@ -397,7 +397,7 @@ ARMS["state-input"] = lambda c: _net(ARMS["avg-1536k"](c), state_input=True)
 ARMS["gamma-099"] = lambda c: ARMS["avg-1536k"](c).override(gamma=0.99)
 # A cost on moving in training (LearnerConfig.command_cost 0.05 per step at full speed, the reward of a 0.1 m
 # better hold for one step), one change to the quick preset at 1.54M env steps: after the approach the ceiling holds
-# still on 17 % of the steps and the agents on 1-6 %, circling the desired point; a move that only chases noise in
+# still on 17 % of the steps, the 1.15M preset on 1-6 % and the 1.54M one on none, circling the desired point; a move that only chases noise in
 # the agent's estimate then costs more than it buys.
 ARMS["command-cost-005"] = lambda c: ARMS["avg-1536k"](c).override(command_cost=0.05)
 # The same 48 models added to the sizes preset's training targets at 1.54M env steps (one change to 'size-1536k'):
