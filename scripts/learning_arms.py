@@ -397,8 +397,8 @@ ARMS["state-input"] = lambda c: _net(ARMS["avg-1536k"](c), state_input=True)
 ARMS["gamma-099"] = lambda c: ARMS["avg-1536k"](c).override(gamma=0.99)
 # A cost on moving in training (LearnerConfig.command_cost 0.05 per step at full speed, the reward of a 0.1 m
 # better hold for one step), one change to the quick preset at 1.54M env steps: after the approach the ceiling holds
-# still on 17 % of the steps, the 1.15M preset on 1-6 % and the 1.54M one on none, circling the desired point; a move that only chases noise in
-# the agent's estimate then costs more than it buys.
+# still on 17 % of the steps, the 1.15M preset on 1-6 % and the 1.54M one on none, circling the desired point; a
+# move that only chases noise in the agent's estimate then costs more than it buys.
 ARMS["command-cost-005"] = lambda c: ARMS["avg-1536k"](c).override(command_cost=0.05)
 # The same 48 models added to the sizes preset's training targets at 1.54M env steps (one change to 'size-1536k'):
 # the user models are shapes the catalogue does not have, flown at sizes it does not have, so more shapes in training
