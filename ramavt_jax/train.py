@@ -252,15 +252,15 @@ class Trainer:
         if self.augment_fn is not None:
             obs = self.augment_fn(key, obs)
         state = batch.start_state.replace(frames=window_start_frames(c.network, obs))
-        standoff = batch.standoff  # [B, L] or None
+        standoff, privileged = batch.standoff, batch.privileged  # [B, L] and [B, L, K], either may be None
+        steps = lambda x, part: jax.tree.map(lambda a: a[:, part], x)  # noqa: E731 (optional inputs: None stays None)
         q_target = None  # bootstrap_from='online': trained_loss takes the trained pass's values
         if c.learner.bootstrap_from == "target":
             q_target = sg(self._target_values(target_params, obs, batch.reset, state, batch.action, standoff,
-                                              batch.privileged))[:, burn:]
+                                              privileged))[:, burn:]
         if burn:
             _, state = self.q_values(params, obs[:, :burn], batch.reset[:, :burn], state, batch.action[:, :burn],
-                                     None if standoff is None else standoff[:, :burn],
-                                     None if batch.privileged is None else batch.privileged[:, :burn])
+                                     steps(standoff, slice(None, burn)), steps(privileged, slice(None, burn)))
         terminated, truncated = batch.terminated[:, burn:], batch.truncated[:, burn:]
         if c.learner.bootstrap_lost:  # see LearnerConfig.bootstrap_lost
             terminated, truncated = jnp.zeros_like(terminated), truncated | terminated
@@ -269,9 +269,9 @@ class Trainer:
             reward = reward - c.learner.command_cost * jnp.linalg.norm(jnp.asarray(env_lib.ACTIONS), axis=-1)[action]
         td = TDBatch(q_target=q_target, action=action, reward=sg(reward * c.learner.reward_scale),
                      terminated=terminated, truncated=truncated, mask=batch.loss_mask[:, burn:], weight=batch.weights)
-        privileged = None if batch.privileged is None else batch.privileged[:, burn:]
-        return PreparedBatch(obs=obs[:, burn:], reset=batch.reset[:, burn:], state=sg(state), td=td,
-                             privileged=privileged, standoff=None if standoff is None else standoff[:, burn:])
+        trained = slice(burn, None)
+        return PreparedBatch(obs=obs[:, trained], reset=batch.reset[:, trained], state=sg(state), td=td,
+                             privileged=steps(privileged, trained), standoff=steps(standoff, trained))
 
     def trained_loss(self, params, prepared: PreparedBatch):
         """TD loss over the trained part of the window, plus aux_weight times the auxiliary head's squared error

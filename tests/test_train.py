@@ -450,11 +450,12 @@ def test_state_input_network_reads_the_stored_true_state_when_acting_learning_an
     miss = np.square(np.asarray(sown["intermediates"]["aux"][0] - prepared.privileged[..., :3]))[:, :-1].sum(-1)
     mask = np.asarray(prepared.td.mask, np.float32)  # [B, T - 1], as the loss's per-step terms
     assert mask.sum() > 0 and np.isclose(float(logged["aux_loss"]), (miss * mask).sum() / mask.sum(), rtol=1e-4)
-    policy = greedy.greedy_policy(cfg.network, params, cfg.env.obs_shape)
-    one = jax.tree.map(lambda x: x[0], state.actor.env_state)
-    action, _ = policy.act(jax.random.PRNGKey(0), policy.init(jax.random.PRNGKey(0)), state.actor.obs[0], one,
-                           tr.env_params)
-    assert int(action) == int(jnp.argmax(q_true[0, 0]))
+    policy, key = greedy.greedy_policy(cfg.network, params, cfg.env.obs_shape), jax.random.PRNGKey(0)
+    flown = jax.vmap(lambda o, s: policy.act(key, policy.init(key), o, s, tr.env_params)[0])(
+        state.actor.obs, state.actor.env_state)
+    picks, blind = np.asarray(jnp.argmax(q_true[:, 0], -1)), np.asarray(jnp.argmax(q_zero[:, 0], -1))
+    np.testing.assert_array_equal(np.asarray(flown), picks)
+    assert (picks != blind).any()  # the comparison tells a policy given the true state from one given none
 
 
 def test_command_cost_charges_each_transition_its_commands_size_in_the_targets_only(trainer):
