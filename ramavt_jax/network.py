@@ -75,7 +75,8 @@ class RecurrentState:
     """Carried network state.
 
     h, c:   [lstm_layers, B, lstm] LSTM hidden and cell states ([0, B, lstm] for 'drlavt').
-    frames: [B, frame_stack - 1, H, W, C] previous frames, oldest first ('drlavt'); [B, 0] otherwise.
+    frames: [B, frame_stack - 1, H, W, C] previous frames, oldest first ('drlavt'); [B, 1, H, W, C] the previous
+        frame (frame_difference); [B, 0] otherwise.
     prev_action: [1, B] int32, the action taken after the last consumed obs (NetworkConfig.prev_action; None
         otherwise). Laid out like h and c (B on axis 1) so the replay and the sharding treat all three alike.
     """
@@ -87,26 +88,38 @@ class RecurrentState:
 
 
 def initial_state(config: NetworkConfig, batch: int, obs_shape: tuple | None = None) -> RecurrentState:
-    """Zero state for ``batch`` sequences. ``obs_shape`` = (H, W, C) of one frame, required for 'drlavt'."""
+    """Zero state for ``batch`` sequences. ``obs_shape`` = (H, W, C) of one frame, required for 'drlavt' and
+    frame_difference (their frame buffers)."""
     layers = config.lstm_layers if config.recurrent else 0
     h = jnp.zeros((layers, batch, config.lstm), jnp.float32)
-    if config.recurrent:
+    kept = _kept_frames(config)
+    if kept == 0:
         frames = jnp.zeros((batch, 0), jnp.float32)
     else:
         if obs_shape is None or len(obs_shape) != 3:
-            raise ValueError("initial_state: variant 'drlavt' needs obs_shape=(H, W, C) for its frame buffer")
-        frames = jnp.zeros((batch, config.frame_stack - 1, *obs_shape), jnp.float32)
+            raise ValueError(f"initial_state: {config.variant!r} with frame_difference={config.frame_difference} "
+                             f"needs obs_shape=(H, W, C) for its frame buffer, got {obs_shape!r}")
+        frames = jnp.zeros((batch, kept, *obs_shape), jnp.float32)
     prev_action = jnp.zeros((1, batch), jnp.int32) if config.prev_action else None
     return RecurrentState(h=h, c=h, frames=frames, prev_action=prev_action)
 
 
+def _kept_frames(config: NetworkConfig) -> int:
+    """How many previous frames RecurrentState.frames holds: frame_stack - 1 ('drlavt'), 1 (frame_difference), 0."""
+    if not config.recurrent:
+        return config.frame_stack - 1
+    return 1 if config.frame_difference else 0
+
+
 def window_start_frames(config: NetworkConfig, obs: jax.Array) -> jax.Array:
-    """The frame history a stored window obs [B, L, H, W, C] starts from: none ([B, 0]) for the recurrent variants;
-    for 'drlavt', whose history the replay does not store, copies of the window's first frame [B, K-1, H, W, C],
-    replaced with real frames during burn-in (burn_in >= frame_stack - 1 is validated)."""
-    if config.recurrent:
+    """The frame history a stored window obs [B, L, H, W, C] starts from, which the replay does not store: none
+    ([B, 0]) for the recurrent variants; else copies of the window's first frame [B, K, H, W, C] (K =
+    _kept_frames), replaced with real frames during burn-in (for 'drlavt' burn_in >= frame_stack - 1 is validated;
+    with frame_difference the window's first step sees no change)."""
+    kept = _kept_frames(config)
+    if kept == 0:
         return jnp.zeros((obs.shape[0], 0), jnp.float32)
-    return jnp.repeat(obs[:, :1], config.frame_stack - 1, axis=1)
+    return jnp.repeat(obs[:, :1], kept, axis=1).astype(jnp.float32)
 
 
 def record_action(state: RecurrentState, action: jax.Array) -> RecurrentState:
@@ -127,6 +140,15 @@ def previous_actions(config: NetworkConfig, reset: jax.Array, state: RecurrentSt
         prev = jnp.concatenate([prev, actions[:, :t - 1].astype(prev.dtype)], axis=1)
     prev = jnp.where(reset, config.num_actions, prev)
     return jax.nn.one_hot(prev, config.num_actions + 1, dtype=config.jnp_dtype)
+
+
+def frame_changes(obs: jax.Array, reset: jax.Array, previous: jax.Array) -> tuple[jax.Array, jax.Array]:
+    """Per-pixel change since the previous frame. obs [B, T, H, W, C], reset [B, T], previous [B, 1, H, W, C] (the
+    frame before step 0). Returns the changes [B, T, H, W, C] (0 where reset: an episode's first frame has no
+    predecessor) and the new previous frame [B, 1, H, W, C] (step T - 1's)."""
+    obs = obs.astype(jnp.float32)  # an integer frame would wrap around below zero
+    before = jnp.concatenate([previous.astype(jnp.float32), obs[:, :-1]], axis=1)
+    return jnp.where(reset[..., None, None, None], 0.0, obs - before), obs[:, -1:]
 
 
 def stack_frames(obs: jax.Array, reset: jax.Array, frames: jax.Array) -> tuple[jax.Array, jax.Array]:
@@ -157,7 +179,9 @@ class Encoder(nn.Module):
     config: NetworkConfig
 
     @nn.compact
-    def __call__(self, x: jax.Array, train: bool = False) -> jax.Array:
+    def __call__(self, x: jax.Array, train: bool = False, changes: jax.Array | None = None) -> jax.Array:
+        """x [N, H, W, C] frames; changes [N, H, W, C] their change since the previous frame (frame_difference),
+        appended as input channels after the hit mask."""
         cfg = self.config
         dtype = cfg.jnp_dtype
         stats = silhouette_stats(x).astype(dtype) if cfg.silhouette_stats else None
@@ -168,6 +192,8 @@ class Encoder(nn.Module):
             if cfg.rescales_depth:
                 x = with_depth_rescaled(x, hit, cfg.depth_centre, cfg.depth_gain)
             x, planes = jnp.concatenate([x, hit], axis=-1), coordinate_planes(*x.shape[1:3], dtype)
+        if changes is not None:
+            x = jnp.concatenate([x, changes.astype(dtype)], axis=-1)
         n_blocks = len(cfg.channels)
         skip = None
         for i, (ch, k, s, p) in enumerate(zip(cfg.channels, cfg.kernels, cfg.strides, cfg.pools)):
@@ -217,11 +243,15 @@ class QNetwork(nn.Module):
         b, t = obs.shape[:2]
         dtype = cfg.jnp_dtype
         reset = reset.astype(bool)
-        if cfg.recurrent:
-            frames = state.frames
-        else:
+        changes = None
+        if not cfg.recurrent:
             obs, frames = stack_frames(obs, reset, state.frames)
-        x = Encoder(cfg, name="encoder")(obs.reshape(b * t, *obs.shape[2:]), train)  # [B*T, F]
+        elif cfg.frame_difference:
+            changes, frames = frame_changes(obs, reset, state.frames)
+            changes = changes.reshape(b * t, *obs.shape[2:])
+        else:
+            frames = state.frames
+        x = Encoder(cfg, name="encoder")(obs.reshape(b * t, *obs.shape[2:]), train, changes)  # [B*T, F]
         if cfg.recurrent:
             x = nn.Dense(cfg.dense, dtype=dtype, kernel_init=he_init, name="dense")(x)
             x = nn.relu(_maybe_norm(cfg, "dense_norm", x)).reshape(b, t, -1)
@@ -240,7 +270,7 @@ class QNetwork(nn.Module):
             y = nn.Dense(cfg.head, dtype=dtype, kernel_init=he_init, name="head")(y)
             y = nn.relu(_maybe_norm(cfg, "head_norm", y))
             q = q_outputs(cfg, y)
-            new_state = RecurrentState(h=h, c=c, frames=frames, prev_action=prev_action)
+            new_state = RecurrentState(h=h, c=c, frames=frames.astype(state.frames.dtype), prev_action=prev_action)
         else:
             for j, width in enumerate(cfg.drlavt_dense):
                 x = nn.relu(nn.Dense(width, dtype=dtype, kernel_init=he_init, name=f"dense{j}")(x))
@@ -364,5 +394,5 @@ def attention_maps(params, config: NetworkConfig, obs: jax.Array, variables: dic
 __all__ = [
     "NetworkConfig", "RecurrentState", "QNetwork", "initial_state", "make_network", "init_params",
     "count_params", "flops_per_frame", "attention_maps", "stack_frames", "with_coordinates",
-    "window_start_frames",
+    "window_start_frames", "frame_changes",
 ]

@@ -85,6 +85,12 @@ class NetworkConfig:
     # this learner gets with perfect perception at a budget: the part of the gap to the ceiling that is not in the
     # images. Recurrent variants only.
     state_input: bool = False
+    # A motion cue: the change of each pixel since the previous frame (0 at an episode's first step) as one more input
+    # channel per observation channel, beside the hit mask. Velocity otherwise has to be read by the LSTM from two
+    # pooled feature vectors; here the first conv sees the target's edges move and its surface come nearer. The
+    # previous frame rides in RecurrentState.frames (not stored in the replay: a stored window starts with no
+    # change, inside the burn-in). Recurrent variants only ('drlavt' stacks whole frames).
+    frame_difference: bool = False
 
     def __post_init__(self):
         def fail(msg):
@@ -154,6 +160,8 @@ class NetworkConfig:
             fail("standoff_input / command_gain_input need a recurrent variant (an LSTM input), not 'drlavt'")
         if self.state_input and not self.recurrent:
             fail("state_input needs a recurrent variant (an LSTM input), not 'drlavt'")
+        if self.frame_difference and not self.recurrent:
+            fail("frame_difference needs a recurrent variant, not 'drlavt' (which stacks whole frames: frame_stack)")
         if self.use_mha and self.channels[-1] % self.attention_heads != 0:
             fail(
                 f"attention_heads={self.attention_heads} must divide the last block's channels "

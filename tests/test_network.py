@@ -570,3 +570,54 @@ def test_dense_norm_makes_q_invariant_to_the_scale_of_the_dense_layer_and_head()
             assert change < 2e-3 if norm else change > 0.05, (layer, change)
     with pytest.raises(ValueError, match="dense_norm needs a recurrent variant"):
         small("drlavt", dense_norm=True)
+
+
+def test_frame_difference_acting_equals_unroll_and_reads_each_frames_change():
+    """frame_difference: the encoder sees obs_t - obs_(t-1) (0 at episode starts) as one more channel, the previous
+    frame carried in the state; acting step by step equals the unrolled window, and q depends on the frame before
+    only where no episode starts."""
+    from ramavt_jax.network import frame_changes, window_start_frames
+
+    cfg = small("ramavt", frame_difference=True)
+    b, t = 3, 5
+    _, variables, obs = _setup(cfg, b=b, t=t)
+    reset = jnp.zeros((b, t), bool).at[0, 0].set(True).at[1, 2].set(True)
+    state0 = _random_state(cfg, b, obs.shape[2:])
+    assert state0.frames.shape == (b, 1, *obs.shape[2:])
+    changes, last = frame_changes(obs, reset, state0.frames)
+    by_hand = np.array(obs - jnp.concatenate([state0.frames, obs[:, :-1]], axis=1))
+    by_hand[np.asarray(reset)] = 0.0
+    np.testing.assert_allclose(changes, by_hand, atol=1e-7)
+    np.testing.assert_array_equal(last, obs[:, -1:])
+    q_seq, s_seq = _apply(cfg, variables, obs, reset, state0)
+    s, qs = state0, []
+    for i in range(t):
+        q, s = _apply(cfg, variables, obs[:, i : i + 1], reset[:, i : i + 1], s)
+        qs.append(q)
+    np.testing.assert_allclose(jnp.concatenate(qs, 1), q_seq, atol=1e-5)
+    np.testing.assert_array_equal(s.frames, obs[:, -1:])
+    np.testing.assert_array_equal(s_seq.frames, obs[:, -1:])
+    q_other, _ = _apply(cfg, variables, obs, reset, state0.replace(frames=state0.frames * 0.0))
+    np.testing.assert_allclose(q_other[0, 0], q_seq[0, 0], atol=1e-6)  # an episode start: no frame before it
+    assert not np.allclose(q_other[2, 0], q_seq[2, 0], atol=1e-4)  # mid-episode: the frame before matters
+    np.testing.assert_array_equal(window_start_frames(cfg, obs), obs[:, :1])  # a stored window starts unchanged
+
+
+def test_frame_difference_encoder_equals_plain_encoder_on_appended_changes():
+    """The change channel is appended after the hit mask: the encoder with changes equals the encoder of a frame
+    with one more channel (same parameters)."""
+    cfg = small("ramavt", frame_difference=True)
+    obs = jax.random.uniform(jax.random.key(2), (3, 32, 32, 1))
+    changes = jax.random.normal(jax.random.key(3), obs.shape)
+    params = init_params(cfg, jax.random.key(0), obs.shape[1:])["params"]["encoder"]
+    assert params["conv0"]["kernel"].shape[-2] == 2  # depth and its change
+    with_changes = jax.jit(Encoder(cfg).apply)({"params": params}, obs, False, changes)
+    appended = jax.jit(Encoder(cfg).apply)({"params": params}, jnp.concatenate([obs, changes], axis=-1))
+    np.testing.assert_allclose(with_changes, appended, atol=1e-5)
+
+
+def test_frame_difference_config_and_state_are_checked():
+    with pytest.raises(ValueError, match="frame_difference needs a recurrent variant"):
+        small("drlavt", frame_difference=True)
+    with pytest.raises(ValueError, match="needs obs_shape"):
+        initial_state(small("ramavt", frame_difference=True), 2)
