@@ -32,7 +32,7 @@ import optax
 
 from ramavt_jax import train as T
 from ramavt_jax import presets
-from ramavt_jax.network import Encoder
+from ramavt_jax.network import Encoder, window_start_frames
 
 from bench_train import _filled_replay, _median_time, machine_info, merge_json  # noqa: E402 (the script's directory)
 from hlo_profile import trace_breakdown  # noqa: E402
@@ -66,7 +66,7 @@ def profile(preset: str, repeats: int, batch_size: int | None = None, trace: boo
     batch = sample(replay_state, key)
     prepare = jax.jit(tr.prepare)
     prepared = prepare(params, learner.target_params, batch, key)
-    start = batch.start_state.replace(frames=jnp.zeros((batch.obs.shape[0], 0)))
+    start = batch.start_state.replace(frames=window_start_frames(cfg.network, batch.obs))
     target_fwd = jax.jit(lambda p: tr.q_values(p, batch.obs, batch.reset, start, batch.action)[0])
     burn_fwd = jax.jit(lambda p: tr.q_values(p, batch.obs[:, :burn], batch.reset[:, :burn], start,
                                              batch.action[:, :burn])[1])
@@ -74,7 +74,8 @@ def profile(preset: str, repeats: int, batch_size: int | None = None, trace: boo
     frames = prepared.obs.reshape(-1, *prepared.obs.shape[2:])
     encoder = Encoder(cfg.network)
     enc_params = params["encoder"]
-    encoder_grad = jax.jit(jax.grad(lambda p: jnp.sum(encoder.apply({"params": p}, frames) ** 2)))
+    changes = jnp.zeros_like(frames) if cfg.network.frame_difference else None  # the encoder's extra channel
+    encoder_grad = jax.jit(jax.grad(lambda p: jnp.sum(encoder.apply({"params": p}, frames, False, changes) ** 2)))
     grads = loss_grad(params, prepared)[1]
 
     def opt_step(lrn, g):

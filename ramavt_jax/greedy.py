@@ -50,7 +50,7 @@ def batch_state(s: RecurrentState) -> RecurrentState:
 
 @struct.dataclass
 class GreedyState:
-    net_state: RecurrentState  # per env (no batch axis): h, c [layers, units], frames [K-1, H, W, C]
+    net_state: RecurrentState  # per env (no batch axis): h, c [layers, units], frames [K, H, W, C] (K may be 0)
     first: jax.Array  # [] bool
 
 

@@ -92,14 +92,13 @@ def initial_state(config: NetworkConfig, batch: int, obs_shape: tuple | None = N
     frame_difference (their frame buffers)."""
     layers = config.lstm_layers if config.recurrent else 0
     h = jnp.zeros((layers, batch, config.lstm), jnp.float32)
-    kept = _kept_frames(config)
-    if kept == 0:
+    if config.recurrent and not config.frame_difference:
         frames = jnp.zeros((batch, 0), jnp.float32)
-    else:
+    else:  # 'drlavt' with frame_stack 1 keeps [B, 0, H, W, C], which stack_frames concatenates along axis 1
         if obs_shape is None or len(obs_shape) != 3:
             raise ValueError(f"initial_state: {config.variant!r} with frame_difference={config.frame_difference} "
                              f"needs obs_shape=(H, W, C) for its frame buffer, got {obs_shape!r}")
-        frames = jnp.zeros((batch, kept, *obs_shape), jnp.float32)
+        frames = jnp.zeros((batch, _kept_frames(config), *obs_shape), jnp.float32)
     prev_action = jnp.zeros((1, batch), jnp.int32) if config.prev_action else None
     return RecurrentState(h=h, c=h, frames=frames, prev_action=prev_action)
 
@@ -113,13 +112,12 @@ def _kept_frames(config: NetworkConfig) -> int:
 
 def window_start_frames(config: NetworkConfig, obs: jax.Array) -> jax.Array:
     """The frame history a stored window obs [B, L, H, W, C] starts from, which the replay does not store: none
-    ([B, 0]) for the recurrent variants; else copies of the window's first frame [B, K, H, W, C] (K =
-    _kept_frames), replaced with real frames during burn-in (for 'drlavt' burn_in >= frame_stack - 1 is validated;
-    with frame_difference the window's first step sees no change)."""
-    kept = _kept_frames(config)
-    if kept == 0:
+    ([B, 0]) for the recurrent variants without frame_difference; else copies of the window's first frame [B, K, H,
+    W, C] (K = _kept_frames), replaced with real frames during burn-in (burn_in >= frame_stack - 1 for 'drlavt' and
+    >= 1 with frame_difference are validated: the window's first step sees no change, and is not trained)."""
+    if config.recurrent and not config.frame_difference:
         return jnp.zeros((obs.shape[0], 0), jnp.float32)
-    return jnp.repeat(obs[:, :1], kept, axis=1).astype(jnp.float32)
+    return jnp.repeat(obs[:, :1], _kept_frames(config), axis=1).astype(jnp.float32)
 
 
 def record_action(state: RecurrentState, action: jax.Array) -> RecurrentState:

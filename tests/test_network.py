@@ -616,6 +616,32 @@ def test_frame_difference_encoder_equals_plain_encoder_on_appended_changes():
     np.testing.assert_allclose(with_changes, appended, atol=1e-5)
 
 
+def test_frame_difference_channel_follows_the_hit_mask_and_is_taken_on_the_raw_frame():
+    """With coord_channels and rescaled depth, the first conv sees [depth rescaled, hit mask, change, column, row]:
+    the folded encoder equals a plain one (same parameters) on those channels built by hand."""
+    from ramavt_jax.network import coordinate_planes, hit_mask, with_depth_rescaled
+
+    cfg = small("ramavt", frame_difference=True, coord_channels=True, depth_centre=0.25, depth_gain=20.0)
+    plain = small("ramavt")
+    obs = jax.random.uniform(jax.random.key(2), (3, 32, 32, 1)) * (jax.random.uniform(jax.random.key(3), (3, 32, 32, 1)) > 0.7)
+    changes = jax.random.normal(jax.random.key(4), obs.shape)
+    params = init_params(cfg, jax.random.key(0), obs.shape[1:])["params"]["encoder"]
+    assert params["conv0"]["kernel"].shape[-2] == 5
+    hit = hit_mask(obs)
+    planes = jnp.broadcast_to(coordinate_planes(32, 32), (3, 32, 32, 2))
+    by_hand = jnp.concatenate([with_depth_rescaled(obs, hit, 0.25, 20.0), hit, changes, planes], axis=-1)
+    folded = jax.jit(Encoder(cfg).apply)({"params": params}, obs, False, changes)
+    np.testing.assert_allclose(folded, jax.jit(Encoder(plain).apply)({"params": params}, by_hand), atol=1e-4)
+
+
+def test_frame_stacking_without_history_still_runs():
+    """'drlavt' with frame_stack 1 keeps an empty [B, 0, H, W, C] history (frame_difference shares the buffer)."""
+    cfg = small("drlavt", frame_stack=1)
+    _, variables, obs = _setup(cfg, b=2, t=3)
+    q, s = _apply(cfg, variables, obs, jnp.zeros((2, 3), bool), initial_state(cfg, 2, obs.shape[2:]))
+    assert q.shape == (2, 3, cfg.num_actions) and s.frames.shape == (2, 0, 32, 32, 1)
+
+
 def test_frame_difference_config_and_state_are_checked():
     with pytest.raises(ValueError, match="frame_difference needs a recurrent variant"):
         small("drlavt", frame_difference=True)

@@ -77,6 +77,8 @@ def test_presets():
         (dict(env=env_lib.EnvConfig(camera=CameraConfig(resolution=16))), "autoreset must be 'next_step'"),
         (dict(network=NetworkConfig(variant="drlavt", channels=(8,), kernels=(3,), strides=(1,), pools=(True,)),
               burn_in=2), "burn_in must be >= frame_stack - 1"),
+        (dict(network=dataclasses.replace(SMOKE.network, frame_difference=True), burn_in=0),
+         "burn_in must be >= 1"),
         (dict(network=NetworkConfig(norm="batch")), "norm='batch'"),
         (dict(env_params=(("warp_speed", 9.0),)), "env_params"),
         (dict(learner=LearnerConfig(learning_starts=0), num_envs=4.0), "ActingConfig: num_envs must be an int"),
