@@ -261,7 +261,8 @@ class QNetwork(nn.Module):
             if cfg.reads_standoff:
                 x = jnp.concatenate([x, standoff_feature(standoff, reset.shape)[..., None].astype(dtype)], axis=-1)
             if cfg.state_input:
-                x = jnp.concatenate([x, true_state_feature(true_state, reset.shape).astype(dtype)], axis=-1)
+                seen = true_state_feature(true_state, reset.shape) * cfg.state_input_gain
+                x = jnp.concatenate([x, seen.astype(dtype)], axis=-1)
             y, (h, c) = LSTMStack(cfg.lstm, cfg.lstm_layers, dtype=dtype, name="lstm")(x, reset, (state.h, state.c))
             if cfg.aux_outputs:  # [B, T, aux_outputs], read by auxiliary losses only
                 self.sow("intermediates", "aux", nn.Dense(cfg.aux_outputs, dtype=dtype, name="aux_head")(y))

@@ -85,6 +85,9 @@ class NetworkConfig:
     # this learner gets with perfect perception at a budget: the part of the gap to the ceiling that is not in the
     # images. Recurrent variants only.
     state_input: bool = False
+    # The true state times this at the LSTM's input (state_input only). In stand-off distances a 0.05 m error reads
+    # 0.01 beside features of order 1: a gain asks whether the diagnostic's shortfall is the learner's or the scale's.
+    state_input_gain: float = 1.0
     # A motion cue: the change of each pixel since the previous frame (0 at an episode's first step) as one more input
     # channel per observation channel, beside the hit mask. Velocity otherwise has to be read by the LSTM from two
     # pooled feature vectors; here the first conv sees the target's edges move and its surface come nearer. The
@@ -160,6 +163,12 @@ class NetworkConfig:
             fail("standoff_input / command_gain_input need a recurrent variant (an LSTM input), not 'drlavt'")
         if self.state_input and not self.recurrent:
             fail("state_input needs a recurrent variant (an LSTM input), not 'drlavt'")
+        g = self.state_input_gain
+        if isinstance(g, bool) or not isinstance(g, (int, float, np.floating, np.integer)) or not (
+                np.isfinite(g) and g > 0):
+            fail(f"state_input_gain must be a finite number > 0, got {g!r}")
+        if g != 1.0 and not self.state_input:
+            fail("state_input_gain scales the true state at the input: it needs state_input=True")
         if self.frame_difference and not self.recurrent:
             fail("frame_difference needs a recurrent variant, not 'drlavt' (which stacks whole frames: frame_stack)")
         if self.use_mha and self.channels[-1] % self.attention_heads != 0:

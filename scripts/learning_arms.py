@@ -394,6 +394,10 @@ ARMS["depth-metres-1536k"] = lambda c: _net(ARMS["avg-1536k"](c), depth_centre=0
 # velocity at the LSTM's input (NetworkConfig.state_input). What the learner reaches at this budget with perfect
 # perception splits the gap to the ceiling into what the images do not give and what the learning does not reach.
 ARMS["state-input"] = lambda c: _net(ARMS["avg-1536k"](c), state_input=True)
+# The same diagnostic with its input 10x (NetworkConfig.state_input_gain), one change to 'state-input': errors of a
+# few centimetres read a few hundredths in stand-off distances; if the agent then holds the target closer, part of
+# the 19 points 'state-input' leaves to the ceiling was the input's scale, not the learner.
+ARMS["state-input-gain10"] = lambda c: _net(ARMS["state-input"](c), state_input_gain=10.0)
 # A longer horizon, one change to the quick preset at 1.54M env steps: discount 0.99 instead of 0.97 (0.9 scored lower
 # at 768k, gamma09). The agents circle the desired point instead of holding still; a 0.1 m better hold is worth more
 # against the noise in the values when it counts over 100 steps instead of 33.

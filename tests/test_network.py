@@ -647,3 +647,20 @@ def test_frame_difference_config_and_state_are_checked():
         small("drlavt", frame_difference=True)
     with pytest.raises(ValueError, match="needs obs_shape"):
         initial_state(small("ramavt", frame_difference=True), 2)
+
+
+def test_state_input_gain_scales_the_true_state_at_the_input():
+    """state_input_gain g: q of the true state s equals q of the plain diagnostic given g * s (same parameters)."""
+    cfg = small("ramavt", state_input=True, state_input_gain=10.0)
+    plain = dataclasses.replace(cfg, state_input_gain=1.0)
+    _, variables, obs = _setup(cfg, b=2, t=3)
+    reset, state = jnp.zeros((2, 3), bool), initial_state(cfg, 2)
+    true_state = 0.01 * jax.random.normal(jax.random.key(5), (2, 3, 6))
+    q = make_network(cfg).apply(variables, obs, reset, state, true_state=true_state)[0]
+    np.testing.assert_allclose(q, make_network(plain).apply(variables, obs, reset, state, true_state=10.0 * true_state)[0],
+                               atol=1e-5)
+    assert not np.allclose(q, make_network(plain).apply(variables, obs, reset, state, true_state=true_state)[0], atol=1e-5)
+    with pytest.raises(ValueError, match="needs state_input=True"):
+        small("ramavt", state_input_gain=10.0)
+    with pytest.raises(ValueError, match="state_input_gain must be a finite number > 0"):
+        small("ramavt", state_input=True, state_input_gain=0.0)
