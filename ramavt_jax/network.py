@@ -54,7 +54,9 @@ from ramavt_jax.layers import (
 )
 from ramavt_jax.network_inputs import (  # noqa: F401 (re-exported: the encoder's input helpers)
     coordinate_planes,
+    frame_changes,
     hit_mask,
+    long_exposure,
     silhouette_stats,
     with_coordinates,
     with_depth_rescaled,
@@ -79,12 +81,15 @@ class RecurrentState:
         frame (frame_difference); [B, 0] otherwise.
     prev_action: [1, B] int32, the action taken after the last consumed obs (NetworkConfig.prev_action; None
         otherwise). Laid out like h and c (B on axis 1) so the replay and the sharding treat all three alike.
+    exposure: [1, B, H, W, C + 1] the long exposure after the last consumed obs (NetworkConfig.exposure_rate; None
+        otherwise), laid out and stored like prev_action.
     """
 
     h: jax.Array
     c: jax.Array
     frames: jax.Array
     prev_action: jax.Array | None = None
+    exposure: jax.Array | None = None
 
 
 def initial_state(config: NetworkConfig, batch: int, obs_shape: tuple | None = None) -> RecurrentState:
@@ -100,7 +105,12 @@ def initial_state(config: NetworkConfig, batch: int, obs_shape: tuple | None = N
                              f"needs obs_shape=(H, W, C) for its frame buffer, got {obs_shape!r}")
         frames = jnp.zeros((batch, _kept_frames(config), *obs_shape), jnp.float32)
     prev_action = jnp.zeros((1, batch), jnp.int32) if config.prev_action else None
-    return RecurrentState(h=h, c=h, frames=frames, prev_action=prev_action)
+    exposure = None
+    if config.exposure_rate:
+        if obs_shape is None or len(obs_shape) != 3:
+            raise ValueError(f"initial_state: exposure_rate needs obs_shape=(H, W, C), got {obs_shape!r}")
+        exposure = jnp.zeros((1, batch, *obs_shape[:2], obs_shape[2] + 1), jnp.float32)
+    return RecurrentState(h=h, c=h, frames=frames, prev_action=prev_action, exposure=exposure)
 
 
 def _kept_frames(config: NetworkConfig) -> int:
@@ -140,15 +150,6 @@ def previous_actions(config: NetworkConfig, reset: jax.Array, state: RecurrentSt
     return jax.nn.one_hot(prev, config.num_actions + 1, dtype=config.jnp_dtype)
 
 
-def frame_changes(obs: jax.Array, reset: jax.Array, previous: jax.Array) -> tuple[jax.Array, jax.Array]:
-    """Per-pixel change since the previous frame. obs [B, T, H, W, C], reset [B, T], previous [B, 1, H, W, C] (the
-    frame before step 0). Returns the changes [B, T, H, W, C] (0 where reset: an episode's first frame has no
-    predecessor) and the new previous frame [B, 1, H, W, C] (step T - 1's)."""
-    obs = obs.astype(jnp.float32)  # an integer frame would wrap around below zero
-    before = jnp.concatenate([previous.astype(jnp.float32), obs[:, :-1]], axis=1)
-    return jnp.where(reset[..., None, None, None], 0.0, obs - before), obs[:, -1:]
-
-
 def stack_frames(obs: jax.Array, reset: jax.Array, frames: jax.Array) -> tuple[jax.Array, jax.Array]:
     """Frame stacking along T. obs [B, T, H, W, C], reset [B, T], frames [B, K-1, H, W, C] (oldest first).
 
@@ -177,9 +178,9 @@ class Encoder(nn.Module):
     config: NetworkConfig
 
     @nn.compact
-    def __call__(self, x: jax.Array, train: bool = False, changes: jax.Array | None = None) -> jax.Array:
-        """x [N, H, W, C] frames; changes [N, H, W, C] their change since the previous frame (frame_difference),
-        appended as input channels after the hit mask."""
+    def __call__(self, x: jax.Array, train: bool = False, extra: jax.Array | None = None) -> jax.Array:
+        """x [N, H, W, C] frames; extra [N, H, W, E] channels computed over time (frame_difference's changes,
+        then the long exposure), appended as input channels after the hit mask."""
         cfg = self.config
         dtype = cfg.jnp_dtype
         stats = silhouette_stats(x).astype(dtype) if cfg.silhouette_stats else None
@@ -190,8 +191,8 @@ class Encoder(nn.Module):
             if cfg.rescales_depth:
                 x = with_depth_rescaled(x, hit, cfg.depth_centre, cfg.depth_gain)
             x, planes = jnp.concatenate([x, hit], axis=-1), coordinate_planes(*x.shape[1:3], dtype)
-        if changes is not None:
-            x = jnp.concatenate([x, changes.astype(dtype)], axis=-1)
+        if extra is not None:
+            x = jnp.concatenate([x, extra.astype(dtype)], axis=-1)
         n_blocks = len(cfg.channels)
         skip = None
         for i, (ch, k, s, p) in enumerate(zip(cfg.channels, cfg.kernels, cfg.strides, cfg.pools)):
@@ -241,15 +242,17 @@ class QNetwork(nn.Module):
         b, t = obs.shape[:2]
         dtype = cfg.jnp_dtype
         reset = reset.astype(bool)
-        changes = None
+        extra, frames, exposure = [], state.frames, state.exposure
         if not cfg.recurrent:
             obs, frames = stack_frames(obs, reset, state.frames)
-        elif cfg.frame_difference:
+        if cfg.frame_difference:
             changes, frames = frame_changes(obs, reset, state.frames)
-            changes = changes.reshape(b * t, *obs.shape[2:])
-        else:
-            frames = state.frames
-        x = Encoder(cfg, name="encoder")(obs.reshape(b * t, *obs.shape[2:]), train, changes)  # [B*T, F]
+            extra.append(changes)
+        if cfg.exposure_rate:
+            exposures = long_exposure(obs, reset, state.exposure[0], cfg.exposure_rate)  # [B, T, H, W, C + 1]
+            extra, exposure = extra + [exposures], exposures[:, -1][None]
+        extra = jnp.concatenate(extra, axis=-1).reshape(b * t, *obs.shape[2:4], -1) if extra else None
+        x = Encoder(cfg, name="encoder")(obs.reshape(b * t, *obs.shape[2:]), train, extra)  # [B*T, F]
         if cfg.recurrent:
             x = nn.Dense(cfg.dense, dtype=dtype, kernel_init=he_init, name="dense")(x)
             x = nn.relu(_maybe_norm(cfg, "dense_norm", x)).reshape(b, t, -1)
@@ -269,7 +272,8 @@ class QNetwork(nn.Module):
             y = nn.Dense(cfg.head, dtype=dtype, kernel_init=he_init, name="head")(y)
             y = nn.relu(_maybe_norm(cfg, "head_norm", y))
             q = q_outputs(cfg, y)
-            new_state = RecurrentState(h=h, c=c, frames=frames.astype(state.frames.dtype), prev_action=prev_action)
+            new_state = RecurrentState(h=h, c=c, frames=frames.astype(state.frames.dtype), prev_action=prev_action,
+                                       exposure=exposure)
         else:
             for j, width in enumerate(cfg.drlavt_dense):
                 x = nn.relu(nn.Dense(width, dtype=dtype, kernel_init=he_init, name=f"dense{j}")(x))
@@ -390,8 +394,5 @@ def attention_maps(params, config: NetworkConfig, obs: jax.Array, variables: dic
     return maps
 
 
-__all__ = [
-    "NetworkConfig", "RecurrentState", "QNetwork", "initial_state", "make_network", "init_params",
-    "count_params", "flops_per_frame", "attention_maps", "stack_frames", "with_coordinates",
-    "window_start_frames", "frame_changes",
-]
+__all__ = ["NetworkConfig", "RecurrentState", "QNetwork", "initial_state", "make_network", "init_params", "count_params",
+           "flops_per_frame", "attention_maps", "stack_frames", "with_coordinates", "window_start_frames"]

@@ -94,6 +94,12 @@ class NetworkConfig:
     # previous frame rides in RecurrentState.frames (not stored in the replay: a stored window starts with no
     # change, inside the burn-in). Recurrent variants only ('drlavt' stacks whole frames).
     frame_difference: bool = False
+    # A long exposure: the frame and its hit mask averaged exponentially over the episode, 1 / exposure_rate steps
+    # long (network_inputs.long_exposure), as more input channels. The reward measures the centre of mass, about
+    # which a tumbling target turns; one silhouette does not show it, a region swept over seconds comes nearer. The
+    # average rides in RecurrentState.exposure and is stored in the replay with the LSTM state. 0: off. Recurrent
+    # variants only.
+    exposure_rate: float = 0.0
 
     def __post_init__(self):
         def fail(msg):
@@ -169,6 +175,11 @@ class NetworkConfig:
             fail(f"state_input_gain must be a finite number > 0, got {g!r}")
         if g != 1.0 and not self.state_input:
             fail("state_input_gain scales the true state at the input: it needs state_input=True")
+        r = self.exposure_rate
+        if isinstance(r, bool) or not isinstance(r, (int, float, np.floating, np.integer)) or not 0 <= r <= 1:
+            fail(f"exposure_rate must be a number in [0, 1] (0: off), got {r!r}")
+        if r and not self.recurrent:
+            fail("exposure_rate needs a recurrent variant (its average rides in the recurrent state), not 'drlavt'")
         if self.frame_difference and not self.recurrent:
             fail("frame_difference needs a recurrent variant, not 'drlavt' (which stacks whole frames: frame_stack)")
         if self.use_mha and self.channels[-1] % self.attention_heads != 0:

@@ -1,7 +1,7 @@
 """What the encoder's first layer sees besides the raw frame, and per-frame statistics read beside its features:
-the hit mask, CoordConv planes, the depth rescaled to metres from the stand-off, and the silhouette's statistics.
-Pure array functions on single frames [N, H, W, C] (no parameters); network.Encoder applies them as its
-NetworkConfig asks."""
+the hit mask, CoordConv planes, the depth rescaled to metres from the stand-off, the silhouette's statistics, and
+two inputs over time (each frame's change, a long exposure). Pure array functions without parameters, on single
+frames [N, H, W, C] or sequences [B, T, H, W, C]; network.Encoder and QNetwork apply them as NetworkConfig asks."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ import jax
 import jax.numpy as jnp
 
 __all__ = ["hit_mask", "with_hit_mask", "with_depth_rescaled", "coordinate_planes", "with_coordinates",
-           "silhouette_stats", "STATS_DEPTH_CENTRE", "STATS_DEPTH_GAIN"]
+           "silhouette_stats", "STATS_DEPTH_CENTRE", "STATS_DEPTH_GAIN", "frame_changes", "long_exposure"]
 
 
 def hit_mask(x: jax.Array) -> jax.Array:
@@ -83,3 +83,27 @@ def silhouette_stats(x: jax.Array) -> jax.Array:
     nearest = jnp.min(jnp.where(hit > 0, metres, jnp.inf), axis=(1, 2))
     stats = jnp.stack([jnp.sqrt(count), col, row, col_std, row_std, depth_mean, nearest, depth_std], axis=-1)
     return jnp.where(seen[:, None], stats, 0.0)
+def frame_changes(obs: jax.Array, reset: jax.Array, previous: jax.Array) -> tuple[jax.Array, jax.Array]:
+    """Per-pixel change since the previous frame. obs [B, T, H, W, C], reset [B, T], previous [B, 1, H, W, C] (the
+    frame before step 0). Returns the changes [B, T, H, W, C] (0 where reset: an episode's first frame has no
+    predecessor) and the new previous frame [B, 1, H, W, C] (step T - 1's)."""
+    obs = obs.astype(jnp.float32)  # an integer frame would wrap around below zero
+    before = jnp.concatenate([previous.astype(jnp.float32), obs[:, :-1]], axis=1)
+    return jnp.where(reset[..., None, None, None], 0.0, obs - before), obs[:, -1:]
+
+
+def long_exposure(obs: jax.Array, reset: jax.Array, exposure: jax.Array, rate: float) -> jax.Array:
+    """An exponential average over an episode of each frame with its hit mask. obs [B, T, H, W, C], reset [B, T],
+    exposure [B, H, W, C + 1] (the average after the step before step 0). Returns the averages after each step
+    [B, T, H, W, C + 1]: e_t = e_(t-1) + rate * (x_t - e_(t-1)), with e_t = x_t where reset (the episode's first
+    frame). Over about 1 / rate steps a tumbling target sweeps a region centred nearer its centre of mass than any
+    one silhouette is."""
+    frames = with_hit_mask(obs.astype(jnp.float32))
+
+    def step(e, inp):
+        x, r = inp  # [B, H, W, C + 1], [B]
+        e = jnp.where(r[:, None, None, None], x, e + rate * (x - e))
+        return e, e
+
+    _, seen = jax.lax.scan(step, exposure.astype(jnp.float32), (jnp.swapaxes(frames, 0, 1), reset.T))
+    return jnp.swapaxes(seen, 0, 1)

@@ -417,6 +417,11 @@ ARMS["gamma-05"] = lambda c: ARMS["avg-1536k"](c).override(gamma=0.5)
 # to the quick preset at 1.54M env steps: with the true relative velocity beside the images ('state-input') the
 # spread along the boresight fell from 0.20-0.38 m to 0.05 m; here the first conv sees the motion itself.
 ARMS["frame-difference"] = lambda c: _net(ARMS["avg-1536k"](c), frame_difference=True)
+# A long exposure (NetworkConfig.exposure_rate 0.02: the frame and its hit mask averaged over about 50 steps, 5 s)
+# as more input channels, one change to the quick preset at 1.54M env steps: probes fitted per target read the
+# boresight error from the memory, one probe for all targets does not, so what the agent lacks is where each shape's
+# centre of mass lies behind its visible surface; the region a tumbling target sweeps is centred nearer it.
+ARMS["exposure-002"] = lambda c: _net(ARMS["avg-1536k"](c), exposure_rate=0.02)
 # The same 48 models added to the sizes preset's training targets at 1.54M env steps (one change to 'size-1536k'):
 # the user models are shapes the catalogue does not have, flown at sizes it does not have, so more shapes in training
 # may carry further there than on the catalogue's validation sizes.

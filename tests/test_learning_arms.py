@@ -102,6 +102,7 @@ def _changes(arm: str, reference: str) -> dict:
         ("gamma-08", "avg-1536k", {"learner.gamma": 0.8}),
         ("gamma-05", "avg-1536k", {"learner.gamma": 0.5}),
         ("frame-difference", "avg-1536k", {"network.frame_difference": True}),
+        ("exposure-002", "avg-1536k", {"network.exposure_rate": 0.02}),
         ("size-1536k", "size-res64", {"run.total_env_steps": 1_536_000, "run.policy_average_from": 36}),
         ("avg-1536k", "avg-12", {"run.total_env_steps": 1_536_000, "run.policy_average_from": 36}),
         ("size-quick", "avg-12", {"env_params": (("size_scale_max", 1.0), ("size_scale_min", 0.15))}),

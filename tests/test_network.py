@@ -664,3 +664,41 @@ def test_state_input_gain_scales_the_true_state_at_the_input():
         small("ramavt", state_input_gain=10.0)
     with pytest.raises(ValueError, match="state_input_gain must be a finite number > 0"):
         small("ramavt", state_input=True, state_input_gain=0.0)
+
+
+def test_long_exposure_acting_equals_unroll_and_restarts_with_each_episode():
+    """exposure_rate r: the encoder also sees e_t = e_(t-1) + r (x_t - e_(t-1)) of the frame with its hit mask
+    (e_t = x_t where an episode starts), carried in the state; step by step equals the unrolled window."""
+    from ramavt_jax.network import long_exposure, with_hit_mask
+
+    cfg = small("ramavt", exposure_rate=0.25, frame_difference=True)
+    b, t = 3, 5
+    _, variables, obs = _setup(cfg, b=b, t=t)
+    obs = obs * (obs > 0.5)  # a background of zeros, so the hit mask varies
+    reset = jnp.zeros((b, t), bool).at[0, 0].set(True).at[1, 2].set(True)
+    state0 = _random_state(cfg, b, obs.shape[2:])
+    assert state0.exposure.shape == (1, b, 32, 32, 2)
+    seen = long_exposure(obs, reset, state0.exposure[0], 0.25)
+    e, x = np.array(state0.exposure[0]), np.array(with_hit_mask(obs.reshape(b * t, 32, 32, 1))).reshape(b, t, 32, 32, 2)
+    for i in range(t):
+        e = np.where(np.asarray(reset[:, i])[:, None, None, None], x[:, i], e + 0.25 * (x[:, i] - e))
+        np.testing.assert_allclose(seen[:, i], e, atol=1e-6)
+    q_seq, s_seq = _apply(cfg, variables, obs, reset, state0)
+    np.testing.assert_allclose(s_seq.exposure[0], seen[:, -1], atol=1e-6)
+    s, qs = state0, []
+    for i in range(t):
+        q, s = _apply(cfg, variables, obs[:, i : i + 1], reset[:, i : i + 1], s)
+        qs.append(q)
+    np.testing.assert_allclose(jnp.concatenate(qs, 1), q_seq, atol=1e-5)
+    np.testing.assert_allclose(s.exposure, s_seq.exposure, atol=1e-6)
+    q_other, _ = _apply(cfg, variables, obs, reset, state0.replace(exposure=state0.exposure * 0.0))
+    np.testing.assert_allclose(q_other[0], q_seq[0], atol=1e-5)  # row 0 starts an episode: the state is forgotten
+    assert not np.allclose(q_other[2, 0], q_seq[2, 0], atol=1e-4)  # mid-episode it is read
+    params = variables["params"]["encoder"]["conv0"]["kernel"]
+    assert params.shape[-2] == 4  # depth, its change, the exposure of depth and of the hit mask
+    with pytest.raises(ValueError, match="exposure_rate must be a number in"):
+        small("ramavt", exposure_rate=1.5)
+    with pytest.raises(ValueError, match="exposure_rate needs a recurrent variant"):
+        small("drlavt", exposure_rate=0.1)
+    with pytest.raises(ValueError, match="exposure_rate needs obs_shape"):
+        initial_state(small("ramavt", exposure_rate=0.1), 2)

@@ -216,28 +216,31 @@ def test_drlavt_with_enough_burn_in_is_accepted():
 
 
 @pytest.mark.parametrize(
-    "variant, obs_mode, augment, prev_action, aux, frame_difference",
-    [("ramavt", "depth", False, False, 0, False), ("drlavt", "depth", False, False, 0, False),
-     ("se", "rgbd", False, False, 0, False), ("mha", "color", True, False, 0, False),
-     ("origin", "depth", True, False, 0, False), ("ramavt", "depth", False, True, 3, False),
-     ("ramavt", "rgbd", True, True, 3, True)],
+    "variant, obs_mode, augment, prev_action, aux, inputs",
+    [("ramavt", "depth", False, False, 0, {}), ("drlavt", "depth", False, False, 0, {}),
+     ("se", "rgbd", False, False, 0, {}), ("mha", "color", True, False, 0, {}), ("origin", "depth", True, False, 0, {}),
+     ("ramavt", "depth", False, True, 3, {}), ("ramavt", "rgbd", True, True, 3, dict(frame_difference=True)),
+     ("ramavt", "depth", False, True, 3, dict(exposure_rate=0.1))],
 )
-def test_every_variant_observation_and_augmentation_traces(variant, obs_mode, augment, prev_action, aux,
-                                                           frame_difference):
+def test_every_variant_observation_and_augmentation_traces(variant, obs_mode, augment, prev_action, aux, inputs):
     """The whole chunk (acting, replay, burn-in learner) traces for each option (abstractly: nothing compiles)."""
     net = NetworkConfig(variant=variant, channels=(8, 8), kernels=(3, 3), strides=(1, 1), pools=(True, True),
                         dense=16, lstm=16, lstm_layers=2, head=16, attention_heads=2, drlavt_dense=(16,),
-                        prev_action=prev_action, aux_outputs=aux, frame_difference=frame_difference)
+                        prev_action=prev_action, aux_outputs=aux, **inputs)
     env_cfg = env_lib.EnvConfig(camera=CameraConfig(resolution=16), obs_mode=obs_mode, autoreset="next_step")
     cfg = SMOKE.override(network=net, env=env_cfg, augment=augment, aux_weight=float(aux > 0))
     tr = T.Trainer(cfg)
     state = jax.eval_shape(tr.init, jax.ShapeDtypeStruct((2,), jnp.uint32))
     out, metrics = jax.eval_shape(tr.chunk, state)
-    assert out.actor.obs.shape == (cfg.acting.num_envs, 16, 16, env_lib.OBS_CHANNELS[obs_mode])
+    channels = env_lib.OBS_CHANNELS[obs_mode]
+    assert out.actor.obs.shape == (cfg.acting.num_envs, 16, 16, channels)
     assert metrics.loss_sum.shape == metrics.aux_loss_sum.shape == (cfg.run.iterations_per_chunk,)
     assert jax.tree.structure(out) == jax.tree.structure(state)
-    if frame_difference:  # the actors carry each env's previous frame
-        assert out.actor.net_state.frames.shape == (cfg.acting.num_envs, 1, 16, 16, env_lib.OBS_CHANNELS[obs_mode])
+    if net.frame_difference:  # the actors carry each env's previous frame
+        assert out.actor.net_state.frames.shape == (cfg.acting.num_envs, 1, 16, 16, channels)
+    if net.exposure_rate:  # the long exposure is kept per env and stored with the LSTM state
+        assert out.actor.net_state.exposure.shape == (1, cfg.acting.num_envs, 16, 16, channels + 1)
+        assert out.replay.experience.recurrent_state.exposure.shape[2:] == (1, 16, 16, channels + 1)
 
 
 # ------------------------------------------------------------------------------------------ learner plumbing
