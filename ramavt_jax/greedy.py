@@ -38,8 +38,8 @@ def true_tracking_state(env_state: env_lib.EnvState, env_params: env_lib.EnvPara
 
 
 def unbatch_state(s: RecurrentState) -> RecurrentState:
-    """A batch-of-one state without its batch axis: h, c, prev_action [layers, 1, ...] -> [layers, ...],
-    frames [1, ...] -> [...]."""
+    """A batch-of-one state without its batch axis: h, c, prev_action, exposure [layers, 1, ...] ->
+    [layers, ...], frames [1, ...] -> [...]."""
     return jax.tree.map(lambda x: x[:, 0], s.replace(frames=None)).replace(frames=s.frames[0])
 
 

@@ -4,7 +4,7 @@ Public API::
 
     cfg = NetworkConfig(variant="ramavt")           # frozen, validated
     net = make_network(cfg)                          # QNetwork
-    state = initial_state(cfg, batch, obs_shape)     # RecurrentState (obs_shape only needed for 'drlavt')
+    state = initial_state(cfg, batch, obs_shape)     # RecurrentState (obs_shape: drlavt, frame/exposure inputs)
     params = net.init(key, obs, reset, state)["params"]
     q, state = net.apply({"params": params}, obs, reset, state)   # obs [B, T, H, W, C], reset [B, T] bool
 
@@ -93,8 +93,8 @@ class RecurrentState:
 
 
 def initial_state(config: NetworkConfig, batch: int, obs_shape: tuple | None = None) -> RecurrentState:
-    """Zero state for ``batch`` sequences. ``obs_shape`` = (H, W, C) of one frame, required for 'drlavt' and
-    frame_difference (their frame buffers)."""
+    """Zero state for ``batch`` sequences. ``obs_shape`` = (H, W, C) of one frame, required for 'drlavt',
+    frame_difference (their frame buffers) and exposure_rate (its average)."""
     layers = config.lstm_layers if config.recurrent else 0
     h = jnp.zeros((layers, batch, config.lstm), jnp.float32)
     if config.recurrent and not config.frame_difference:
@@ -394,5 +394,5 @@ def attention_maps(params, config: NetworkConfig, obs: jax.Array, variables: dic
     return maps
 
 
-__all__ = ["NetworkConfig", "RecurrentState", "QNetwork", "initial_state", "make_network", "init_params", "count_params",
-           "flops_per_frame", "attention_maps", "stack_frames", "with_coordinates", "window_start_frames"]
+__all__ = ["NetworkConfig", "RecurrentState", "QNetwork", "initial_state", "make_network", "init_params",
+           "count_params", "flops_per_frame", "attention_maps", "stack_frames", "with_coordinates", "window_start_frames"]

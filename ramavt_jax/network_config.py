@@ -97,8 +97,9 @@ class NetworkConfig:
     # A long exposure: the frame and its hit mask averaged exponentially over the episode, 1 / exposure_rate steps
     # long (network_inputs.long_exposure), as more input channels. The reward measures the centre of mass, about
     # which a tumbling target turns; one silhouette does not show it, a region swept over seconds comes nearer. The
-    # average rides in RecurrentState.exposure and is stored in the replay with the LSTM state. 0: off. Recurrent
-    # variants only.
+    # average rides in RecurrentState.exposure and is stored in the replay with the LSTM state, in float32: (C + 1)
+    # * 4 bytes per pixel and step beside the uint8 frame's C (8x its memory for depth). 0: off. Recurrent variants
+    # only; not with augmentation (the stored average is of the frames as flown).
     exposure_rate: float = 0.0
 
     def __post_init__(self):

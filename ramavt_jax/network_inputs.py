@@ -83,6 +83,8 @@ def silhouette_stats(x: jax.Array) -> jax.Array:
     nearest = jnp.min(jnp.where(hit > 0, metres, jnp.inf), axis=(1, 2))
     stats = jnp.stack([jnp.sqrt(count), col, row, col_std, row_std, depth_mean, nearest, depth_std], axis=-1)
     return jnp.where(seen[:, None], stats, 0.0)
+
+
 def frame_changes(obs: jax.Array, reset: jax.Array, previous: jax.Array) -> tuple[jax.Array, jax.Array]:
     """Per-pixel change since the previous frame. obs [B, T, H, W, C], reset [B, T], previous [B, 1, H, W, C] (the
     frame before step 0). Returns the changes [B, T, H, W, C] (0 where reset: an episode's first frame has no

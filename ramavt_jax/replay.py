@@ -18,9 +18,10 @@ of moving it, so every episode's final observation is a real, stored observation
 * ``is_first``: obs t is the first observation of an episode.  The network resets its carry there, and the
   transition t-1 -> t (final obs of the previous episode -> reset) is not a real transition and must be masked
   (:func:`loss_mask` does this);
-* ``recurrent_state``: the actor's recurrent state *before* consuming obs t (leaves ``[layers, units]`` per
-  env).  At an ``is_first`` step this may be the previous episode's carry; it does not matter because the
-  network resets the carry where ``reset`` (= ``is_first``) is set.
+* ``recurrent_state``: the actor's recurrent state *before* consuming obs t (leaves ``[layers, units]``
+  per env: the LSTM's h and c, and where the network has them the previous action and the long exposure).  At an
+  ``is_first`` step this may be the previous episode's carry; it does not matter because the network resets the
+  carry where ``reset`` (= ``is_first``) is set.
 
 So for an episode obs_0 .. obs_K: transitions 0..K-1 are real, transition K-1 has ``terminated`` or
 ``truncated`` set, step K stores the final obs_K (its action/reward describe the reset and are masked), and the
@@ -83,7 +84,8 @@ class Transition:
       truncated: ``[]`` bool, the time limit ended the episode at obs t+1 (bootstrap from it).
       is_first: ``[]`` bool, obs t is an episode's first observation (carry reset; transition t-1 masked).
       recurrent_state: the actor's state *before* consuming obs t, any pytree with leaves ``[layers, units]``; the
-        trainer stores the network's own ``RecurrentState`` (LSTM ``h``, ``c``; no frame history).
+        trainer stores the network's own ``RecurrentState`` (LSTM ``h``, ``c``, and prev_action and exposure where the
+        network has them; no frame history).
       privileged: ``[K]`` float32 simulator state at obs t (greedy.true_tracking_state's first K entries): the
         auxiliary loss's label, and all six the input of a diagnostic state_input network; ``None`` = not stored.
       standoff: ``[]`` float32 stand-off scale k of obs t's episode, for networks that read it

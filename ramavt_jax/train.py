@@ -200,7 +200,7 @@ class Trainer:
         obs, env_state, reward, terminated, truncated, info = self._per_device(
             jax.vmap(lambda k, s, a: self.env.step(k, s, a, self.env_params)))(
             jax.random.split(k_env, c.num_envs), actor.env_state, action)
-        # the replay keeps the LSTM part of the state; frame histories (drlavt, frame_difference) are rebuilt in burn-in
+        # the replay keeps the state but its frame histories (drlavt, frame_difference), which burn-in rebuilds
         transition = replay_lib.Transition(
             obs=actor.obs, action=action, reward=reward, terminated=terminated, truncated=truncated,
             is_first=actor.is_first, recurrent_state=actor.net_state.replace(frames=None),

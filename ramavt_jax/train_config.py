@@ -295,6 +295,9 @@ class TrainConfig:
         if not self.network.recurrent and r.burn_in < self.network.frame_stack - 1:
             _fail(f"variant 'drlavt' rebuilds its {self.network.frame_stack}-frame stack from the window's own obs "
                   f"during burn-in: replay.burn_in must be >= frame_stack - 1 = {self.network.frame_stack - 1}")
+        if self.network.exposure_rate and lr.augment:
+            _fail("network.exposure_rate with learner.augment: the stored long exposure is of the frames as flown, "
+                  "an augmented window's frames are not; turn one off")
         if self.network.frame_difference and r.burn_in < 1:
             _fail("network.frame_difference starts each stored window with no change (the frame before it is not "
                   "stored): replay.burn_in must be >= 1 so that no trained step sees it")

@@ -41,7 +41,8 @@ class LearnerState:
 
 @struct.dataclass
 class ActorState:
-    """The acting envs ([N] leading axis everywhere except ``net_state``'s LSTM leaves, [layers, N, units])."""
+    """The acting envs ([N] leading axis everywhere, except in ``net_state``'s leaves other than frames:
+    [layers, N, ...])."""
 
     env_state: env_lib.EnvState
     obs: jax.Array  # [N, H, W, C] current observation (not yet consumed by the network)

@@ -79,6 +79,7 @@ def test_presets():
               burn_in=2), "burn_in must be >= frame_stack - 1"),
         (dict(network=dataclasses.replace(SMOKE.network, frame_difference=True), burn_in=0),
          "burn_in must be >= 1"),
+        (dict(network=dataclasses.replace(SMOKE.network, exposure_rate=0.1), augment=True), "turn one off"),
         (dict(network=NetworkConfig(norm="batch")), "norm='batch'"),
         (dict(env_params=(("warp_speed", 9.0),)), "env_params"),
         (dict(learner=LearnerConfig(learning_starts=0), num_envs=4.0), "ActingConfig: num_envs must be an int"),
@@ -378,6 +379,24 @@ def test_stored_recurrent_state_is_the_actors_state():
         assert float(chunk2.reward[n, t + 1]) == 0.0 and not done[n, t + 1]
     # the stored obs is quantised only when it enters the buffer, not here
     assert chunk2.obs.dtype == jnp.float32
+
+
+def test_stored_long_exposure_is_the_actors_before_each_obs():
+    """exposure_rate: the replay's state at step t holds the long exposure before obs t, so stepping it with obs t
+    (and the episode starts) gives the one stored at t + 1, across episode ends inside the rollout."""
+    from ramavt_jax.network_inputs import long_exposure
+
+    net = dataclasses.replace(SMOKE.network, exposure_rate=0.1)
+    tr = T.Trainer(SMOKE.override(network=net, env_params=(("max_steps", 6),)))
+    state = jax.jit(tr.init)(jax.random.PRNGKey(4))
+    rollout = jax.jit(tr.rollout)
+    actor, _, _, _ = rollout(state.learner.params, state.actor, jnp.int32(0), jax.random.PRNGKey(5))
+    _, chunk, stats, _ = rollout(state.learner.params, actor, jnp.int32(80), jax.random.PRNGKey(6))
+    stored = np.asarray(chunk.recurrent_state.exposure[:, :, 0])  # [N, T, H, W, C + 1]
+    assert int(stats.episodes) > 0 and chunk.is_first[:, 1:].any() and np.abs(stored).sum() > 0
+    for t in range(tr.config.acting.rollout_steps - 1):
+        after = long_exposure(chunk.obs[:, t:t + 1], chunk.is_first[:, t:t + 1], stored[:, t], 0.1)[:, 0]
+        np.testing.assert_allclose(stored[:, t + 1], after, atol=1e-6)
 
 
 def test_auxiliary_loss_labels_are_the_true_tracking_error_and_train_the_aux_head():
