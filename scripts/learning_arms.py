@@ -394,8 +394,8 @@ ARMS["depth-metres-1536k"] = lambda c: _net(ARMS["avg-1536k"](c), depth_centre=0
 # velocity at the LSTM's input (NetworkConfig.state_input). What the learner reaches at this budget with perfect
 # perception splits the gap to the ceiling into what the images do not give and what the learning does not reach.
 ARMS["state-input"] = lambda c: _net(ARMS["avg-1536k"](c), state_input=True)
-# The same diagnostic with its input 10x (NetworkConfig.state_input_gain), one change to 'state-input': errors of a
-# few centimetres read a few hundredths in stand-off distances; if the agent then holds the target closer, part of
+# The same diagnostic with its input 10x (NetworkConfig.state_input_gain), one change to 'state-input': an error of
+# 5 cm reads 0.01 in stand-off distances; if the agent then holds the target closer, part of
 # the 19 points 'state-input' leaves to the ceiling was the input's scale, not the learner.
 ARMS["state-input-gain10"] = lambda c: _net(ARMS["state-input"](c), state_input_gain=10.0)
 # A longer horizon, one change to the quick preset at 1.54M env steps: discount 0.99 instead of 0.97 (0.9 scored lower
@@ -409,7 +409,7 @@ ARMS["gamma-099"] = lambda c: ARMS["avg-1536k"](c).override(gamma=0.99)
 ARMS["command-cost-005"] = lambda c: ARMS["avg-1536k"](c).override(command_cost=0.05)
 # Lower discounts, one change each to the quick preset at 1.54M env steps: the ceiling's one-step look-ahead is
 # within 4 of its 12-step search, so the task rewards little foresight, and with rewards scaled by 0.1 the value of
-# one better step (about 0.005) is a thousandth of Q at gamma 0.97 (about 2.8). A shorter horizon makes the gaps
+# one better step (about 0.005) is about two thousandths of Q at gamma 0.97 (about 2.8). A shorter horizon makes the gaps
 # between actions a larger share of the values the network has to fit.
 ARMS["gamma-08"] = lambda c: ARMS["avg-1536k"](c).override(gamma=0.8)
 ARMS["gamma-05"] = lambda c: ARMS["avg-1536k"](c).override(gamma=0.5)
