@@ -398,6 +398,8 @@ ARMS["state-input"] = lambda c: _net(ARMS["avg-1536k"](c), state_input=True)
 # 5 cm reads 0.01 in stand-off distances; if the agent then holds the target closer, part of
 # the 19 points 'state-input' leaves to the ceiling was the input's scale, not the learner.
 ARMS["state-input-gain10"] = lambda c: _net(ARMS["state-input"](c), state_input_gain=10.0)
+# And 30x, one change to 'state-input-gain10': 10x gained 4 points of the ceiling; does more keep gaining?
+ARMS["state-input-gain30"] = lambda c: _net(ARMS["state-input-gain10"](c), state_input_gain=30.0)
 # A longer horizon, one change to the quick preset at 1.54M env steps: discount 0.99 instead of 0.97 (0.9 scored lower
 # at 768k, gamma09). The agents circle the desired point instead of holding still; a 0.1 m better hold is worth more
 # against the noise in the values when it counts over 100 steps instead of 33.

@@ -99,6 +99,7 @@ def _changes(arm: str, reference: str) -> dict:
         ("command-cost-005", "avg-1536k", {"learner.command_cost": 0.05}),
         ("lr-double", "avg-1536k", {"learner.lr": 2e-3}),
         ("state-input-gain10", "state-input", {"network.state_input_gain": 10.0}),
+        ("state-input-gain30", "state-input-gain10", {"network.state_input_gain": 30.0}),
         ("gamma-08", "avg-1536k", {"learner.gamma": 0.8}),
         ("gamma-05", "avg-1536k", {"learner.gamma": 0.5}),
         ("frame-difference", "avg-1536k", {"network.frame_difference": True}),
