@@ -74,8 +74,10 @@ def profile(preset: str, repeats: int, batch_size: int | None = None, trace: boo
     frames = prepared.obs.reshape(-1, *prepared.obs.shape[2:])
     encoder = Encoder(cfg.network)
     enc_params = params["encoder"]
-    changes = jnp.zeros_like(frames) if cfg.network.frame_difference else None  # the encoder's extra channel
-    encoder_grad = jax.jit(jax.grad(lambda p: jnp.sum(encoder.apply({"params": p}, frames, False, changes) ** 2)))
+    c = frames.shape[-1]  # the encoder's channels over time: frame_difference's C, the exposure's C + 1
+    e = c * cfg.network.frame_difference + (c + 1) * bool(cfg.network.exposure_rate)
+    extra = jnp.zeros((*frames.shape[:-1], e)) if e else None
+    encoder_grad = jax.jit(jax.grad(lambda p: jnp.sum(encoder.apply({"params": p}, frames, False, extra) ** 2)))
     grads = loss_grad(params, prepared)[1]
 
     def opt_step(lrn, g):

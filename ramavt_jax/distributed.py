@@ -137,7 +137,7 @@ def _env_axis_spec(path: tuple, ndim: int) -> P:
     """Partition spec of one RunnerState leaf: env-axis leaves split over 'data', everything else replicated."""
     names = [getattr(p, "name", getattr(p, "key", None)) for p in path]
     if names and names[0] == "actor":
-        env_axis = 1 if ("net_state" in names and names[-1] in ("h", "c", "prev_action", "exposure")) else 0  # [layers, N, ...]
+        env_axis = 1 if ("net_state" in names and names[-1] != "frames") else 0  # net_state: [layers, N, ...]
     elif names[:2] == ["replay", "experience"]:
         env_axis = 0  # flashbax rows: [num_envs, time, ...]
     else:

@@ -97,18 +97,15 @@ def initial_state(config: NetworkConfig, batch: int, obs_shape: tuple | None = N
     frame_difference (their frame buffers) and exposure_rate (its average)."""
     layers = config.lstm_layers if config.recurrent else 0
     h = jnp.zeros((layers, batch, config.lstm), jnp.float32)
-    if config.recurrent and not config.frame_difference:
-        frames = jnp.zeros((batch, 0), jnp.float32)
-    else:  # 'drlavt' with frame_stack 1 keeps [B, 0, H, W, C], which stack_frames concatenates along axis 1
-        if obs_shape is None or len(obs_shape) != 3:
-            raise ValueError(f"initial_state: {config.variant!r} with frame_difference={config.frame_difference} "
-                             f"needs obs_shape=(H, W, C) for its frame buffer, got {obs_shape!r}")
-        frames = jnp.zeros((batch, _kept_frames(config), *obs_shape), jnp.float32)
+    no_buffer = config.recurrent and not config.frame_difference
+    if (not no_buffer or config.exposure_rate) and (obs_shape is None or len(obs_shape) != 3):
+        raise ValueError(f"initial_state: {config.variant!r} with frame_difference={config.frame_difference}, "
+                         f"exposure_rate={config.exposure_rate} needs obs_shape=(H, W, C), got {obs_shape!r}")
+    # 'drlavt' with frame_stack 1 keeps [B, 0, H, W, C], which stack_frames concatenates along axis 1
+    frames = jnp.zeros((batch, 0) if no_buffer else (batch, _kept_frames(config), *obs_shape), jnp.float32)
     prev_action = jnp.zeros((1, batch), jnp.int32) if config.prev_action else None
     exposure = None
     if config.exposure_rate:
-        if obs_shape is None or len(obs_shape) != 3:
-            raise ValueError(f"initial_state: exposure_rate needs obs_shape=(H, W, C), got {obs_shape!r}")
         exposure = jnp.zeros((1, batch, *obs_shape[:2], obs_shape[2] + 1), jnp.float32)
     return RecurrentState(h=h, c=h, frames=frames, prev_action=prev_action, exposure=exposure)
 
@@ -395,4 +392,5 @@ def attention_maps(params, config: NetworkConfig, obs: jax.Array, variables: dic
 
 
 __all__ = ["NetworkConfig", "RecurrentState", "QNetwork", "initial_state", "make_network", "init_params",
-           "count_params", "flops_per_frame", "attention_maps", "stack_frames", "with_coordinates", "window_start_frames"]
+           "count_params", "flops_per_frame", "attention_maps", "stack_frames", "with_coordinates",
+           "window_start_frames"]

@@ -409,12 +409,11 @@ ARMS["gamma-099"] = lambda c: ARMS["avg-1536k"](c).override(gamma=0.99)
 # still on 17 % of the steps, the 1.15M preset on 1-6 % and the 1.54M one on none, circling the desired point; a
 # move that only chases noise in the agent's estimate then costs more than it buys.
 ARMS["command-cost-005"] = lambda c: ARMS["avg-1536k"](c).override(command_cost=0.05)
-# Lower discounts, one change each to the quick preset at 1.54M env steps: the ceiling's one-step look-ahead is
+# A lower discount, one change to the quick preset at 1.54M env steps: the ceiling's one-step look-ahead is
 # within 4 of its 12-step search, so the task rewards little foresight, and with rewards scaled by 0.1 the value of
-# one better step (about 0.005) is about two thousandths of Q at gamma 0.97 (about 2.8). A shorter horizon makes the gaps
-# between actions a larger share of the values the network has to fit.
+# one better step (about 0.005) is about two thousandths of Q at gamma 0.97 (about 2.8). A shorter horizon makes
+# the gaps between actions a larger share of the values the network has to fit.
 ARMS["gamma-08"] = lambda c: ARMS["avg-1536k"](c).override(gamma=0.8)
-ARMS["gamma-05"] = lambda c: ARMS["avg-1536k"](c).override(gamma=0.5)
 # The change of each pixel since the previous frame as an input channel (NetworkConfig.frame_difference), one change
 # to the quick preset at 1.54M env steps: with the true relative velocity beside the images ('state-input') the
 # spread along the boresight fell from 0.20-0.38 m to 0.05 m; here the first conv sees the motion itself.

@@ -101,7 +101,6 @@ def _changes(arm: str, reference: str) -> dict:
         ("state-input-gain10", "state-input", {"network.state_input_gain": 10.0}),
         ("state-input-gain30", "state-input-gain10", {"network.state_input_gain": 30.0}),
         ("gamma-08", "avg-1536k", {"learner.gamma": 0.8}),
-        ("gamma-05", "avg-1536k", {"learner.gamma": 0.5}),
         ("frame-difference", "avg-1536k", {"network.frame_difference": True}),
         ("exposure-002", "avg-1536k", {"network.exposure_rate": 0.02}),
         ("size-1536k", "size-res64", {"run.total_env_steps": 1_536_000, "run.policy_average_from": 36}),
