@@ -90,6 +90,8 @@ class Transition:
         auxiliary loss's label, and all six the input of a diagnostic state_input network; ``None`` = not stored.
       standoff: ``[]`` float32 stand-off scale k of obs t's episode, for networks that read it
         (NetworkConfig.reads_standoff: k or the command gain); ``None`` = not stored.
+      expert_action: ``[]`` int32 the true-state look-ahead's action at obs t, the large-margin loss's label
+        (LearnerConfig.expert_margin_weight); ``None`` = not stored.
     """
 
     obs: jax.Array
@@ -101,6 +103,7 @@ class Transition:
     recurrent_state: Any
     privileged: jax.Array | None = None
     standoff: jax.Array | None = None
+    expert_action: jax.Array | None = None
 
 
 def quantise_obs(obs: jax.Array, dtype: str) -> jax.Array:
@@ -154,6 +157,7 @@ class SequenceBatch:
       start_state: the stored recurrent state before obs 0, in the network's layout: leaves ``[layers, B, units]``.
       privileged: ``[B, L, K]`` the stored privileged state per obs (None when not stored).
       standoff: ``[B, L]`` the stored stand-off scale per obs (None when not stored).
+      expert_action: ``[B, L-1]`` int32 the look-ahead's action at obs t of transition t (None when not stored).
       indices: ``[B]`` int32 the windows' items in a prioritised buffer (for
         :meth:`SequenceReplay.set_priorities`; None when sampling is uniform).
       weights: ``[B]`` float32 importance weights of the windows, at most 1 (None when sampling is uniform).
@@ -170,6 +174,7 @@ class SequenceBatch:
     start_state: Any
     privileged: jax.Array | None = None
     standoff: jax.Array | None = None
+    expert_action: jax.Array | None = None
     indices: jax.Array | None = None
     weights: jax.Array | None = None
     burn_in: int = struct.field(pytree_node=False, default=0)
@@ -204,7 +209,8 @@ def sequence_batch(window: Transition, burn_in: int) -> SequenceBatch:
         obs=window.obs, reset=window.is_first.astype(bool), action=transition(window.action),
         reward=transition(window.reward), terminated=transition(window.terminated),
         truncated=transition(window.truncated), loss_mask=loss_mask(window.is_first, burn_in), start_state=start,
-        privileged=window.privileged, standoff=window.standoff, burn_in=burn_in)
+        privileged=window.privileged, standoff=window.standoff,
+        expert_action=None if window.expert_action is None else transition(window.expert_action), burn_in=burn_in)
 
 
 def _storage_example(example: Transition, config: ReplayConfig) -> Transition:
@@ -220,6 +226,7 @@ def _storage_example(example: Transition, config: ReplayConfig) -> Transition:
         recurrent_state=jax.tree.map(lambda x: jnp.zeros(x.shape, state_dtype), example.recurrent_state),
         privileged=None if example.privileged is None else jnp.zeros(example.privileged.shape, jnp.float32),
         standoff=None if example.standoff is None else jnp.zeros((), jnp.float32),
+        expert_action=None if example.expert_action is None else jnp.zeros((), jnp.int32),
     )
 
 

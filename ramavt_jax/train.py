@@ -31,7 +31,7 @@ import jax.numpy as jnp
 import optax
 from flax import struct
 
-from ramavt_jax import baselines, distributed
+from ramavt_jax import distributed, imitation
 from ramavt_jax import env as env_lib
 from ramavt_jax import replay as replay_lib
 from ramavt_jax.augment import augment_batch
@@ -92,8 +92,9 @@ class Trainer:
         self.augment_fn = (functools.partial(augment_batch, config=learner.augment_config) if learner.augment
                            else None)
         self.replay = replay_lib.make_replay(config.replay, config.acting.num_envs, self._example_transition())
-        self.teacher = (baselines.mpc_policy(self.env.config, horizon=1, branch=1) if config.acting.teacher_envs
-                        else None)
+        # the look-ahead flies teacher_envs envs; with expert_margin_weight it labels every env's steps
+        self.taught_envs = config.acting.num_envs if learner.expert_margin_weight else config.acting.teacher_envs
+        self.teacher = imitation.look_ahead_teacher(self.env.config) if self.taught_envs else None
 
     # ---------------------------------------------------------------- helpers
     def _example_transition(self) -> replay_lib.Transition:
@@ -103,7 +104,8 @@ class Trainer:
             terminated=jnp.zeros((), bool), truncated=jnp.zeros((), bool), is_first=jnp.zeros((), bool),
             recurrent_state=unbatch_state(s).replace(frames=None),
             privileged=jnp.zeros((self._privileged_size,)) if self._privileged_size else None,
-            standoff=jnp.ones(()) if self.config.network.reads_standoff else None)
+            standoff=jnp.ones(()) if self.config.network.reads_standoff else None,
+            expert_action=jnp.zeros((), jnp.int32) if self.config.learner.expert_margin_weight else None)
 
     def _per_device(self, batched_fn):
         """Run a function of per-env arrays ([N, ...] in and out) on each device's own envs (``jax.shard_map``).
@@ -182,7 +184,7 @@ class Trainer:
         """One epsilon-greedy step of all envs, epsilon [] or [N]: (actor, Transition [N, ...] (state [layers, N,
         units]), stats)."""
         c = self.config.acting
-        if c.teacher_envs:  # runs without teachers keep the plain split below, and so their draws
+        if self.taught_envs:  # runs without the look-ahead keep the plain split below, and so their draws
             key, k_teach = jax.random.split(key)
         k_eps, k_rand, k_env = jax.random.split(key, 3)
         standoff = (jax.vmap(lambda s: standoff_signal(self.config.network, s, self.env_params))(actor.env_state)
@@ -195,8 +197,10 @@ class Trainer:
         greedy = jnp.argmax(q[:, 0], axis=-1).astype(jnp.int32)
         explore = jax.random.uniform(k_eps, (c.num_envs,)) < epsilon
         action = jnp.where(explore, jax.random.randint(k_rand, (c.num_envs,), 0, env_lib.NUM_ACTIONS), greedy)
+        taught = (imitation.teacher_actions(self.teacher, jax.tree.map(lambda x: x[:self.taught_envs], actor.env_state),
+                                            self.env_params, k_teach) if self.taught_envs else None)  # [taught_envs]
         if c.teacher_envs:
-            action = action.at[:c.teacher_envs].set(self._teacher_actions(actor.env_state, k_teach))
+            action = action.at[:c.teacher_envs].set(taught[:c.teacher_envs])
         obs, env_state, reward, terminated, truncated, info = self._per_device(
             jax.vmap(lambda k, s, a: self.env.step(k, s, a, self.env_params)))(
             jax.random.split(k_env, c.num_envs), actor.env_state, action)
@@ -204,20 +208,13 @@ class Trainer:
         transition = replay_lib.Transition(
             obs=actor.obs, action=action, reward=reward, terminated=terminated, truncated=truncated,
             is_first=actor.is_first, recurrent_state=actor.net_state.replace(frames=None),
-            privileged=privileged, standoff=standoff)
+            privileged=privileged, standoff=standoff, expert_action=taught if self.taught_envs == c.num_envs else None)
         new_actor = ActorState(env_state=env_state, obs=obs, is_first=info["is_first"],
                                net_state=record_action(net_state, action))
         done = (terminated | truncated) & (jnp.arange(c.num_envs) >= c.teacher_envs)  # the agent's episodes only
         stats = EpisodeStats(episodes=done.sum(), length_sum=jnp.where(done, info["episode_length"], 0).sum(),
                              return_sum=jnp.where(done, info["episode_return"], 0.0).sum())
         return new_actor, transition, stats
-
-    def _teacher_actions(self, env_state, key: jax.Array) -> jax.Array:
-        """[K] the true-state look-ahead's actions for the first K = teacher_envs envs of ``env_state`` [N, ...]."""
-        k = self.config.acting.teacher_envs
-        first = jax.tree.map(lambda x: x[:k], env_state)
-        return jax.vmap(lambda kk, s: self.teacher.act(kk, None, None, s, self.env_params)[0])(
-            jax.random.split(key, k), first)
 
     def rollout(self, params, actor: ActorState, env_steps: jax.Array, key: jax.Array):
         """``rollout_steps`` acting steps. Returns (actor, chunk [N, T, ...] in replay layout, summed stats, the last
@@ -271,7 +268,8 @@ class Trainer:
                      terminated=terminated, truncated=truncated, mask=batch.loss_mask[:, burn:], weight=batch.weights)
         trained = slice(burn, None)
         return PreparedBatch(obs=obs[:, trained], reset=batch.reset[:, trained], state=sg(state), td=td,
-                             privileged=steps(privileged, trained), standoff=steps(standoff, trained))
+                             privileged=steps(privileged, trained), standoff=steps(standoff, trained),
+                             expert_action=steps(batch.expert_action, trained))
 
     def trained_loss(self, params, prepared: PreparedBatch):
         """TD loss over the trained part of the window, plus aux_weight times the auxiliary head's squared error
@@ -281,19 +279,22 @@ class Trainer:
                                              actions=prepared.td.action, standoff=prepared.standoff,
                                              true_state=self._true_state(prepared.privileged),
                                              mutable=["intermediates"])
+        mask, learner, expert = prepared.td.mask.astype(jnp.float32), self.config.learner, prepared.expert_action
+        margin_loss = (imitation.large_margin_loss(q_online[:, :-1], expert, mask, learner.expert_margin)
+                       if learner.expert_margin_weight else 0.0)  # on Q (a quantile network's mean), LearnerConfig
         if self.config.network.quantiles:  # the quantile loss (losses.sequence_quantile_loss)
             q_online = sown["intermediates"]["quantiles"][0]
         td = prepared.td
         if td.q_target is None:  # LearnerConfig.bootstrap_from = 'online': this pass's own values, as constants
             td = td.replace(q_target=jax.lax.stop_gradient(q_online))
         loss, aux = td_loss(q_online, td, self.td)
-        mask = prepared.td.mask.astype(jnp.float32)
+        loss = loss + learner.expert_margin_weight * margin_loss
         aux_loss = jnp.zeros(())
-        if self.config.learner.aux_weight:  # the aux head's squared error at the trained obs (LearnerConfig)
+        if learner.aux_weight:  # the aux head's squared error at the trained obs (LearnerConfig)
             label = prepared.privileged[:, :-1, :self.config.network.aux_outputs]
             miss = jnp.square(sown["intermediates"]["aux"][0][:, :-1] - label).sum(-1)
             aux_loss = masked_mean(miss, mask)
-            loss = loss + self.config.learner.aux_weight * aux_loss
+            loss = loss + learner.aux_weight * aux_loss
         aux = dict(aux, q_mean=masked_mean(aux["q_taken"], mask), aux_loss=aux_loss)
         if self.config.replay.prioritised:  # uniform sampling needs no priorities
             td_error = jax.lax.stop_gradient(aux["td_error"])

@@ -88,6 +88,10 @@ class LearnerConfig:
     # move must buy more than this in tracking to be worth it, so noise in where the agent thinks the target is
     # costs it. The env's reward (and so evaluation) is unchanged.
     command_cost: float = 0.0
+    # DQfD's large-margin loss (imitation.large_margin_loss) towards the true-state one-step look-ahead's action at
+    # every trained step, the agent's own included, weighted by this (0 = off: no labels computed or stored).
+    expert_margin_weight: float = 0.0
+    expert_margin: float = 0.05  # how far the labelled action must lead every other, in Q's units (scaled rewards)
     target_update: str = "polyak"  # 'polyak' | 'period'
     # 'target' (net, over the whole window) | 'online': the targets bootstrap from the online net's own trained pass
     # under stop_gradient (no target pass); the target net is still averaged, for RunConfig.policy_params='target'.
@@ -124,6 +128,8 @@ class LearnerConfig:
                                ("aux_weight", self.aux_weight >= 0, ">= 0 (0 = no auxiliary loss)"),
                                ("reward_scale", self.reward_scale > 0, "> 0"),
                                ("command_cost", self.command_cost >= 0, ">= 0 (0 = no shaping)"),
+                               ("expert_margin_weight", self.expert_margin_weight >= 0, ">= 0 (0 = no margin loss)"),
+                               ("expert_margin", self.expert_margin > 0, "> 0"),
                                ("quantile_kappa", self.quantile_kappa > 0, "> 0"),
                                ("replay_ratio", self.replay_ratio > 0, "> 0"),
                                ("target_update", self.target_update in ("polyak", "period"), "'polyak' or 'period'"),

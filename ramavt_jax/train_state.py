@@ -106,7 +106,8 @@ class PreparedBatch:
     the rest ``[B, T]``); privileged: ``[B, T+1, K]`` the kept true state per obs (greedy.true_tracking_state:
     the tracking error, then the relative velocity; K = 6 for a state_input network, else NetworkConfig.aux_outputs;
     None when neither needs it); standoff: ``[B, T+1]``
-    the stand-off signal per obs (greedy.standoff_signal; None unless the network reads it).
+    the stand-off signal per obs (greedy.standoff_signal; None unless the network reads it); expert_action:
+    ``[B, T]`` the look-ahead's action at each trained transition's obs (None without the large-margin loss).
     """
 
     obs: jax.Array
@@ -115,3 +116,4 @@ class PreparedBatch:
     td: TDBatch
     privileged: jax.Array | None = None
     standoff: jax.Array | None = None
+    expert_action: jax.Array | None = None

@@ -151,28 +151,6 @@ def test_act_step_explores_at_each_envs_own_rate(trainer):
     assert (taken[:, 1::2] != greedy_actions[1::2]).mean() > 0.5  # 10 of 11 random actions differ from the greedy one
 
 
-def test_teacher_envs_fly_the_true_state_look_ahead_and_the_others_the_q_net():
-    """The first teacher_envs envs take the one-step look-ahead's action on their true state, whatever epsilon; the
-    rest explore as before. Checked against the look-ahead run env by env, outside the trainer. Episodes of one
-    step, so that every env ends one in the step: the training statistics count the agent's envs only."""
-    cfg = SMOKE.override(teacher_envs=3, env_params=(("max_steps", 1),),
-                         network=dataclasses.replace(SMOKE.network, prev_action=True))
-    trainer, k, n = T.Trainer(cfg), cfg.acting.teacher_envs, cfg.acting.num_envs
-    state = trainer.init(jax.random.PRNGKey(3))
-    step = jax.jit(lambda key: trainer.act_step(state.learner.params, state.actor, jnp.asarray(1.0), key))
-    steps = [step(jax.random.PRNGKey(s)) for s in range(6)]  # (actor, transition, stats) each
-    taken = np.stack([np.asarray(tr.action) for _, tr, _ in steps])  # [6, N], all agent envs random
-    remembered = np.asarray(steps[0][0].net_state.prev_action)[0]  # [N]: what the LSTM is told it did
-    np.testing.assert_array_equal(remembered, taken[0])
-    assert [int(stats.episodes) for _, _, stats in steps] == [n - k] * 6
-    look_ahead = baselines.mpc_policy(cfg.env, horizon=1, branch=1)
-    expected = [int(look_ahead.act(jax.random.PRNGKey(0), None, None,
-                                   jax.tree.map(lambda x: x[i], state.actor.env_state), trainer.env_params)[0])
-                for i in range(k)]
-    np.testing.assert_array_equal(taken[:, :k], np.broadcast_to(expected, (6, k)))
-    assert len({tuple(row) for row in taken[:, k:]}) > 1  # the agent's envs still explore at epsilon 1
-
-
 def test_polyak_tau_start_holds_then_moves_linearly_to_polyak_tau(learner):
     assert T.Trainer(SMOKE).polyak_tau(jnp.int32(5)) == SMOKE.learner.polyak_tau  # constant by default
     cfg = SMOKE.override(polyak_tau=0.01, polyak_tau_start=0.05, polyak_tau_decay=(1000, 2000))

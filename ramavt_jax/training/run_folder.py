@@ -47,7 +47,8 @@ ADDED_FIELDS = ("network.depth_centre", "network.depth_gain", "learner.polyak_ta
                 "learner.bootstrap_from", "learner.td_lambda", "run.policy_average_from",
                 "network.dense_norm", "acting.eps_ladder", "acting.teacher_envs", "network.state_input",
                 "learner.command_cost", "network.frame_difference",
-                "network.state_input_gain", "network.exposure_rate")
+                "network.state_input_gain", "network.exposure_rate", "learner.expert_margin_weight",
+                "learner.expert_margin")
 _SEED_DIR = re.compile(r"seed_\d+")
 
 

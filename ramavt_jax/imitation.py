@@ -1,0 +1,49 @@
+"""Learning from the true-state look-ahead: its actions, for envs that fly it (ActingConfig.teacher_envs) and as
+labels of the agent's own steps (LearnerConfig.expert_margin_weight), and DQfD's large-margin loss towards them.
+
+The look-ahead (:func:`ramavt_jax.baselines.mpc_policy` at horizon 1: each of the 11 commands simulated one step on
+the noise-free model, the best kept) reads the simulator state, so it is a teacher for training only: the trained
+policy still acts from its images. Labelling the states the agent itself visits, rather than only the teacher's own,
+is DAgger's way round the drift of a student away from the states its teacher showed it.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+
+from ramavt_jax import baselines
+from ramavt_jax import env as env_lib
+from ramavt_jax.losses import masked_mean
+
+__all__ = ["look_ahead_teacher", "teacher_actions", "large_margin_loss"]
+
+
+def look_ahead_teacher(config: env_lib.EnvConfig) -> baselines.Policy:
+    """The true-state one-step look-ahead of the env ``config`` (the ceiling at horizon 1)."""
+    return baselines.mpc_policy(config, horizon=1, branch=1)
+
+
+def teacher_actions(teacher: baselines.Policy, env_state: env_lib.EnvState, params: env_lib.EnvParams,
+                    key: jax.Array) -> jax.Array:
+    """[N] int32 the teacher's action for each of the N envs of ``env_state`` (leaves [N, ...]); the key only feeds
+    the teacher's noise-free model, so the actions depend on the states alone."""
+    n = jax.tree.leaves(env_state)[0].shape[0]
+    act = lambda k, s: teacher.act(k, None, None, s, params)[0]  # noqa: E731
+    return jax.vmap(act)(jax.random.split(key, n), env_state).astype(jnp.int32)
+
+
+def large_margin_loss(q: jax.Array, expert_action: jax.Array, mask: jax.Array, margin: float) -> jax.Array:
+    """DQfD's large-margin classification loss (Hester et al. 2018), masked mean over steps of
+    ``max_a [Q(s, a) + margin * (a != a_E)] - Q(s, a_E)``: zero once the expert's action leads every other by
+    ``margin``, else the shortfall of the worst violator, so its gradient raises Q(s, a_E) and lowers that action's.
+
+    Args:
+      q: ``[B, T, A]`` Q values at the trained observations.
+      expert_action: ``[B, T]`` int, the teacher's action there.
+      mask: ``[B, T]`` which steps count (the TD loss's mask).
+      margin: how far, in Q's units (scaled rewards), the expert's action must lead.
+    """
+    expert = jax.nn.one_hot(expert_action, q.shape[-1], dtype=q.dtype)  # [B, T, A]
+    q_expert = (q * expert).sum(-1)
+    return masked_mean(jnp.max(q + margin * (1.0 - expert), axis=-1) - q_expert, mask)

@@ -1,0 +1,115 @@
+"""The large-margin loss towards the true-state look-ahead (LearnerConfig.expert_margin_weight): the loss against a
+by-hand reference, the labels the trainer stores against the look-ahead run outside it, and the term the trainer's
+loss adds."""
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from ramavt_jax import baselines, imitation, presets
+from ramavt_jax import replay as replay_lib
+from ramavt_jax import train as T
+from ramavt_jax.network import RecurrentState
+from ramavt_jax.train_config import LearnerConfig
+
+SMOKE = presets.preset("smoke")
+
+
+def _reference_margin_loss(q, expert, mask, margin):
+    """max_a [Q(s, a) + margin * (a != a_E)] - Q(s, a_E), step by step, averaged over the masked-in steps."""
+    total, count = 0.0, 0
+    for b in range(q.shape[0]):
+        for t in range(q.shape[1]):
+            if mask[b, t]:
+                raised = [q[b, t, a] + (0.0 if a == expert[b, t] else margin) for a in range(q.shape[2])]
+                total, count = total + max(raised) - q[b, t, expert[b, t]], count + 1
+    return total / count
+
+
+def test_large_margin_loss_equals_the_step_by_step_reference():
+    q = np.asarray(jax.random.normal(jax.random.PRNGKey(0), (3, 5, 11))) * 0.1
+    expert = np.asarray(jax.random.randint(jax.random.PRNGKey(1), (3, 5), 0, 11))
+    mask = np.asarray(jax.random.uniform(jax.random.PRNGKey(2), (3, 5)) < 0.7)
+    got = imitation.large_margin_loss(jnp.asarray(q), jnp.asarray(expert), jnp.asarray(mask, jnp.float32), 0.05)
+    np.testing.assert_allclose(float(got), _reference_margin_loss(q, expert, mask, 0.05), rtol=1e-5)
+
+
+def test_large_margin_loss_is_zero_once_the_expert_leads_by_the_margin_and_its_gradient_closes_the_gap():
+    expert, mask = jnp.array([[2]]), jnp.ones((1, 1))
+    leading = jnp.zeros((1, 1, 11)).at[0, 0, 2].set(0.06)  # leads every other action by more than 0.05
+    assert float(imitation.large_margin_loss(leading, expert, mask, 0.05)) == 0.0
+    behind = jnp.zeros((1, 1, 11)).at[0, 0, 7].set(0.3)  # action 7 leads the expert's by 0.3
+    np.testing.assert_allclose(float(imitation.large_margin_loss(behind, expert, mask, 0.05)), 0.35, rtol=1e-6)
+    grad = np.asarray(jax.grad(imitation.large_margin_loss)(behind, expert, mask, 0.05))[0, 0]
+    assert grad[2] == -1.0 and grad[7] == 1.0 and np.count_nonzero(grad) == 2  # raise the expert's, lower the leader
+
+
+def test_teacher_envs_fly_the_look_ahead_and_every_env_stores_its_action_as_the_label():
+    """The first teacher_envs envs take the one-step look-ahead's action on their true state, whatever epsilon; the
+    rest explore (epsilon 1: random commands), and every env's stored label is still the look-ahead's action. Checked
+    against the look-ahead run env by env, outside the trainer. Episodes of one step, so that every env ends one in
+    the step: the training statistics count the agent's envs only."""
+    cfg = SMOKE.override(teacher_envs=3, expert_margin_weight=1.0, env_params=(("max_steps", 1),),
+                         network=dataclasses.replace(SMOKE.network, prev_action=True))
+    trainer, k, n = T.Trainer(cfg), cfg.acting.teacher_envs, cfg.acting.num_envs
+    state = trainer.init(jax.random.PRNGKey(3))
+    step = jax.jit(lambda key: trainer.act_step(state.learner.params, state.actor, jnp.asarray(1.0), key))
+    steps = [step(jax.random.PRNGKey(s)) for s in range(6)]  # (actor, transition, stats) each
+    taken = np.stack([np.asarray(tr.action) for _, tr, _ in steps])  # [6, N], all agent envs random
+    remembered = np.asarray(steps[0][0].net_state.prev_action)[0]  # [N]: what the LSTM is told it did
+    np.testing.assert_array_equal(remembered, taken[0])
+    assert [int(stats.episodes) for _, _, stats in steps] == [n - k] * 6
+    look_ahead = baselines.mpc_policy(cfg.env, horizon=1, branch=1)
+    act = jax.jit(lambda s: look_ahead.act(jax.random.PRNGKey(0), None, None, s, trainer.env_params)[0])
+    expected = np.array([int(act(jax.tree.map(lambda x: x[i], state.actor.env_state))) for i in range(n)])
+    np.testing.assert_array_equal(taken[:, :k], np.broadcast_to(expected[:k], (6, k)))
+    assert len({tuple(row) for row in taken[:, k:]}) > 1  # the agent's envs still explore at epsilon 1
+    for _, transition, _ in steps:
+        np.testing.assert_array_equal(np.asarray(transition.expert_action), expected)
+    assert len(set(expected.tolist())) > 1  # the envs' states differ enough to ask for different commands
+    assert T.Trainer(SMOKE)._example_transition().expert_action is None  # nothing stored without the loss
+
+
+def _window(cfg, key):
+    """Hand-made sampled windows [B, L, ...] with labels, as the replay stores them."""
+    B, L, n = cfg.replay.batch_size, cfg.sequence_length, cfg.network
+    ks = jax.random.split(key, 5)
+    state = RecurrentState(h=0.5 * jax.random.normal(ks[3], (B, L, n.lstm_layers, n.lstm)),
+                           c=0.5 * jax.random.normal(ks[4], (B, L, n.lstm_layers, n.lstm)), frames=None)
+    z = jnp.zeros((B, L), bool)
+    return replay_lib.Transition(obs=jax.random.uniform(ks[0], (B, L, *cfg.env.obs_shape)),
+                                 action=jax.random.randint(ks[1], (B, L), 0, 11),
+                                 reward=jax.random.normal(ks[2], (B, L)), terminated=z, truncated=z, is_first=z,
+                                 recurrent_state=state, expert_action=jax.random.randint(ks[2], (B, L), 0, 11))
+
+
+def test_the_trainers_loss_adds_the_weighted_margin_loss_of_the_trained_steps():
+    """The loss at weight w is the plain loss plus w times the margin loss of the trained pass's Q at the trained
+    transitions' labels (the burn-in's labels unused), and its gradient reaches the Q head."""
+    cfg = SMOKE.override(expert_margin_weight=0.5, expert_margin=0.1)
+    trainer, burn = T.Trainer(cfg), cfg.replay.burn_in
+    params = trainer.init(jax.random.PRNGKey(0)).learner.params
+    batch = replay_lib.sequence_batch(_window(cfg, jax.random.PRNGKey(1)), burn)
+    assert batch.expert_action.shape == batch.action.shape
+    prepared = trainer.prepare(params, params, batch, jax.random.PRNGKey(2))
+    np.testing.assert_array_equal(prepared.expert_action, batch.expert_action[:, burn:])
+    plain = jax.jit(lambda p: T.Trainer(SMOKE).trained_loss(params, p)[0])(prepared.replace(expert_action=None))
+    with_margin = jax.jit(lambda p: trainer.trained_loss(params, p)[0])(prepared)
+    q = jax.jit(lambda p: trainer.q_values(params, p.obs, p.reset, p.state, actions=p.td.action)[0])(prepared)
+    mask = np.asarray(prepared.td.mask)
+    margin = _reference_margin_loss(np.asarray(q[:, :-1]), np.asarray(prepared.expert_action), mask, 0.1)
+    assert margin > 0
+    np.testing.assert_allclose(float(with_margin), float(plain) + 0.5 * margin, rtol=1e-5)
+
+
+@pytest.mark.parametrize("build, message", [
+    (lambda: LearnerConfig(expert_margin_weight=-1.0),
+     r"^LearnerConfig: expert_margin_weight must be >= 0 \(0 = no margin loss\), got -1.0$"),
+    (lambda: LearnerConfig(expert_margin=0.0), r"^LearnerConfig: expert_margin must be > 0, got 0.0$"),
+])
+def test_bad_margin_settings_fail_in_one_line(build, message):
+    with pytest.raises(ValueError, match=message):
+        build()
