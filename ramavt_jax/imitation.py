@@ -16,7 +16,7 @@ from ramavt_jax import baselines
 from ramavt_jax import env as env_lib
 from ramavt_jax.losses import masked_mean
 
-__all__ = ["look_ahead_teacher", "teacher_actions", "large_margin_loss"]
+__all__ = ["look_ahead_teacher", "teacher_actions", "large_margin_loss", "margin_terms"]
 
 
 def look_ahead_teacher(config: env_lib.EnvConfig) -> baselines.Policy:
@@ -33,7 +33,8 @@ def teacher_actions(teacher: baselines.Policy, env_state: env_lib.EnvState, para
     return jax.vmap(act)(jax.random.split(key, n), env_state).astype(jnp.int32)
 
 
-def large_margin_loss(q: jax.Array, expert_action: jax.Array, mask: jax.Array, margin: float) -> jax.Array:
+def large_margin_loss(q: jax.Array, expert_action: jax.Array, mask: jax.Array, margin: float,
+                      weights: jax.Array | None = None) -> jax.Array:
     """DQfD's large-margin classification loss (Hester et al. 2018), masked mean over steps of
     ``max_a [Q(s, a) + margin * (a != a_E)] - Q(s, a_E)``: zero once the expert's action leads every other by
     ``margin``, else the shortfall of the worst violator, so its gradient raises Q(s, a_E) and lowers that action's.
@@ -43,7 +44,16 @@ def large_margin_loss(q: jax.Array, expert_action: jax.Array, mask: jax.Array, m
       expert_action: ``[B, T]`` int, the teacher's action there.
       mask: ``[B, T]`` which steps count (the TD loss's mask).
       margin: how far, in Q's units (scaled rewards), the expert's action must lead.
+      weights: ``[B]`` importance weights of the windows (a prioritised replay's, as the TD loss takes them), or None.
     """
     expert = jax.nn.one_hot(expert_action, q.shape[-1], dtype=q.dtype)  # [B, T, A]
     q_expert = (q * expert).sum(-1)
-    return masked_mean(jnp.max(q + margin * (1.0 - expert), axis=-1) - q_expert, mask)
+    return masked_mean(jnp.max(q + margin * (1.0 - expert), axis=-1) - q_expert, mask, weights)
+
+
+def margin_terms(q: jax.Array, expert_action: jax.Array, mask: jax.Array, margin: float,
+                 weights: jax.Array | None = None) -> tuple[jax.Array, jax.Array]:
+    """(:func:`large_margin_loss`, the share of the masked steps whose greedy action is the expert's, a constant to
+    log); shapes as there."""
+    agreement = jax.lax.stop_gradient((jnp.argmax(q, axis=-1) == expert_action).astype(q.dtype))
+    return large_margin_loss(q, expert_action, mask, margin, weights), masked_mean(agreement, mask)

@@ -41,7 +41,7 @@ from ramavt_jax.network import (TRUE_STATE_SIZE, init_params, initial_state, mak
                                 window_start_frames)
 from ramavt_jax.train_config import TrainConfig
 from ramavt_jax.train_state import (ActorState, ChunkMetrics, EpisodeStats, LearnerState, LearnStats, PreparedBatch,
-                                    RunnerState)
+                                    RunnerState, average_policy)
 
 __all__ = ["Trainer", "make_train"]
 
@@ -272,16 +272,18 @@ class Trainer:
                              expert_action=steps(batch.expert_action, trained))
 
     def trained_loss(self, params, prepared: PreparedBatch):
-        """TD loss over the trained part of the window, plus aux_weight times the auxiliary head's squared error
-        (gradient w.r.t. params only). Returns (loss, aux); aux holds q_mean, aux_loss (unweighted, 0 without) and
+        """TD loss over the trained part of the window, plus aux_weight times the auxiliary head's squared error and
+        expert_margin_weight times the large-margin loss (imitation.large_margin_loss), gradient w.r.t. params only.
+        Returns (loss, aux); aux holds q_mean, aux_loss and margin_loss (unweighted, 0 without), expert_agreement and
         with a prioritised replay each window's priority [B] (losses.sequence_priority)."""
         (q_online, _), sown = self.net.apply({"params": params}, prepared.obs, prepared.reset, prepared.state,
                                              actions=prepared.td.action, standoff=prepared.standoff,
                                              true_state=self._true_state(prepared.privileged),
                                              mutable=["intermediates"])
         mask, learner, expert = prepared.td.mask.astype(jnp.float32), self.config.learner, prepared.expert_action
-        margin_loss = (imitation.large_margin_loss(q_online[:, :-1], expert, mask, learner.expert_margin)
-                       if learner.expert_margin_weight else 0.0)  # on Q (a quantile network's mean), LearnerConfig
+        margin_loss, agreement = (imitation.margin_terms(q_online[:, :-1], expert, mask, learner.expert_margin,
+                                                         prepared.td.weight)  # on Q (a quantile network's mean)
+                                  if learner.expert_margin_weight else (jnp.zeros(()), jnp.zeros(())))
         if self.config.network.quantiles:  # the quantile loss (losses.sequence_quantile_loss)
             q_online = sown["intermediates"]["quantiles"][0]
         td = prepared.td
@@ -295,7 +297,8 @@ class Trainer:
             miss = jnp.square(sown["intermediates"]["aux"][0][:, :-1] - label).sum(-1)
             aux_loss = masked_mean(miss, mask)
             loss = loss + learner.aux_weight * aux_loss
-        aux = dict(aux, q_mean=masked_mean(aux["q_taken"], mask), aux_loss=aux_loss)
+        aux = dict(aux, q_mean=masked_mean(aux["q_taken"], mask), aux_loss=aux_loss, margin_loss=margin_loss,
+                   expert_agreement=agreement)
         if self.config.replay.prioritised:  # uniform sampling needs no priorities
             td_error = jax.lax.stop_gradient(aux["td_error"])
             aux["priority"] = sequence_priority(td_error, mask, self.config.replay.priority_max_share)
@@ -329,7 +332,8 @@ class Trainer:
         if batch.indices is not None:
             replay_state = self.replay.set_priorities(replay_state, batch, aux["priority"])
         return new, replay_state, LearnStats(loss=loss, aux_loss=aux["aux_loss"], q_mean=aux["q_mean"],
-                               grad_norm=optax.tree.norm(grads), updates=jnp.ones((), jnp.int32))
+                                             margin_loss=aux["margin_loss"], expert_agreement=aux["expert_agreement"],
+                                             grad_norm=optax.tree.norm(grads), updates=jnp.ones((), jnp.int32))
 
     def learn(self, learner: LearnerState, replay_state, env_steps: jax.Array, key: jax.Array):
         """``updates_per_iteration`` steps if the replay is ready, else none. Returns (learner, replay_state,
@@ -349,7 +353,8 @@ class Trainer:
 
         def skip(carry):
             z = jnp.zeros(())
-            return carry, LearnStats(loss=z, aux_loss=z, q_mean=z, grad_norm=z, updates=jnp.zeros((), jnp.int32))
+            return carry, LearnStats(loss=z, aux_loss=z, q_mean=z, margin_loss=z, expert_agreement=z, grad_norm=z,
+                                     updates=jnp.zeros((), jnp.int32))
 
         (learner, sampling), stats = jax.lax.cond(ready, do, skip, (learner, replay.sampling_state(replay_state)))
         return learner, replay.with_sampling_state(replay_state, sampling), stats
@@ -365,6 +370,7 @@ class Trainer:
         metrics = ChunkMetrics(episodes=stats.episodes, episode_length_sum=stats.length_sum,
                                episode_return_sum=stats.return_sum, loss_sum=learned.loss,
                                aux_loss_sum=learned.aux_loss, q_sum=learned.q_mean,
+                               margin_loss_sum=learned.margin_loss, expert_agreement_sum=learned.expert_agreement,
                                grad_norm_sum=learned.grad_norm, updates=learned.updates, epsilon=eps,
                                env_steps=env_steps)
         runner = runner.replace(learner=learner, actor=actor, replay=replay_state, key=key, env_steps=env_steps)
@@ -375,18 +381,8 @@ class Trainer:
         runner, metrics = jax.lax.scan(lambda r, _: self.iteration(r), runner, None,
                                        length=self.config.run.iterations_per_chunk)
         chunk = runner.chunk + 1
-        return runner.replace(chunk=chunk, learner=self._average_policy(runner.learner, chunk)), metrics
-
-    def _average_policy(self, learner: LearnerState, chunk: jax.Array) -> LearnerState:
-        """The running uniform mean of the target params at the ends of the chunks after
-        ``RunConfig.policy_average_from``; up to it, the target params themselves (weight 1). ``chunk``: [] int32
-        chunks completed, this one included."""
-        start = self.config.run.policy_average_from
-        if start is None:
-            return learner
-        weight = 1.0 / jnp.maximum(chunk - start, 1).astype(jnp.float32)
-        averaged = optax.incremental_update(learner.target_params, learner.averaged_params, weight)
-        return learner.replace(averaged_params=averaged)
+        averaged = average_policy(runner.learner, chunk, self.config.run.policy_average_from)
+        return runner.replace(chunk=chunk, learner=averaged), metrics
 
     def train(self, key: jax.Array) -> dict:
         """Whole run (init + all chunks) as one pure function: {'runner_state', 'metrics' [chunks, iterations]}."""

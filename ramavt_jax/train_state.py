@@ -7,6 +7,8 @@ from __future__ import annotations
 from typing import Any
 
 import jax
+import jax.numpy as jnp
+import optax
 from flax import struct
 
 from ramavt_jax import env as env_lib
@@ -69,6 +71,8 @@ class ChunkMetrics:
     episode_return_sum: jax.Array  # unscaled env reward
     loss_sum: jax.Array
     aux_loss_sum: jax.Array  # the auxiliary head's unweighted squared error per update, summed
+    margin_loss_sum: jax.Array  # the large-margin loss per update, unweighted, summed (0 without it)
+    expert_agreement_sum: jax.Array  # share of trained steps whose greedy action is the label, per update, summed
     q_sum: jax.Array  # mean taken Q per update, summed
     grad_norm_sum: jax.Array
     updates: jax.Array  # gradient steps done this iteration
@@ -89,8 +93,10 @@ class EpisodeStats:
 class LearnStats:
     """One gradient step (``update``), or the sums over an iteration's steps (``learn``): all ``[]``."""
 
-    loss: jax.Array  # the TD loss plus the weighted auxiliary loss
+    loss: jax.Array  # the TD loss plus the weighted auxiliary and margin losses
     aux_loss: jax.Array  # the auxiliary head's squared error, unweighted (0 without the head)
+    margin_loss: jax.Array  # the large-margin loss, unweighted (0 without it: LearnerConfig.expert_margin_weight)
+    expert_agreement: jax.Array  # share of the trained steps whose greedy action is the look-ahead's (0 without)
     q_mean: jax.Array  # mean taken Q over the trained transitions
     grad_norm: jax.Array
     updates: jax.Array  # int32 gradient steps
@@ -117,3 +123,14 @@ class PreparedBatch:
     privileged: jax.Array | None = None
     standoff: jax.Array | None = None
     expert_action: jax.Array | None = None
+
+
+def average_policy(learner: LearnerState, chunk: jax.Array, start: int | None) -> LearnerState:
+    """The running uniform mean of the target params at the ends of the chunks after ``start``
+    (RunConfig.policy_average_from; None: ``learner`` unchanged); up to it, the target params themselves (weight 1).
+    ``chunk``: [] int32 chunks completed, this one included."""
+    if start is None:
+        return learner
+    weight = 1.0 / jnp.maximum(chunk - start, 1).astype(jnp.float32)
+    averaged = optax.incremental_update(learner.target_params, learner.averaged_params, weight)
+    return learner.replace(averaged_params=averaged)

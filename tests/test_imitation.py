@@ -47,12 +47,14 @@ def test_large_margin_loss_is_zero_once_the_expert_leads_by_the_margin_and_its_g
     assert grad[2] == -1.0 and grad[7] == 1.0 and np.count_nonzero(grad) == 2  # raise the expert's, lower the leader
 
 
-def test_teacher_envs_fly_the_look_ahead_and_every_env_stores_its_action_as_the_label():
+@pytest.mark.parametrize("margin_weight", [0.0, 1.0])
+def test_teacher_envs_fly_the_look_ahead_and_with_the_margin_every_env_stores_its_action(margin_weight):
     """The first teacher_envs envs take the one-step look-ahead's action on their true state, whatever epsilon; the
-    rest explore (epsilon 1: random commands), and every env's stored label is still the look-ahead's action. Checked
-    against the look-ahead run env by env, outside the trainer. Episodes of one step, so that every env ends one in
-    the step: the training statistics count the agent's envs only."""
-    cfg = SMOKE.override(teacher_envs=3, expert_margin_weight=1.0, env_params=(("max_steps", 1),),
+    rest explore (epsilon 1: random commands). With the margin loss every env's stored label is still the
+    look-ahead's action; without it no label is stored. Checked against the look-ahead run env by env, outside the
+    trainer. Episodes of one step, so that every env ends one in the step: the training statistics count the agent's
+    envs only."""
+    cfg = SMOKE.override(teacher_envs=3, expert_margin_weight=margin_weight, env_params=(("max_steps", 1),),
                          network=dataclasses.replace(SMOKE.network, prev_action=True))
     trainer, k, n = T.Trainer(cfg), cfg.acting.teacher_envs, cfg.acting.num_envs
     state = trainer.init(jax.random.PRNGKey(3))
@@ -68,41 +70,49 @@ def test_teacher_envs_fly_the_look_ahead_and_every_env_stores_its_action_as_the_
     np.testing.assert_array_equal(taken[:, :k], np.broadcast_to(expected[:k], (6, k)))
     assert len({tuple(row) for row in taken[:, k:]}) > 1  # the agent's envs still explore at epsilon 1
     for _, transition, _ in steps:
-        np.testing.assert_array_equal(np.asarray(transition.expert_action), expected)
+        if margin_weight:
+            np.testing.assert_array_equal(np.asarray(transition.expert_action), expected)
+        else:
+            assert transition.expert_action is None and trainer._example_transition().expert_action is None
     assert len(set(expected.tolist())) > 1  # the envs' states differ enough to ask for different commands
-    assert T.Trainer(SMOKE)._example_transition().expert_action is None  # nothing stored without the loss
 
 
 def _window(cfg, key):
-    """Hand-made sampled windows [B, L, ...] with labels, as the replay stores them."""
+    """Hand-made sampled windows [B, L, ...] with labels, as the replay stores them, episodes starting at random."""
     B, L, n = cfg.replay.batch_size, cfg.sequence_length, cfg.network
-    ks = jax.random.split(key, 5)
+    ks = jax.random.split(key, 7)
     state = RecurrentState(h=0.5 * jax.random.normal(ks[3], (B, L, n.lstm_layers, n.lstm)),
                            c=0.5 * jax.random.normal(ks[4], (B, L, n.lstm_layers, n.lstm)), frames=None)
-    z = jnp.zeros((B, L), bool)
+    z, is_first = jnp.zeros((B, L), bool), (jax.random.uniform(ks[6], (B, L)) < 0.15).at[0, L - 3].set(True)
     return replay_lib.Transition(obs=jax.random.uniform(ks[0], (B, L, *cfg.env.obs_shape)),
                                  action=jax.random.randint(ks[1], (B, L), 0, 11),
-                                 reward=jax.random.normal(ks[2], (B, L)), terminated=z, truncated=z, is_first=z,
-                                 recurrent_state=state, expert_action=jax.random.randint(ks[2], (B, L), 0, 11))
+                                 reward=jax.random.normal(ks[2], (B, L)), terminated=z, truncated=z,
+                                 is_first=is_first, recurrent_state=state,
+                                 expert_action=jax.random.randint(ks[5], (B, L), 0, 11))
 
 
 def test_the_trainers_loss_adds_the_weighted_margin_loss_of_the_trained_steps():
     """The loss at weight w is the plain loss plus w times the margin loss of the trained pass's Q at the trained
-    transitions' labels (the burn-in's labels unused), and its gradient reaches the Q head."""
+    transitions' labels: the burn-in's labels unused, and none of a transition into a new episode."""
     cfg = SMOKE.override(expert_margin_weight=0.5, expert_margin=0.1)
     trainer, burn = T.Trainer(cfg), cfg.replay.burn_in
     params = trainer.init(jax.random.PRNGKey(0)).learner.params
-    batch = replay_lib.sequence_batch(_window(cfg, jax.random.PRNGKey(1)), burn)
-    assert batch.expert_action.shape == batch.action.shape
+    window = _window(cfg, jax.random.PRNGKey(1))
+    batch = replay_lib.sequence_batch(window, burn)
+    np.testing.assert_array_equal(batch.expert_action, window.expert_action[:, :-1])  # transition t's obs t
     prepared = trainer.prepare(params, params, batch, jax.random.PRNGKey(2))
     np.testing.assert_array_equal(prepared.expert_action, batch.expert_action[:, burn:])
     plain = jax.jit(lambda p: T.Trainer(SMOKE).trained_loss(params, p)[0])(prepared.replace(expert_action=None))
-    with_margin = jax.jit(lambda p: trainer.trained_loss(params, p)[0])(prepared)
+    with_margin, logged = jax.jit(lambda p: trainer.trained_loss(params, p))(prepared)
     q = jax.jit(lambda p: trainer.q_values(params, p.obs, p.reset, p.state, actions=p.td.action)[0])(prepared)
-    mask = np.asarray(prepared.td.mask)
-    margin = _reference_margin_loss(np.asarray(q[:, :-1]), np.asarray(prepared.expert_action), mask, 0.1)
+    mask, labels, q = np.asarray(prepared.td.mask), np.asarray(prepared.expert_action), np.asarray(q[:, :-1])
+    assert 0 < mask.sum() < mask.size  # some trained transitions cross into a new episode
+    margin = _reference_margin_loss(q, labels, mask, 0.1)
     assert margin > 0
     np.testing.assert_allclose(float(with_margin), float(plain) + 0.5 * margin, rtol=1e-5)
+    np.testing.assert_allclose(float(logged["margin_loss"]), margin, rtol=1e-5)
+    agreement = (q.argmax(-1) == labels)[mask].mean()
+    np.testing.assert_allclose(float(logged["expert_agreement"]), agreement, rtol=1e-5)
 
 
 @pytest.mark.parametrize("build, message", [

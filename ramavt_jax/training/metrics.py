@@ -35,6 +35,8 @@ def aggregate(m: ChunkMetrics, wall_s: float, env_steps: int) -> dict:
         "updates": updates,
         "loss": ratio(m.loss_sum.sum(), updates),
         "aux_loss": ratio(m.aux_loss_sum.sum(), updates),
+        "margin_loss": ratio(m.margin_loss_sum.sum(), updates),
+        "expert_agreement": ratio(m.expert_agreement_sum.sum(), updates),
         "q_mean": ratio(m.q_sum.sum(), updates),
         "grad_norm": ratio(m.grad_norm_sum.sum(), updates),
         "epsilon": float(m.epsilon[-1]),
@@ -70,14 +72,19 @@ def process_start_time() -> float:
     return min(now - since_start, _IMPORTED_AT)
 
 
-def split_loss(record: dict, aux_weight: float) -> dict:
-    """The record with its loss told apart: ``td_loss`` beside ``loss = td_loss + aux_weight * aux_loss`` when the run
-    has an auxiliary head, else without ``aux_loss`` (its 0 would read as a perfect fit)."""
+def split_loss(record: dict, aux_weight: float, margin_weight: float = 0.0) -> dict:
+    """The record with its loss told apart: ``td_loss`` beside ``loss = td_loss + aux_weight * aux_loss +
+    margin_weight * margin_loss`` when the run has an auxiliary head or a margin loss; the record holds neither term
+    (nor the agreement with the margin's labels) where the run has not got it (its 0 would read as a perfect fit)."""
     record = dict(record)
-    if aux_weight:
-        record["td_loss"] = record["loss"] - aux_weight * record["aux_loss"]
-    else:
+    if aux_weight or margin_weight:
+        record["td_loss"] = (record["loss"] - aux_weight * record.get("aux_loss", 0.0)
+                             - margin_weight * record.get("margin_loss", 0.0))
+    if not aux_weight:
         record.pop("aux_loss", None)
+    if not margin_weight:
+        record.pop("margin_loss", None)
+        record.pop("expert_agreement", None)
     return record
 
 
