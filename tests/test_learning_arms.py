@@ -105,6 +105,7 @@ def _changes(arm: str, reference: str) -> dict:
         ("exposure-002", "avg-1536k", {"network.exposure_rate": 0.02}),
         ("n-step-3", "avg-1536k", {"learner.n_step": 3}),
         ("expert-margin", "avg-1536k", {"learner.expert_margin_weight": 1.0}),
+        ("expert-margin-w3", "expert-margin", {"learner.expert_margin_weight": 3.0}),
         ("envs128-ratio1", "avg-1536k", {"acting.num_envs": 128, "learner.replay_ratio": 1.0,
                                          "run.total_env_steps": 2_304_000, "run.policy_average_from": 24}),
         ("clip-03", "avg-1536k", {"learner.max_grad_norm": 0.3}),
