@@ -25,10 +25,11 @@ def _quick() -> TrainConfig:
     layers (4x4 then 2x2: no im2col copies; 16 attention tokens), absolute depth and image position visible, the
     previous action into its LSTM; 'target lost' bootstrapped, an auxiliary tracking-error loss, replay ratio 2,
     gradients clipped at norm 1 (against late collapses), n-step targets bootstrapped from the online net's own pass
-    (no target-net pass: learns sooner, each update cheaper), 1.54M env steps (48 chunks; one seed trained and
-    evaluated in 6 min 0 s on a day the 1.15M preset took 4 min 30 s: results/wall_times.json). The trained policy
-    acts with the Polyak-averaged (target) params averaged again over its last 12 chunks, 37-48 (higher AER, narrower
-    spread over seeds; training itself acts with the online params)."""
+    (no target-net pass: learns sooner, each update cheaper), DQfD's large-margin loss towards the true-state one-step
+    look-ahead's action at every trained step (imitation.py; +607.0 against +582.7 on validation over ten seeds, arm
+    expert-margin), 1.54M env steps (48 chunks; results/wall_times.json has the wall time of one seed trained and
+    evaluated). The trained policy acts with the Polyak-averaged (target) params averaged again over its last 12
+    chunks, 37-48 (higher AER, narrower spread over seeds; training itself acts with the online params)."""
     return TrainConfig(
         env=env_lib.EnvConfig(camera=CameraConfig(resolution=32), autoreset="next_step"),
         network=NetworkConfig(variant="ramavt", channels=(16, 32, 32), kernels=(4, 2, 3), strides=(4, 2, 1),
@@ -39,29 +40,30 @@ def _quick() -> TrainConfig:
         replay=ReplayConfig(capacity_steps=64_000, burn_in=10, train_len=20, batch_size=32),
         learner=LearnerConfig(learning_starts=10_240, replay_ratio=2.0, lr=1e-3, gamma=0.97, n_step=5,
                               reward_scale=0.1, target_update="polyak", polyak_tau=0.01, bootstrap_lost=True,
-                              aux_weight=1.0, max_grad_norm=1.0, bootstrap_from="online"),
+                              aux_weight=1.0, max_grad_norm=1.0, bootstrap_from="online", expert_margin_weight=1.0),
         run=RunConfig(total_env_steps=1_536_000, iterations_per_chunk=25, eval_episodes=32, checkpoint_every_chunks=5,
                       policy_params="averaged", policy_average_from=36),
     )
 
 
 def _long() -> TrainConfig:
-    """The quick preset trained longer: 2.30M env steps (72 chunks), the policy still the tail average over the last
-    12 chunks (61-72). Higher AER than the quick preset at 1.15M env steps on validation (docs/experiments.md, arm
+    """The quick preset without the margin loss (not measured with it) trained longer: 2.30M env steps (72 chunks),
+    the policy still the tail average over the last 12 chunks (61-72). Higher AER than the quick preset at 1.15M env steps on validation (docs/experiments.md, arm
     avg-2304k); one seed trains and evaluates in 7 min 53 s, five as one program in under an hour on 2 CPU cores. The
     earlier long preset (3x3 convs with max-pools, the earlier shipped agent's, ramavt_depth_long) is ``--preset long``
     with docs/reproduce.md's $L10."""
-    return _quick().override(total_env_steps=2_304_000, policy_average_from=60)
+    return _quick().override(total_env_steps=2_304_000, policy_average_from=60, expert_margin_weight=0.0)
 
 
 def _sizes() -> TrainConfig:
     """The quick preset for targets of other sizes: each training target resized by a log-uniform factor in [0.15, 1]
     (small targets need the practice), seen at 64x64 depth (a small target needs the pixels) through an 8x8 first
-    patch, which keeps the quick preset's 4x4 attention tokens; everything else is the quick preset's, its 1.54M env
-    steps included (48 chunks, the policy averaged over 37-48), as chosen (docs/experiments.md, arms size-quick,
+    patch, which keeps the quick preset's 4x4 attention tokens; everything else is the quick preset's but its margin
+    loss (not measured with it), its 1.54M env steps included (48 chunks, the policy averaged over 37-48), as chosen (docs/experiments.md, arms size-quick,
     size-res64 and size-1536k: 65 % of the ceiling on the resized validation models over ten seeds, against 63 % at
     1.15M env steps and 52 % for the earlier sizes preset)."""
-    return at_64x64(_quick()).override(env_params={"size_scale_min": 0.15, "size_scale_max": 1.0})
+    return at_64x64(_quick()).override(env_params={"size_scale_min": 0.15, "size_scale_max": 1.0},
+                                       expert_margin_weight=0.0)
 
 
 def at_64x64(config: TrainConfig) -> TrainConfig:

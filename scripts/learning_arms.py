@@ -51,8 +51,8 @@ _res64 = presets.at_64x64  # 64x64 depth with an 8x8 first patch (the 4x4 token 
 # encoder blind to depth scale and position, 'target lost' as a terminal state, no previous action); 'all' combines
 # the first three changes, 'prev' is 'all' + the previous action into the LSTM, and 'prev-aux' ('prev' + the
 # auxiliary tracking-error loss) with twice the learning rate ('aux-lr2') was the quick preset before the patch
-# layers ('patch', below); 'avg-12' was the quick preset until 'avg-1536k', the quick preset now (arm_config checks
-# that).
+# layers ('patch', below); 'avg-12' was the quick preset until 'avg-1536k', and that until 'expert-margin', the quick
+# preset now (arm_config checks that).
 _LR = 5e-4  # the quick preset's learning rate before 'aux-lr2': every arm's, unless it changes it
 
 
@@ -62,7 +62,8 @@ def _base(c):
     return c.override(network=net, bootstrap_lost=False, aux_weight=0.0, lr=_LR, total_env_steps=384_000,
                       max_grad_norm=10.0,  # every arm before 'clip-1' clipped at norm 10
                       bootstrap_from="target",  # and every arm before 'online-boot' bootstrapped from the target net
-                      policy_params="target", policy_average_from=None)  # and acted with the target params
+                      policy_params="target", policy_average_from=None,  # and acted with the target params
+                      expert_margin_weight=0.0)  # and every arm before 'expert-margin' had no margin loss
 
 
 ARMS = {
@@ -448,8 +449,8 @@ ARMS["size-procedural-48"] = lambda c: _procedural(ARMS["size-1536k"](c), 48)
 
 def arm_config(name: str, preset: str = "quick", **overrides):
     base = presets.preset(preset, eval_episodes=0, **overrides)
-    if preset == "quick" and ARMS["avg-1536k"](base) != base:
-        raise SystemExit("the quick preset is no longer 'avg-1536k' of these arms: update ARMS")
+    if preset == "quick" and ARMS["expert-margin"](base) != base:
+        raise SystemExit("the quick preset is no longer 'expert-margin' of these arms: update ARMS")
     if preset == "quick" and not overrides and ARMS["avg-2304k"](base) != presets.preset("long", eval_episodes=0):
         raise SystemExit("the long preset is no longer 'avg-2304k' of these arms: update ARMS")
     return ARMS[name](base)

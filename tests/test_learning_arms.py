@@ -129,7 +129,7 @@ def test_each_table_arm_is_one_change(arm, reference, change):
 
 
 def test_quick_preset_is_the_depth_row():
-    assert learning_arms.arm_config("avg-1536k") == learning_arms.presets.preset("quick", eval_episodes=0)
+    assert learning_arms.arm_config("expert-margin") == learning_arms.presets.preset("quick", eval_episodes=0)
 
 
 def test_sizes_preset_is_the_arm_chosen_for_other_sizes():
@@ -192,6 +192,12 @@ def test_reproduce_flags_give_the_earlier_quick_preset_back(monkeypatch):
     """docs/reproduce.md's $Q36, put after `--preset quick`, parses to arm 'avg-12', the quick preset until
     'avg-1536k', so the commands recorded before still run as they ran."""
     assert _config_of_reproduce_flags(monkeypatch, "Q36", "quick") == learning_arms.arm_config("avg-12")
+
+
+def test_reproduce_flags_give_the_quick_preset_before_the_margin_loss_back(monkeypatch):
+    """docs/reproduce.md's $M0 after `--preset quick` parses to arm 'avg-1536k', the quick preset until
+    'expert-margin'."""
+    assert _config_of_reproduce_flags(monkeypatch, "M0", "quick") == learning_arms.arm_config("avg-1536k")
 
 
 def test_report_prints_the_seeds(tmp_path, capsys):
