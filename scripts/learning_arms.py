@@ -435,12 +435,6 @@ ARMS["expert-margin"] = lambda c: ARMS["avg-1536k"](c).override(expert_margin_we
 # The margin loss weighted 3 instead of 1, one change to 'expert-margin': at weight 1 the greedy action matched the
 # label on 42-48 % of the trained steps late in training; a larger weight asks for closer imitation.
 ARMS["expert-margin-w3"] = lambda c: ARMS["expert-margin"](c).override(expert_margin_weight=3.0)
-# The same wall time spent on more experience and fewer updates per env step: 128 envs at replay ratio 1 for 2.30M
-# env steps (36 chunks of 64k, the policy averaged over chunks 25-36) against 64 envs at ratio 2 for 1.54M.
-ARMS["envs128-ratio1"] = lambda c: ARMS["avg-1536k"](c).override(num_envs=128, replay_ratio=1.0,
-                                                                  total_env_steps=2_304_000, policy_average_from=24)
-# Gradients clipped harder: global norm 0.3 instead of 1 (1 instead of 10 was worth +12 to +30 at 768k env steps).
-ARMS["clip-03"] = lambda c: ARMS["avg-1536k"](c).override(max_grad_norm=0.3)
 # The same 48 models added to the sizes preset's training targets at 1.54M env steps (one change to 'size-1536k'):
 # the user models are shapes the catalogue does not have, flown at sizes it does not have, so more shapes in training
 # may carry further there than on the catalogue's validation sizes.
