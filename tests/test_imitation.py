@@ -47,14 +47,13 @@ def test_large_margin_loss_is_zero_once_the_expert_leads_by_the_margin_and_its_g
     assert grad[2] == -1.0 and grad[7] == 1.0 and np.count_nonzero(grad) == 2  # raise the expert's, lower the leader
 
 
-@pytest.mark.parametrize("margin_weight", [0.0, 1.0])
-def test_teacher_envs_fly_the_look_ahead_and_with_the_margin_every_env_stores_its_action(margin_weight):
+def test_teacher_envs_fly_the_look_ahead_and_with_the_margin_every_env_stores_its_action():
     """The first teacher_envs envs take the one-step look-ahead's action on their true state, whatever epsilon; the
     rest explore (epsilon 1: random commands). With the margin loss every env's stored label is still the
-    look-ahead's action; without it no label is stored. Checked against the look-ahead run env by env, outside the
-    trainer. Episodes of one step, so that every env ends one in the step: the training statistics count the agent's
-    envs only."""
-    cfg = SMOKE.override(teacher_envs=3, expert_margin_weight=margin_weight, env_params=(("max_steps", 1),),
+    look-ahead's action; without it no label is stored and the look-ahead acts for the teacher envs only. Checked
+    against the look-ahead run env by env, outside the trainer. Episodes of one step, so that every env ends one in
+    the step: the training statistics count the agent's envs only."""
+    cfg = SMOKE.override(teacher_envs=3, expert_margin_weight=1.0, env_params=(("max_steps", 1),),
                          network=dataclasses.replace(SMOKE.network, prev_action=True))
     trainer, k, n = T.Trainer(cfg), cfg.acting.teacher_envs, cfg.acting.num_envs
     state = trainer.init(jax.random.PRNGKey(3))
@@ -70,11 +69,11 @@ def test_teacher_envs_fly_the_look_ahead_and_with_the_margin_every_env_stores_it
     np.testing.assert_array_equal(taken[:, :k], np.broadcast_to(expected[:k], (6, k)))
     assert len({tuple(row) for row in taken[:, k:]}) > 1  # the agent's envs still explore at epsilon 1
     for _, transition, _ in steps:
-        if margin_weight:
-            np.testing.assert_array_equal(np.asarray(transition.expert_action), expected)
-        else:
-            assert transition.expert_action is None and trainer._example_transition().expert_action is None
+        np.testing.assert_array_equal(np.asarray(transition.expert_action), expected)
     assert len(set(expected.tolist())) > 1  # the envs' states differ enough to ask for different commands
+    teachers_only = T.Trainer(cfg.override(expert_margin_weight=0.0))
+    assert teachers_only.taught_envs == k and teachers_only._example_transition().expert_action is None
+    assert T.Trainer(SMOKE).teacher is None  # neither option: no look-ahead in the acting step
 
 
 def _window(cfg, key):
@@ -102,9 +101,15 @@ def test_the_trainers_loss_adds_the_weighted_margin_loss_of_the_trained_steps():
     np.testing.assert_array_equal(batch.expert_action, window.expert_action[:, :-1])  # transition t's obs t
     prepared = trainer.prepare(params, params, batch, jax.random.PRNGKey(2))
     np.testing.assert_array_equal(prepared.expert_action, batch.expert_action[:, burn:])
-    plain = jax.jit(lambda p: T.Trainer(SMOKE).trained_loss(params, p)[0])(prepared.replace(expert_action=None))
-    with_margin, logged = jax.jit(lambda p: trainer.trained_loss(params, p))(prepared)
-    q = jax.jit(lambda p: trainer.q_values(params, p.obs, p.reset, p.state, actions=p.td.action)[0])(prepared)
+    plain_trainer = T.Trainer(SMOKE)
+
+    @jax.jit
+    def losses(p):  # one program for the three passes
+        plain = plain_trainer.trained_loss(params, p.replace(expert_action=None))[0]
+        q = trainer.q_values(params, p.obs, p.reset, p.state, actions=p.td.action)[0]
+        return plain, trainer.trained_loss(params, p), q
+
+    plain, (with_margin, logged), q = losses(prepared)
     mask, labels, q = np.asarray(prepared.td.mask), np.asarray(prepared.expert_action), np.asarray(q[:, :-1])
     assert 0 < mask.sum() < mask.size  # some trained transitions cross into a new episode
     margin = _reference_margin_loss(q, labels, mask, 0.1)
