@@ -48,20 +48,20 @@ def _quick() -> TrainConfig:
 
 def _long() -> TrainConfig:
     """The quick preset without the margin loss (not measured with it) trained longer: 2.30M env steps (72 chunks),
-    the policy still the tail average over the last 12 chunks (61-72). Higher AER than the quick preset at 1.15M env steps on validation (docs/experiments.md, arm
-    avg-2304k); one seed trains and evaluates in 7 min 53 s, five as one program in under an hour on 2 CPU cores. The
-    earlier long preset (3x3 convs with max-pools, the earlier shipped agent's, ramavt_depth_long) is ``--preset long``
-    with docs/reproduce.md's $L10."""
+    the policy still the tail average over the last 12 chunks (61-72). Higher AER than the quick preset at 1.15M env
+    steps on validation (docs/experiments.md, arm avg-2304k); one seed trains and evaluates in 7 min 53 s, five as
+    one program in under an hour on 2 CPU cores. The earlier long preset (3x3 convs with max-pools, the earlier
+    shipped agent's, ramavt_depth_long) is ``--preset long`` with docs/reproduce.md's $L10."""
     return _quick().override(total_env_steps=2_304_000, policy_average_from=60, expert_margin_weight=0.0)
 
 
 def _sizes() -> TrainConfig:
     """The quick preset for targets of other sizes: each training target resized by a log-uniform factor in [0.15, 1]
-    (small targets need the practice), seen at 64x64 depth (a small target needs the pixels) through an 8x8 first
-    patch, which keeps the quick preset's 4x4 attention tokens; everything else is the quick preset's but its margin
-    loss (not measured with it), its 1.54M env steps included (48 chunks, the policy averaged over 37-48), as chosen (docs/experiments.md, arms size-quick,
-    size-res64 and size-1536k: 65 % of the ceiling on the resized validation models over ten seeds, against 63 % at
-    1.15M env steps and 52 % for the earlier sizes preset)."""
+    (small targets need the practice), seen at 64x64 depth (a small target needs the pixels) through an 8x8 first patch,
+    which keeps the quick preset's 4x4 attention tokens; everything else is the quick preset's but its margin loss (not
+    measured with it), its 1.54M env steps included (48 chunks, the policy averaged over 37-48), as chosen
+    (docs/experiments.md, arms size-quick, size-res64 and size-1536k: 65 % of the ceiling on the resized validation
+    models over ten seeds, against 63 % at 1.15M env steps and 52 % for the earlier sizes preset)."""
     return at_64x64(_quick()).override(env_params={"size_scale_min": 0.15, "size_scale_max": 1.0},
                                        expert_margin_weight=0.0)
 

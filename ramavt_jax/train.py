@@ -91,9 +91,10 @@ class Trainer:
                           if learner.max_grad_norm > 0 else lr_tx)
         self.augment_fn = (functools.partial(augment_batch, config=learner.augment_config) if learner.augment
                            else None)
+        # the look-ahead flies teacher_envs envs; with expert_margin_weight it labels every env's steps (replay: stored)
+        self.labels = bool(learner.expert_margin_weight)
         self.replay = replay_lib.make_replay(config.replay, config.acting.num_envs, self._example_transition())
-        # the look-ahead flies teacher_envs envs; with expert_margin_weight it labels every env's steps
-        self.taught_envs = config.acting.num_envs if learner.expert_margin_weight else config.acting.teacher_envs
+        self.taught_envs = config.acting.num_envs if self.labels else config.acting.teacher_envs
         self.teacher = imitation.look_ahead_teacher(self.env.config) if self.taught_envs else None
 
     # ---------------------------------------------------------------- helpers
@@ -105,7 +106,7 @@ class Trainer:
             recurrent_state=unbatch_state(s).replace(frames=None),
             privileged=jnp.zeros((self._privileged_size,)) if self._privileged_size else None,
             standoff=jnp.ones(()) if self.config.network.reads_standoff else None,
-            expert_action=jnp.zeros((), jnp.int32) if self.config.learner.expert_margin_weight else None)
+            expert_action=jnp.zeros((), jnp.int32) if self.labels else None)
 
     def _per_device(self, batched_fn):
         """Run a function of per-env arrays ([N, ...] in and out) on each device's own envs (``jax.shard_map``).
@@ -208,7 +209,7 @@ class Trainer:
         transition = replay_lib.Transition(
             obs=actor.obs, action=action, reward=reward, terminated=terminated, truncated=truncated,
             is_first=actor.is_first, recurrent_state=actor.net_state.replace(frames=None),
-            privileged=privileged, standoff=standoff, expert_action=taught if self.taught_envs == c.num_envs else None)
+            privileged=privileged, standoff=standoff, expert_action=taught if self.labels else None)
         new_actor = ActorState(env_state=env_state, obs=obs, is_first=info["is_first"],
                                net_state=record_action(net_state, action))
         done = (terminated | truncated) & (jnp.arange(c.num_envs) >= c.teacher_envs)  # the agent's episodes only

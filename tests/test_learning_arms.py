@@ -180,16 +180,6 @@ def test_reproduce_flags_give_the_earlier_long_preset_back(monkeypatch):
     assert TrainConfig.from_dict(record["config"]) == earlier.override(network=im2col)
 
 
-@pytest.mark.parametrize("agent, arm", [("ramavt_depth", "expert-margin"), ("ramavt_depth_clip1152k", "clip-1152k")])
-def test_each_shipped_agents_config_is_its_arm(agent, arm):
-    """The shipped agent and the one before it read back into the configs of the arms their TRAINING.md names."""
-    from ramavt_jax.evaluation import pretrained
-    from ramavt_jax.train_config import TrainConfig
-
-    record = json.loads((Path(pretrained.AGENTS_DIR) / agent / "config.json").read_text())
-    assert TrainConfig.from_dict(record["config"]) == learning_arms.arm_config(arm)
-
-
 def test_table2_training_flags_give_the_perturb_arm(monkeypatch):
     """docs/reproduce.md's $T2 flags, after `--preset quick $Q36`, parse to arm 'perturb-05' (Table II in training)."""
     assert _config_of_reproduce_flags(monkeypatch, "Q36 T2", "quick") == learning_arms.arm_config("perturb-05")
