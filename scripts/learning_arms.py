@@ -439,6 +439,13 @@ ARMS["expert-margin-w3"] = lambda c: ARMS["expert-margin"](c).override(expert_ma
 # the user models are shapes the catalogue does not have, flown at sizes it does not have, so more shapes in training
 # may carry further there than on the catalogue's validation sizes.
 ARMS["size-procedural-48"] = lambda c: _procedural(ARMS["size-1536k"](c), 48)
+# The margin loss on the sizes preset and on the long one, one change each ('size-1536k', 'avg-2304k'): both presets
+# were chosen before the labels, and neither was measured with them.
+ARMS["size-margin"] = lambda c: ARMS["size-1536k"](c).override(expert_margin_weight=1.0)
+ARMS["long-margin"] = lambda c: ARMS["avg-2304k"](c).override(expert_margin_weight=1.0)
+# Table II's perturbations in half the training episodes on the quick preset with the labels (one change to
+# 'expert-margin'): the labels come from the true state, which the perturbations do not touch.
+ARMS["perturb-05-margin"] = lambda c: _table2_in_training(ARMS["expert-margin"](c), 0.5)
 
 
 def arm_config(name: str, preset: str = "quick", **overrides):

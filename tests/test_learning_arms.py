@@ -106,6 +106,10 @@ def _changes(arm: str, reference: str) -> dict:
         ("n-step-3", "avg-1536k", {"learner.n_step": 3}),
         ("expert-margin", "avg-1536k", {"learner.expert_margin_weight": 1.0}),
         ("expert-margin-w3", "expert-margin", {"learner.expert_margin_weight": 3.0}),
+        ("size-margin", "size-1536k", {"learner.expert_margin_weight": 1.0}),
+        ("long-margin", "avg-2304k", {"learner.expert_margin_weight": 1.0}),
+        ("perturb-05-margin", "expert-margin", {"env.frame_history": 3, "env_params": (
+            ("actuator_noise", 0.3), ("blur_frames", 3), ("delay_max", 0.5), ("perturb_prob", 0.5))}),
         ("size-1536k", "size-res64", {"run.total_env_steps": 1_536_000, "run.policy_average_from": 36}),
         ("avg-1536k", "avg-12", {"run.total_env_steps": 1_536_000, "run.policy_average_from": 36}),
         ("size-quick", "avg-12", {"env_params": (("size_scale_max", 1.0), ("size_scale_min", 0.15))}),
@@ -131,7 +135,7 @@ def test_quick_preset_is_the_depth_row():
 
 def test_sizes_preset_is_the_arm_chosen_for_other_sizes():
     sizes = learning_arms.presets.preset("sizes", eval_episodes=0)
-    assert learning_arms.arm_config("size-1536k") == sizes
+    assert learning_arms.arm_config("size-margin") == sizes
     assert dict(sizes.env_params) == {"size_scale_min": 0.15, "size_scale_max": 1.0}
 
 
@@ -189,6 +193,12 @@ def test_reproduce_flags_give_the_earlier_quick_preset_back(monkeypatch):
     """docs/reproduce.md's $Q36, put after `--preset quick`, parses to arm 'avg-12', the quick preset until
     'avg-1536k', so the commands recorded before still run as they ran."""
     assert _config_of_reproduce_flags(monkeypatch, "Q36", "quick") == learning_arms.arm_config("avg-12")
+
+
+def test_reproduce_flags_give_the_sizes_preset_before_the_margin_loss_back(monkeypatch):
+    """docs/reproduce.md's $M0 after `--preset sizes` parses to arm 'size-1536k', the sizes preset until
+    'size-margin'."""
+    assert _config_of_reproduce_flags(monkeypatch, "M0", "sizes") == learning_arms.arm_config("size-1536k")
 
 
 def test_reproduce_flags_give_the_quick_preset_before_the_margin_loss_back(monkeypatch):
