@@ -440,7 +440,8 @@ ARMS["expert-margin-w3"] = lambda c: ARMS["expert-margin"](c).override(expert_ma
 # may carry further there than on the catalogue's validation sizes.
 ARMS["size-procedural-48"] = lambda c: _procedural(ARMS["size-1536k"](c), 48)
 # The margin loss on the sizes preset and on the long one, one change each ('size-1536k', 'avg-2304k'): both presets
-# were chosen before the labels. 'size-margin' is the sizes preset since it scored higher on val-sizes and val.
+# were chosen before the labels. 'size-margin' is the sizes preset since it scored higher on val-sizes and val,
+# 'long-margin' the long preset since it scored higher on val.
 ARMS["size-margin"] = lambda c: ARMS["size-1536k"](c).override(expert_margin_weight=1.0)
 ARMS["long-margin"] = lambda c: ARMS["avg-2304k"](c).override(expert_margin_weight=1.0)
 # Table II's perturbations in half the training episodes on the quick preset with the labels (one change to
@@ -452,8 +453,8 @@ def arm_config(name: str, preset: str = "quick", **overrides):
     base = presets.preset(preset, eval_episodes=0, **overrides)
     if preset == "quick" and ARMS["expert-margin"](base) != base:
         raise SystemExit("the quick preset is no longer 'expert-margin' of these arms: update ARMS")
-    if preset == "quick" and not overrides and ARMS["avg-2304k"](base) != presets.preset("long", eval_episodes=0):
-        raise SystemExit("the long preset is no longer 'avg-2304k' of these arms: update ARMS")
+    if preset == "quick" and not overrides and ARMS["long-margin"](base) != presets.preset("long", eval_episodes=0):
+        raise SystemExit("the long preset is no longer 'long-margin' of these arms: update ARMS")
     return ARMS[name](base)
 
 

@@ -168,7 +168,7 @@ def test_reproduce_flags_give_the_sizes_preset_at_1152k_back(monkeypatch):
 
 
 def test_long_preset_is_the_arm_chosen_for_a_longer_budget():
-    assert learning_arms.arm_config("avg-2304k") == learning_arms.presets.preset("long", eval_episodes=0)
+    assert learning_arms.arm_config("long-margin") == learning_arms.presets.preset("long", eval_episodes=0)
 
 
 def test_reproduce_flags_give_the_earlier_long_preset_back(monkeypatch):
@@ -193,6 +193,11 @@ def test_reproduce_flags_give_the_earlier_quick_preset_back(monkeypatch):
     """docs/reproduce.md's $Q36, put after `--preset quick`, parses to arm 'avg-12', the quick preset until
     'avg-1536k', so the commands recorded before still run as they ran."""
     assert _config_of_reproduce_flags(monkeypatch, "Q36", "quick") == learning_arms.arm_config("avg-12")
+
+
+def test_reproduce_flags_give_the_long_preset_before_the_margin_loss_back(monkeypatch):
+    """docs/reproduce.md's $M0 after `--preset long` parses to arm 'avg-2304k', the long preset until 'long-margin'."""
+    assert _config_of_reproduce_flags(monkeypatch, "M0", "long") == learning_arms.arm_config("avg-2304k")
 
 
 def test_reproduce_flags_give_the_sizes_preset_before_the_margin_loss_back(monkeypatch):
