@@ -195,6 +195,10 @@ def test_reproduce_flags_give_the_earlier_quick_preset_back(monkeypatch):
     assert _config_of_reproduce_flags(monkeypatch, "Q36", "quick") == learning_arms.arm_config("avg-12")
 
 
+def test_robust_preset_is_the_arm_chosen_under_perturbations():
+    assert learning_arms.arm_config("perturb-05-margin") == learning_arms.presets.preset("robust", eval_episodes=0)
+
+
 def test_reproduce_flags_give_the_long_preset_before_the_margin_loss_back(monkeypatch):
     """docs/reproduce.md's $M0 after `--preset long` parses to arm 'avg-2304k', the long preset until 'long-margin'."""
     assert _config_of_reproduce_flags(monkeypatch, "M0", "long") == learning_arms.arm_config("avg-2304k")

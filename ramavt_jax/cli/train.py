@@ -137,7 +137,7 @@ def make_train_cmd(preset_name: str, clock_start: float | None = None):
             config: the training configuration (defaults: the preset's).
             preset: the named defaults of presets.PRESETS, e.g. 'quick' (minutes on 2 CPU cores: 32x32 depth,
                 small RAMAVT), 'long' (quick trained twice as long), 'sizes' (quick at 64x64 with training targets
-                resized to [0.15, 1]x: for other sizes),
+                resized to [0.15, 1]x: for other sizes), 'robust' (quick trained under Table II's perturbations),
                 'paper' (256x256, full RAMAVT, batch 64, lr 1e-4, gamma 0.99, 50,000-step replay),
                 'smoke' (plumbing checks).
             seeds: number of independent seeds, trained together as ONE jitted program (vmap over seeds, each with
