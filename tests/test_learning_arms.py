@@ -195,8 +195,11 @@ def test_reproduce_flags_give_the_earlier_quick_preset_back(monkeypatch):
     assert _config_of_reproduce_flags(monkeypatch, "Q36", "quick") == learning_arms.arm_config("avg-12")
 
 
-def test_robust_preset_is_the_arm_chosen_under_perturbations():
-    assert learning_arms.arm_config("perturb-05-margin") == learning_arms.presets.preset("robust", eval_episodes=0)
+def test_robust_preset_is_the_arm_chosen_under_perturbations(monkeypatch):
+    """The robust preset is arm 'perturb-05-margin', and so is docs/reproduce.md's $T2 after `--preset quick`."""
+    robust = learning_arms.presets.preset("robust", eval_episodes=0)
+    assert learning_arms.arm_config("perturb-05-margin") == robust
+    assert _config_of_reproduce_flags(monkeypatch, "T2", "quick") == robust
 
 
 def test_reproduce_flags_give_the_long_preset_before_the_margin_loss_back(monkeypatch):
