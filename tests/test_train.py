@@ -51,6 +51,9 @@ def test_presets():
     for cfg in (quick, paper, SMOKE):
         assert cfg.updates_per_iteration >= 1 and cfg.num_chunks >= 1
     assert presets.preset("quick", lr=3e-4).learner.lr == 3e-4  # a group field by its own name (not the preset's value)
+    robust = presets.preset("robust")  # quick trained under Table II's perturbations, each in half the episodes
+    assert robust.override(env=quick.env, env_params={}) == quick and robust.env.frame_history == 3
+    assert dict(robust.env_params) == {"actuator_noise": 0.3, "delay_max": 0.5, "blur_frames": 3, "perturb_prob": 0.5}
     with pytest.raises(ValueError, match="unknown preset"):
         presets.preset("huge")
 
