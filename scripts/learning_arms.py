@@ -326,7 +326,7 @@ ARMS["perturb-05"] = lambda c: _table2_in_training(ARMS["avg-12"](c), 0.5)
 # The same with all three in every training episode, as Table II's 'all' setting flies them.
 ARMS["perturb-1"] = lambda c: _table2_in_training(ARMS["avg-12"](c), 1.0)
 # Twice the env steps (2.30M, 72 chunks), the policy still the average over the last 12 chunks (61-72): one change to
-# the quick preset; the long preset since it scored higher on validation over ten seeds.
+# the quick preset; the long preset from when it scored higher on validation over ten seeds until 'long-margin'.
 ARMS["avg-2304k"] = lambda c: ARMS["avg-12"](c).override(total_env_steps=2_304_000, policy_average_from=60)
 # A dueling head (Q = V + A - mean A, Wang et al. 2016), one change to the quick preset: near the desired point one
 # step's move changes the return little, and the agent dithers there (no motion on 1-6 % of the steps after the
