@@ -72,9 +72,16 @@ def _robust() -> TrainConfig:
     eighth are clean and an eighth have all three), with the 3-frame history the blur needs. Under all three it keeps
     about half the ceiling's return on validation where the quick preset's falls far below zero, at a small cost
     without perturbation (docs/experiments.md, arm perturb-05-margin)."""
-    config = _quick()
+    return under_table2_perturbations(_quick(), share=0.5)
+
+
+def under_table2_perturbations(config: TrainConfig, share: float) -> TrainConfig:
+    """``config`` trained under Table II's perturbations (actuator noise 0.3, time delay up to 0.5 s, 3-frame blur),
+    each drawn on in a ``share`` of the training episodes, with the 3-frame history the blur needs; the run's other
+    env overrides kept. Evaluation flies each Table II setting as it is, whatever a run trained with."""
+    perturbations = {"actuator_noise": 0.3, "delay_max": 0.5, "blur_frames": 3, "perturb_prob": share}
     return config.override(env=dataclasses.replace(config.env, frame_history=3),
-                           env_params={"actuator_noise": 0.3, "delay_max": 0.5, "blur_frames": 3, "perturb_prob": 0.5})
+                           env_params={**dict(config.env_params), **perturbations})
 
 
 def at_64x64(config: TrainConfig) -> TrainConfig:

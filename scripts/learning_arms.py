@@ -317,9 +317,7 @@ ARMS["eps-100k-polyak-002"] = lambda c: ARMS["avg-eps-100k"](c).override(polyak_
 # 0.5 s and the 3-frame average blur, each on in half the episodes, drawn per perturbation and episode, so an
 # eighth of the episodes stay clean and an eighth have all three. One change to the quick preset (the frame history
 # the blur needs comes with it; evaluation flies each Table II setting as it is, whatever a run trained with).
-def _table2_in_training(c, share: float):
-    c = c.override(env=dataclasses.replace(c.env, frame_history=3))
-    return _env(c, actuator_noise=0.3, delay_max=0.5, blur_frames=3, perturb_prob=share)
+_table2_in_training = presets.under_table2_perturbations  # the robust preset's, at any share
 
 
 ARMS["perturb-05"] = lambda c: _table2_in_training(ARMS["avg-12"](c), 0.5)
