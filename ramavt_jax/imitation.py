@@ -16,7 +16,10 @@ from ramavt_jax import baselines
 from ramavt_jax import env as env_lib
 from ramavt_jax.losses import masked_mean
 
-__all__ = ["look_ahead_teacher", "teacher_actions", "large_margin_loss", "margin_terms"]
+__all__ = ["NO_LABEL", "look_ahead_teacher", "teacher_actions", "unseen_yet", "stored_labels", "large_margin_loss",
+           "margin_terms"]
+
+NO_LABEL = -1  # a stored label the margin loss skips (a step whose image cannot show what the label knows)
 
 
 def look_ahead_teacher(config: env_lib.EnvConfig) -> baselines.Policy:
@@ -31,6 +34,23 @@ def teacher_actions(teacher: baselines.Policy, env_state: env_lib.EnvState, para
     n = jax.tree.leaves(env_state)[0].shape[0]
     act = lambda k, s: teacher.act(k, None, None, s, params)[0]  # noqa: E731
     return jax.vmap(act)(jax.random.split(key, n), env_state).astype(jnp.int32)
+
+
+def unseen_yet(env_state: env_lib.EnvState, camera: env_lib.CameraConfig) -> jax.Array:
+    """[N] bool for the N envs of ``env_state`` (leaves [N, ...]): the target is out of view now and has been lost at
+    every step of the episode so far (lost_steps == steps; 'lost' also counts a target in view but too far, rare at
+    these distances). The images so far are blank, so no policy of images can know where the target is."""
+    position = jax.vmap(env_lib.relative_position)(env_state) / env_state.scale[:, None]  # [N, 3] stand-off units
+    in_view = jax.vmap(lambda p: env_lib.in_view(p, camera))(position)
+    return ~in_view & (env_state.lost_steps == env_state.steps)
+
+
+def stored_labels(taught: jax.Array, env_state: env_lib.EnvState, camera: env_lib.CameraConfig,
+                  before_first_sight: bool) -> jax.Array:
+    """[N] int32 the labels to store for the teacher's actions ``taught`` [N]: all of them, or with
+    ``before_first_sight`` False NO_LABEL where the target is :func:`unseen_yet`, which leaves those steps to the TD
+    loss (a search learnt from the reward, not a guess at the hidden label averaged over blank images)."""
+    return taught if before_first_sight else jnp.where(unseen_yet(env_state, camera), NO_LABEL, taught)
 
 
 def large_margin_loss(q: jax.Array, expert_action: jax.Array, mask: jax.Array, margin: float,
@@ -54,6 +74,7 @@ def large_margin_loss(q: jax.Array, expert_action: jax.Array, mask: jax.Array, m
 def margin_terms(q: jax.Array, expert_action: jax.Array, mask: jax.Array, margin: float,
                  weights: jax.Array | None = None) -> tuple[jax.Array, jax.Array]:
     """(:func:`large_margin_loss`, the share of the masked steps whose greedy action is the expert's, a constant to
-    log); shapes as there."""
+    log); shapes as there. Steps labelled NO_LABEL are masked out of both."""
+    mask = mask * (expert_action != NO_LABEL)
     agreement = jax.lax.stop_gradient((jnp.argmax(q, axis=-1) == expert_action).astype(q.dtype))
     return large_margin_loss(q, expert_action, mask, margin, weights), masked_mean(agreement, mask)

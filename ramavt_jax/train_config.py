@@ -92,6 +92,9 @@ class LearnerConfig:
     # every trained step, the agent's own included, weighted by this (0 = off: no labels computed or stored).
     expert_margin_weight: float = 0.0
     expert_margin: float = 0.05  # how far the labelled action must lead every other, in Q's units (scaled rewards)
+    # False: no label at the steps before the target is first in view (imitation.unseen_yet), whose blank images
+    # cannot show where the look-ahead's label points; the TD loss alone decides how to search there.
+    label_before_first_sight: bool = True
     target_update: str = "polyak"  # 'polyak' | 'period'
     # 'target' (net, over the whole window) | 'online': the targets bootstrap from the online net's own trained pass
     # under stop_gradient (no target pass); the target net is still averaged, for RunConfig.policy_params='target'.

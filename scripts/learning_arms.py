@@ -446,6 +446,13 @@ ARMS["long-margin"] = lambda c: ARMS["avg-2304k"](c).override(expert_margin_weig
 # 'expert-margin'): the labels come from the true state, which the perturbations do not touch.
 ARMS["perturb-05-margin"] = lambda c: _table2_in_training(ARMS["expert-margin"](c), 0.5)
 
+# Episodes that start with the target out of view (a blank first image): 4 % of the reset distribution, and the
+# most of the sizes preset's lost validation episodes. Twice the start's lateral spread (one change to
+# 'size-margin') makes 20 % of training starts blind, for practice at finding the target; then the labels left out
+# before the target is first in view (one change to 'size-wide-starts'), so that the TD loss alone decides how to
+# search there rather than the look-ahead's hidden label averaged over blank images.
+ARMS["size-wide-starts"] = lambda c: _env(ARMS["size-margin"](c), init_xy_std=2.0)
+ARMS["size-wide-search"] = lambda c: ARMS["size-wide-starts"](c).override(label_before_first_sight=False)
 
 def arm_config(name: str, preset: str = "quick", **overrides):
     base = presets.preset(preset, eval_episodes=0, **overrides)

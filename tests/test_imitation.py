@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from ramavt_jax import baselines, imitation, presets
+from ramavt_jax import env as env_lib
 from ramavt_jax import replay as replay_lib
 from ramavt_jax import train as T
 from ramavt_jax.network import RecurrentState
@@ -74,6 +75,58 @@ def test_teacher_envs_fly_the_look_ahead_and_with_the_margin_every_env_stores_it
     teachers_only = T.Trainer(cfg.override(expert_margin_weight=0.0))
     assert teachers_only.taught_envs == k and teachers_only._example_transition().expert_action is None
     assert T.Trainer(SMOKE).teacher is None  # neither option: no look-ahead in the acting step
+
+
+def _blind_geometry(env_state) -> np.ndarray:
+    """[N] bool, by hand: the target centre outside the 60-degree view (or behind) and lost at every step so far."""
+    rel = np.einsum("ji,nj->ni", np.asarray(env_lib.HILL_FROM_CAM),
+                    np.asarray(env_state.target_pos) - np.asarray(env_state.chaser_pos))  # [N, 3] camera frame
+    x, y, z = rel.T
+    outside = (z <= 0) | (np.abs(x) > np.tan(np.pi / 6) * np.abs(z)) | (np.abs(y) > np.tan(np.pi / 6) * np.abs(z))
+    return outside & (np.asarray(env_state.lost_steps) == np.asarray(env_state.steps))
+
+
+def test_unseen_yet_is_out_of_view_with_every_step_so_far_lost():
+    tracking_env = env_lib.TrackingEnv(SMOKE.env)
+    params = tracking_env.default_params(init_xy_std=3.0)  # wide starts: many begin out of view
+    states = jax.vmap(lambda k: tracking_env.initial_state(k, params))(jax.random.split(jax.random.PRNGKey(0), 64))
+    seen_before = np.arange(64) % 3 == 0  # a third lost for 3 of 5 steps so far: in view two steps ago
+    states = states.replace(steps=jnp.full(64, 5), lost_steps=jnp.where(seen_before, 3, 5))
+    got = np.asarray(imitation.unseen_yet(states, SMOKE.env.camera))
+    np.testing.assert_array_equal(got, _blind_geometry(states))
+    assert 0 < got.sum() < (~seen_before).sum()  # some blind, some in view, and the seen-before never
+    taught = jnp.arange(64, dtype=jnp.int32) % 11
+    np.testing.assert_array_equal(imitation.stored_labels(taught, states, SMOKE.env.camera, True), taught)
+    np.testing.assert_array_equal(imitation.stored_labels(taught, states, SMOKE.env.camera, False),
+                                  np.where(got, imitation.NO_LABEL, taught))
+
+
+def test_margin_terms_skip_the_steps_without_a_label():
+    q = np.asarray(jax.random.normal(jax.random.PRNGKey(0), (3, 5, 11))) * 0.1
+    expert = np.array(jax.random.randint(jax.random.PRNGKey(1), (3, 5), 0, 11))
+    expert[0, 1:3], expert[2, 4] = imitation.NO_LABEL, imitation.NO_LABEL
+    mask = np.asarray(jax.random.uniform(jax.random.PRNGKey(2), (3, 5)) < 0.8)
+    loss, agreement = imitation.margin_terms(jnp.asarray(q), jnp.asarray(expert), jnp.asarray(mask, jnp.float32), 0.05)
+    labelled = mask & (expert != imitation.NO_LABEL)
+    np.testing.assert_allclose(float(loss), _reference_margin_loss(q, expert, labelled, 0.05), rtol=1e-5)
+    np.testing.assert_allclose(float(agreement), (q.argmax(-1) == expert)[labelled].mean(), rtol=1e-5)
+
+
+def test_without_labels_before_first_sight_the_trainer_stores_none_at_blind_starts():
+    """label_before_first_sight=False: the first step's stored label is NO_LABEL exactly at the envs whose target
+    starts out of view (by hand), and the look-ahead's action elsewhere; True stores the action everywhere."""
+    wide = (("init_xy_std", 3.0),)
+    cfg = SMOKE.override(expert_margin_weight=1.0, env_params=wide, label_before_first_sight=False)
+    labels = {}
+    for flag in (False, True):
+        trainer = T.Trainer(cfg.override(label_before_first_sight=flag))
+        state = trainer.init(jax.random.PRNGKey(4))
+        _, transition, _ = jax.jit(trainer.act_step)(state.learner.params, state.actor, jnp.asarray(0.0),
+                                                    jax.random.PRNGKey(5))
+        labels[flag], blind = np.asarray(transition.expert_action), _blind_geometry(state.actor.env_state)
+    assert 0 < blind.sum() < blind.size
+    np.testing.assert_array_equal(labels[False], np.where(blind, imitation.NO_LABEL, labels[True]))
+    assert (labels[True] >= 0).all()
 
 
 def _window(cfg, key):

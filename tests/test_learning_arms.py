@@ -108,6 +108,9 @@ def _changes(arm: str, reference: str) -> dict:
         ("expert-margin-w3", "expert-margin", {"learner.expert_margin_weight": 3.0}),
         ("size-margin", "size-1536k", {"learner.expert_margin_weight": 1.0}),
         ("long-margin", "avg-2304k", {"learner.expert_margin_weight": 1.0}),
+        ("size-wide-starts", "size-margin", {"env_params": (("init_xy_std", 2.0), ("size_scale_max", 1.0),
+                                                            ("size_scale_min", 0.15))}),
+        ("size-wide-search", "size-wide-starts", {"learner.label_before_first_sight": False}),
         ("perturb-05-margin", "expert-margin", {"env.frame_history": 3, "env_params": (
             ("actuator_noise", 0.3), ("blur_frames", 3), ("delay_max", 0.5), ("perturb_prob", 0.5))}),
         ("size-1536k", "size-res64", {"run.total_env_steps": 1_536_000, "run.policy_average_from": 36}),

@@ -1,0 +1,88 @@
+"""How often a policy loses episodes that start with the target out of view (a blank first image), against those
+that start in view: the share of the lost episodes a search behaviour could save.
+
+    python scripts/blind_starts.py runs/size_margin/seed_{0..4} --targets val-sizes --episodes 400 \
+        --out results/val/blind_starts/size_margin.json
+
+About 4 % of the reset distribution's episodes start out of view (x, y ~ N(0, 1) k against z ~ U[2, 12) k and a
+60-degree view), and an image policy cannot tell from them where the target is. Every policy flies the same
+episodes (those of `ramavt eval --targets ... --episodes N --seed S` with no perturbation), so arms compare paired.
+"Starts out of view" is read after the first step (the first recorded state). The interval is a 95 % bootstrap
+over the blind-start episodes, each scored by the share of the given policies (seeds) that lose it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import jax
+import numpy as np
+
+from lost_episodes import load  # scripts/ is the running script's own folder, first on sys.path
+from ramavt_jax import env as env_lib
+from ramavt_jax.evaluation import rollouts, statistics, tables
+
+
+def fly(spec: str, names: tuple[str, ...], episodes: int, seed: int, resolution: int) -> dict[str, dict]:
+    """Per target: 'blind' [N] bool (out of view after step 1) and 'lost' [N] bool (terminated) of one policy."""
+    policy, env_config, run_overrides = load(spec, resolution, names)
+    tracking_env = env_lib.TrackingEnv(env_config)
+    params = tracking_env.eval_params(**run_overrides)
+    root, out = jax.random.PRNGKey(seed), {}
+    for index, name in enumerate(names):
+        stats, rec = jax.device_get(rollouts.run_episodes(
+            tracking_env, policy, tracking_env.pinned(params, index), tables.episode_key(root, "none", name),
+            episodes, record=True))
+        out[name] = {"blind": ~np.asarray(rec.in_view)[0], "lost": np.asarray(stats.terminated)}
+    return out
+
+
+def summarise(flown: list[dict[str, dict]], names: tuple[str, ...]) -> dict:
+    """Counts per target and policy, and the share of blind starts lost over all policies with its interval."""
+    blind = np.concatenate([flown[0][n]["blind"] for n in names])  # [E] the same episodes for every policy
+    lost = np.stack([np.concatenate([f[n]["lost"] for n in names]) for f in flown])  # [P, E]
+    share = lost[:, blind].mean(0)  # [blind episodes] share of the policies that lose each
+    low, high = statistics.bootstrap_ci(share)  # NaNs under two blind starts
+    per_target = {n: {"blind_starts": int(flown[0][n]["blind"].sum()),
+                      "blind_lost": [int((f[n]["lost"] & f[n]["blind"]).sum()) for f in flown],
+                      "seen_lost": [int((f[n]["lost"] & ~f[n]["blind"]).sum()) for f in flown]} for n in names}
+    return {"episodes": int(blind.size), "blind_starts": int(blind.sum()),
+            "blind_lost_share": float(share.mean()) if share.size else float("nan"), "ci95": [low, high],
+            "blind_lost_per_policy": [int(x) for x in lost[:, blind].sum(1)],
+            "seen_lost_per_policy": [int(x) for x in lost[:, ~blind].sum(1)], "per_target": per_target}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("policies", nargs="+", help="run folders (the seeds of one arm) or a baseline: depth | mpc")
+    ap.add_argument("--targets", default="val-sizes", help="a split or comma-separated catalogue names / MJCF files")
+    ap.add_argument("--episodes", type=int, default=400, help="episodes per target")
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--resolution", type=int, default=32, help="a baseline's camera (a trained policy uses its own)")
+    ap.add_argument("--out", type=Path, default=None, help="JSON file to write")
+    args = ap.parse_args()
+    if args.episodes < 1:
+        ap.error(f"--episodes must be >= 1, got {args.episodes}")
+    names = rollouts.resolve_targets(args.targets)
+    flown = []
+    for spec in args.policies:
+        flown.append(fly(spec, names, args.episodes, args.seed, args.resolution))
+        print(f"{spec}: {sum(int((f['lost'] & f['blind']).sum()) for f in flown[-1].values())} blind starts lost, "
+              f"{sum(int((f['lost'] & ~f['blind']).sum()) for f in flown[-1].values())} others", flush=True)
+    summary = summarise(flown, names)
+    low, high = summary["ci95"]
+    print(f"{summary['blind_starts']} of {summary['episodes']} episodes start out of view; lost: "
+          f"{100 * summary['blind_lost_share']:.1f} % [{100 * low:.1f}, {100 * high:.1f}] of them "
+          f"(per policy {summary['blind_lost_per_policy']}); other episodes lost per policy "
+          f"{summary['seen_lost_per_policy']}")
+    if args.out:
+        args.out.parent.mkdir(parents=True, exist_ok=True)
+        record = {"policies": args.policies, "targets": list(names), "episodes_per_target": args.episodes,
+                  "seed": args.seed, **summary}
+        args.out.write_text(json.dumps(record, indent=1) + "\n")
+
+
+if __name__ == "__main__":
+    main()
