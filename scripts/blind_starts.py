@@ -5,10 +5,11 @@ that start in view: the share of the lost episodes a search behaviour could save
         --out results/val/blind_starts/size_margin.json
 
 About 4 % of the reset distribution's episodes start out of view (x, y ~ N(0, 1) k against z ~ U[2, 12) k and a
-60-degree view), and an image policy cannot tell from them where the target is. Every policy flies the same
-episodes (those of `ramavt eval --targets ... --episodes N --seed S` with no perturbation), so arms compare paired.
-"Starts out of view" is read after the first step (the first recorded state). The interval is a 95 % bootstrap
-over the blind-start episodes, each scored by the share of the given policies (seeds) that lose it.
+60-degree view), and an image policy cannot tell from its blank first image where the target is. Every policy
+flies the same episodes (those of `ramavt eval --targets ... --episodes N --seed S` with no perturbation), so arms
+compare paired. "Starts out of view" is read at the reset, before any action: the same set for every policy. The
+interval is a 95 % bootstrap over the blind-start episodes, each scored by the share of the policies (seeds) that
+lose it.
 """
 
 from __future__ import annotations
@@ -26,16 +27,18 @@ from ramavt_jax.evaluation import rollouts, statistics, tables
 
 
 def fly(spec: str, names: tuple[str, ...], episodes: int, seed: int, resolution: int) -> dict[str, dict]:
-    """Per target: 'blind' [N] bool (out of view after step 1) and 'lost' [N] bool (terminated) of one policy."""
+    """Per target: 'blind' [N] bool (out of view at the reset, before any action) and 'lost' [N] bool (terminated)
+    of one policy."""
     policy, env_config, run_overrides = load(spec, resolution, names)
     tracking_env = env_lib.TrackingEnv(env_config)
     params = tracking_env.eval_params(**run_overrides)
+    seen = jax.vmap(lambda s: env_lib.in_view(env_lib.relative_position(s) / s.scale, env_config.camera))
     root, out = jax.random.PRNGKey(seed), {}
     for index, name in enumerate(names):
-        stats, rec = jax.device_get(rollouts.run_episodes(
-            tracking_env, policy, tracking_env.pinned(params, index), tables.episode_key(root, "none", name),
-            episodes, record=True))
-        out[name] = {"blind": ~np.asarray(rec.in_view)[0], "lost": np.asarray(stats.terminated)}
+        pinned, key = tracking_env.pinned(params, index), tables.episode_key(root, "none", name)
+        starts = rollouts.episode_starts(tracking_env, pinned, key, episodes)
+        stats, _ = jax.device_get(rollouts.run_episodes(tracking_env, policy, pinned, key, episodes))
+        out[name] = {"blind": ~np.asarray(seen(starts)), "lost": np.asarray(stats.terminated)}
     return out
 
 
@@ -51,7 +54,9 @@ def summarise(flown: list[dict[str, dict]], names: tuple[str, ...]) -> dict:
     return {"episodes": int(blind.size), "blind_starts": int(blind.sum()),
             "blind_lost_share": float(share.mean()) if share.size else float("nan"), "ci95": [low, high],
             "blind_lost_per_policy": [int(x) for x in lost[:, blind].sum(1)],
-            "seen_lost_per_policy": [int(x) for x in lost[:, ~blind].sum(1)], "per_target": per_target}
+            "seen_lost_per_policy": [int(x) for x in lost[:, ~blind].sum(1)], "per_target": per_target,
+            "blind_episodes": np.flatnonzero(blind).tolist(),  # indices into the targets' episodes, in order
+            "lost_episodes_per_policy": [np.flatnonzero(row).tolist() for row in lost]}
 
 
 def main() -> None:

@@ -57,6 +57,20 @@ def test_summary_matches_hand_computation():
     assert rollouts.summarise(both).length_mean == pytest.approx(7.0)
 
 
+def test_episode_starts_are_the_states_run_episodes_starts_from():
+    """Two targets drawn at random per episode: the starts' target draws are the episodes', and the recorded first
+    step is one step on from them (the target moves < 0.1 m in a step; the starts lie metres apart)."""
+    config = env_lib.EnvConfig(camera=render.CameraConfig(resolution=16), targets=("Satellite-v2", "Rocket-v1"))
+    tracking_env = env_lib.TrackingEnv(config)
+    params, key = tracking_env.eval_params(max_steps=2), jax.random.PRNGKey(7)
+    starts = rollouts.episode_starts(tracking_env, params, key, 12)
+    stats, rec = rollouts.run_episodes(tracking_env, baselines.random_policy(), params, key, 12, record=True)
+    np.testing.assert_array_equal(np.asarray(starts.target_index), np.asarray(stats.target_index))
+    assert 0 < int(np.asarray(starts.target_index).sum()) < 12
+    moved = np.linalg.norm(np.asarray(rec.target_pos)[0] - np.asarray(starts.target_pos), axis=-1)
+    assert moved.max() < 0.1 < np.linalg.norm(np.diff(np.asarray(starts.target_pos), axis=0), axis=-1).min()
+
+
 def test_early_exit_runner_matches_recorded_scan():
     config = env_lib.EnvConfig(camera=render.CameraConfig(resolution=16), targets=("Satellite-v2",))
     tracking_env = env_lib.TrackingEnv(config)

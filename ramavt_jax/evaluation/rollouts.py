@@ -152,6 +152,19 @@ def episodes_that_fit(compiled, num_episodes: int) -> int:
     return max(batch, 1)
 
 
+def _episode_keys(key: jax.Array) -> jax.Array:
+    """[3] keys of a set of episodes: resets, policy inits, steps (each split per episode)."""
+    return jax.random.split(key, 3)
+
+
+def episode_starts(tracking_env: env_lib.TrackingEnv, params: env_lib.EnvParams, key: jax.Array,
+                   num_episodes: int) -> env_lib.EnvState:
+    """The initial states [N] of the episodes :func:`run_episodes` flies for ``key``: no policy acts on them yet, so
+    every policy's episodes start from these (for sorting episodes by how they start, say)."""
+    keys = jax.random.split(_episode_keys(key)[0], num_episodes)
+    return jax.vmap(tracking_env.reset, in_axes=(0, None))(keys, params)[1]
+
+
 @functools.lru_cache(maxsize=32)
 def _episode_runner(tracking_env, policy, steps, record):
     """Jitted runner. With `record` the whole horizon is one lax.scan; without, a lax.while_loop that stops as soon
@@ -165,7 +178,7 @@ def _episode_runner(tracking_env, policy, steps, record):
         def split(k):  # episodes offset .. offset + num_episodes of the keys of all `total` episodes
             return jax.lax.dynamic_slice_in_dim(jax.random.split(k, total), offset, num_episodes)
 
-        k_reset, k_policy, k_loop = jax.random.split(key, 3)
+        k_reset, k_policy, k_loop = _episode_keys(key)
         obs, state = jax.vmap(tracking_env.reset, in_axes=(0, None))(split(k_reset), params)
         pstate = jax.vmap(pol.init)(split(k_policy))
         alive = jnp.ones(num_episodes, bool)

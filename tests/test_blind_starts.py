@@ -1,0 +1,26 @@
+"""scripts/blind_starts.py's counts on hand-made episodes whose answers are known."""
+
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts"))
+import blind_starts  # noqa: E402
+
+
+def test_summarise_counts_blind_starts_lost_per_policy_and_per_target():
+    blind = {"a": np.array([True, False, False, True]), "b": np.array([False, True, False])}
+    lost = [{"a": np.array([True, True, False, False]), "b": np.array([False, True, True])},  # policy 0
+            {"a": np.array([False, False, False, False]), "b": np.array([False, True, False])}]  # policy 1
+    flown = [{n: {"blind": blind[n], "lost": row[n]} for n in blind} for row in lost]
+    s = blind_starts.summarise(flown, ("a", "b"))
+    assert (s["episodes"], s["blind_starts"]) == (7, 3)
+    assert s["blind_lost_per_policy"] == [2, 1] and s["seen_lost_per_policy"] == [2, 0]
+    # blind episodes 0, 3 (a) and 5 (b): lost by 1 of 2, 0 of 2 and 2 of 2 policies
+    assert s["blind_lost_share"] == pytest.approx((0.5 + 0.0 + 1.0) / 3)
+    assert s["ci95"][0] <= s["blind_lost_share"] <= s["ci95"][1]
+    assert s["per_target"]["a"] == {"blind_starts": 2, "blind_lost": [1, 0], "seen_lost": [1, 0]}
+    assert s["per_target"]["b"] == {"blind_starts": 1, "blind_lost": [1, 1], "seen_lost": [1, 0]}
+    assert s["blind_episodes"] == [0, 3, 5] and s["lost_episodes_per_policy"] == [[0, 1, 5, 6], [5]]
