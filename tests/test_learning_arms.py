@@ -222,6 +222,12 @@ def test_reproduce_flags_give_the_quick_preset_before_the_margin_loss_back(monke
     assert _config_of_reproduce_flags(monkeypatch, "M0", "quick") == learning_arms.arm_config("avg-1536k")
 
 
+def test_reproduce_flags_give_the_blind_start_arms(monkeypatch):
+    """docs/reproduce.md's $W and $WS after `--preset sizes` parse to arms 'size-wide-starts' and 'size-wide-search'."""
+    assert _config_of_reproduce_flags(monkeypatch, "W", "sizes") == learning_arms.arm_config("size-wide-starts")
+    assert _config_of_reproduce_flags(monkeypatch, "WS", "sizes") == learning_arms.arm_config("size-wide-search")
+
+
 def test_report_prints_the_seeds(tmp_path, capsys):
     names = list(learning_arms.targets_lib.TEST_TARGETS)
     seeds = [{"AEL": ael, "AER": aer, "lost": 0.0, "per_target": {n: {"AEL": ael, "AER": aer} for n in names}}
