@@ -26,9 +26,13 @@ from ramavt_jax import env as env_lib
 from ramavt_jax.evaluation import rollouts, statistics, tables
 
 
+SEARCH_STEPS = 20  # the evaluation's lost patience: a blind start still unseen after these steps is lost
+
+
 def fly(spec: str, names: tuple[str, ...], episodes: int, seed: int, resolution: int) -> dict[str, dict]:
-    """Per target: 'blind' [N] bool (out of view at the reset, before any action) and 'lost' [N] bool (terminated)
-    of one policy."""
+    """Per target: 'blind' [N] bool (out of view at the reset, before any action), 'lost' [N] bool (terminated),
+    and over the first SEARCH_STEPS steps 'action' [S, N] int and 'unseen' [S, N] bool (the step's action was chosen
+    with the target not yet in view at the reset or after any earlier step) of one policy."""
     policy, env_config, run_overrides = load(spec, resolution, names)
     tracking_env = env_lib.TrackingEnv(env_config)
     params = tracking_env.eval_params(**run_overrides)
@@ -38,7 +42,13 @@ def fly(spec: str, names: tuple[str, ...], episodes: int, seed: int, resolution:
         pinned, key = tracking_env.pinned(params, index), tables.episode_key(root, "none", name)
         starts = rollouts.episode_starts(tracking_env, pinned, key, episodes)
         stats, _ = jax.device_get(rollouts.run_episodes(tracking_env, policy, pinned, key, episodes))
-        out[name] = {"blind": ~np.asarray(seen(starts)), "lost": np.asarray(stats.terminated)}
+        _, first = jax.device_get(rollouts.run_episodes(tracking_env, policy, pinned, key, episodes, SEARCH_STEPS,
+                                                        record=True))  # the same episodes' first steps
+        blind = ~np.asarray(seen(starts))
+        shown = np.cumsum(np.asarray(first.in_view), axis=0) > 0  # [S, N] in view after this step or an earlier
+        unseen = blind & ~np.concatenate([np.zeros_like(shown[:1]), shown[:-1]])  # [S, N]
+        out[name] = {"blind": blind, "lost": np.asarray(stats.terminated), "action": np.asarray(first.action),
+                     "unseen": unseen & np.asarray(first.alive)}
     return out
 
 
@@ -56,7 +66,11 @@ def summarise(flown: list[dict[str, dict]], names: tuple[str, ...]) -> dict:
             "blind_lost_per_policy": [int(x) for x in lost[:, blind].sum(1)],
             "seen_lost_per_policy": [int(x) for x in lost[:, ~blind].sum(1)], "per_target": per_target,
             "blind_episodes": np.flatnonzero(blind).tolist(),  # indices into the targets' episodes, in order
-            "lost_episodes_per_policy": [np.flatnonzero(row).tolist() for row in lost]}
+            "lost_episodes_per_policy": [np.flatnonzero(row).tolist() for row in lost],
+            # how each policy searches: its commands (env_config.ACTIONS rows) while the target is not yet in view
+            "actions_before_first_sight_per_policy": [
+                np.bincount(np.concatenate([f[n]["action"][f[n]["unseen"]] for n in names]).astype(int),
+                            minlength=env_lib.NUM_ACTIONS).tolist() for f in flown]}
 
 
 def main() -> None:
@@ -81,7 +95,8 @@ def main() -> None:
     print(f"{summary['blind_starts']} of {summary['episodes']} episodes start out of view; lost: "
           f"{100 * summary['blind_lost_share']:.1f} % [{100 * low:.1f}, {100 * high:.1f}] of them "
           f"(per policy {summary['blind_lost_per_policy']}); other episodes lost per policy "
-          f"{summary['seen_lost_per_policy']}")
+          f"{summary['seen_lost_per_policy']}; commands before first sight (actions 0-10) per policy "
+          f"{summary['actions_before_first_sight_per_policy']}")
     if args.out:
         args.out.parent.mkdir(parents=True, exist_ok=True)
         record = {"policies": args.policies, "targets": list(names), "episodes_per_target": args.episodes,

@@ -14,7 +14,11 @@ def test_summarise_counts_blind_starts_lost_per_policy_and_per_target():
     blind = {"a": np.array([True, False, False, True]), "b": np.array([False, True, False])}
     lost = [{"a": np.array([True, True, False, False]), "b": np.array([False, True, True])},  # policy 0
             {"a": np.array([False, False, False, False]), "b": np.array([False, True, False])}]  # policy 1
-    flown = [{n: {"blind": blind[n], "lost": row[n]} for n in blind} for row in lost]
+    action = {"a": np.array([[1, 2, 3, 4], [5, 6, 7, 8]]), "b": np.array([[0, 9, 10], [6, 6, 6]])}  # [S=2, N]
+    unseen = {"a": np.array([[True, False, False, True], [False, False, False, True]]),
+              "b": np.array([[False, True, False], [False, True, False]])}
+    flown = [{n: {"blind": blind[n], "lost": row[n], "action": action[n] + k, "unseen": unseen[n]} for n in blind}
+             for k, row in enumerate(lost)]
     s = blind_starts.summarise(flown, ("a", "b"))
     assert (s["episodes"], s["blind_starts"]) == (7, 3)
     assert s["blind_lost_per_policy"] == [2, 1] and s["seen_lost_per_policy"] == [2, 0]
@@ -24,3 +28,6 @@ def test_summarise_counts_blind_starts_lost_per_policy_and_per_target():
     assert s["per_target"]["a"] == {"blind_starts": 2, "blind_lost": [1, 0], "seen_lost": [1, 0]}
     assert s["per_target"]["b"] == {"blind_starts": 1, "blind_lost": [1, 1], "seen_lost": [1, 0]}
     assert s["blind_episodes"] == [0, 3, 5] and s["lost_episodes_per_policy"] == [[0, 1, 5, 6], [5]]
+    # the unseen steps' commands: a 1, 4, 8 and b 9, 6 (policy 1 adds 1 to each)
+    assert s["actions_before_first_sight_per_policy"] == [[0, 1, 0, 0, 1, 0, 1, 0, 1, 1, 0],
+                                                           [0, 0, 1, 0, 0, 1, 0, 1, 0, 1, 1]]
