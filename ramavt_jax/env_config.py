@@ -132,6 +132,8 @@ class EnvParams:
     # evaluation flies the models as they are (evaluation.rollouts.EVAL_FIELDS).
     offset_max: jax.Array = 0.0
     offset_prob: jax.Array = 1.0
+    # The start distribution (env.TrackingEnv.initial_state); training may widen it, evaluation flies these values
+    # (evaluation.rollouts.EVAL_FIELDS).
     init_xy_std: jax.Array = 1.0  # m
     init_z_min: jax.Array = 2.0  # m
     init_z_max: jax.Array = 12.0  # m

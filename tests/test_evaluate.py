@@ -71,6 +71,11 @@ def test_episode_starts_are_the_states_run_episodes_starts_from():
     assert moved.max() < 0.1 < np.linalg.norm(np.diff(np.asarray(starts.target_pos), axis=0), axis=-1).min()
 
 
+def test_a_run_trained_on_wider_starts_is_evaluated_on_the_benchmarks_starts():
+    trained = {"init_xy_std": 2.0, "init_z_min": 1.0, "init_z_max": 20.0, "target_spin_std": 0.2}
+    assert rollouts.run_env_overrides(trained) == {"target_spin_std": 0.2}
+
+
 def test_early_exit_runner_matches_recorded_scan():
     config = env_lib.EnvConfig(camera=render.CameraConfig(resolution=16), targets=("Satellite-v2",))
     tracking_env = env_lib.TrackingEnv(config)

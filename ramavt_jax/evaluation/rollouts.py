@@ -20,10 +20,11 @@ from ramavt_jax.evaluation import statistics
 from ramavt_jax.training import memory as memplan
 
 # EnvParams fields whose evaluation values (env.eval_params) replace a run's training values: each target at its own
-# size and shape, one speed rule for every row of a table, and Table II's perturbations as the flown setting says
+# size and shape, one speed rule for every row of a table, Table II's perturbations as the flown setting says, and
+# the benchmark's start distribution (a run may train on wider starts for practice; every row flies the same ones)
 EVAL_FIELDS = ("dist_weight", "lost_patience", "size_scale_min", "size_scale_max", "size_scale_prob", "stretch_max",
                "stretch_prob", "offset_max", "offset_prob", "speed_standoff_power", "small_standoff_power",
-               "actuator_noise", "delay_max", "blur_frames", "perturb_prob")
+               "actuator_noise", "delay_max", "blur_frames", "perturb_prob", "init_xy_std", "init_z_min", "init_z_max")
 
 
 def run_env_overrides(env_params) -> dict:
