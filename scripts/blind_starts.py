@@ -73,15 +73,45 @@ def summarise(flown: list[dict[str, dict]], names: tuple[str, ...]) -> dict:
                             minlength=env_lib.NUM_ACTIONS).tolist() for f in flown]}
 
 
+def lost_shares(record: dict) -> np.ndarray:
+    """[E] for each episode of a written record, the share of its policies that lose it."""
+    lost = np.zeros((len(record["lost_episodes_per_policy"]), record["episodes"]))
+    for row, episodes in zip(lost, record["lost_episodes_per_policy"]):
+        row[episodes] = 1.0
+    return lost.mean(0)
+
+
+def compare(before: dict, after: dict) -> dict:
+    """Paired change from ``before`` to ``after`` (records of the same episodes) in the share of episodes lost, over
+    the blind starts and over all episodes: mean difference (after - before) with its 95 % bootstrap interval."""
+    same = ("targets", "episodes_per_target", "seed")
+    if any(before[k] != after[k] for k in same):
+        raise SystemExit(f"the two records flew different episodes: {[(before[k], after[k]) for k in same]}")
+    diff, blind = lost_shares(after) - lost_shares(before), np.asarray(before["blind_episodes"], int)
+    return {name: {"before": float(lost_shares(before)[idx].mean()), "after": float(lost_shares(after)[idx].mean()),
+                   "difference": float(diff[idx].mean()), "ci95": list(statistics.bootstrap_ci(diff[idx]))}
+            for name, idx in (("blind_starts", blind), ("all_episodes", np.arange(diff.size)))}
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("policies", nargs="+", help="run folders (the seeds of one arm) or a baseline: depth | mpc")
+    ap.add_argument("policies", nargs="*", help="run folders (the seeds of one arm) or a baseline: depth | mpc")
+    ap.add_argument("--compare", nargs=2, type=Path, metavar=("BEFORE", "AFTER"),
+                    help="two written records of the same episodes: the paired change in the share lost, no flying")
     ap.add_argument("--targets", default="val-sizes", help="a split or comma-separated catalogue names / MJCF files")
     ap.add_argument("--episodes", type=int, default=400, help="episodes per target")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--resolution", type=int, default=32, help="a baseline's camera (a trained policy uses its own)")
     ap.add_argument("--out", type=Path, default=None, help="JSON file to write")
     args = ap.parse_args()
+    if args.compare:
+        change = compare(*(json.loads(p.read_text()) for p in args.compare))
+        for name, c in change.items():
+            print(f"{name}: lost {100 * c['before']:.2f} % -> {100 * c['after']:.2f} %, change "
+                  f"{100 * c['difference']:+.2f} [{100 * c['ci95'][0]:+.2f}, {100 * c['ci95'][1]:+.2f}] points")
+        return
+    if not args.policies:
+        ap.error("give the policies to fly, or --compare BEFORE AFTER")
     if args.episodes < 1:
         ap.error(f"--episodes must be >= 1, got {args.episodes}")
     names = rollouts.resolve_targets(args.targets)

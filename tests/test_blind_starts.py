@@ -31,3 +31,15 @@ def test_summarise_counts_blind_starts_lost_per_policy_and_per_target():
     # the unseen steps' commands: a 1, 4, 8 and b 9, 6 (policy 1 adds 1 to each)
     assert s["actions_before_first_sight_per_policy"] == [[0, 1, 0, 0, 1, 0, 1, 0, 1, 1, 0],
                                                            [0, 0, 1, 0, 0, 1, 0, 1, 0, 1, 1]]
+
+
+def test_compare_gives_the_paired_change_in_the_share_lost():
+    base = {"targets": ["a"], "episodes_per_target": 4, "seed": 0, "episodes": 4, "blind_episodes": [0, 3]}
+    before = {**base, "lost_episodes_per_policy": [[0, 1], [0]]}  # shares [1, 0.5, 0, 0]
+    after = {**base, "lost_episodes_per_policy": [[3], []]}  # shares [0, 0, 0, 0.5]
+    change = blind_starts.compare(before, after)
+    assert change["blind_starts"]["before"] == 0.5 and change["blind_starts"]["after"] == 0.25
+    assert change["blind_starts"]["difference"] == pytest.approx(-0.25)
+    assert change["all_episodes"]["difference"] == pytest.approx((-1 - 0.5 + 0 + 0.5) / 4)
+    with pytest.raises(SystemExit, match="different episodes"):
+        blind_starts.compare(before, {**after, "seed": 1})
