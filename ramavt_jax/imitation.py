@@ -11,15 +11,17 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from ramavt_jax import baselines
 from ramavt_jax import env as env_lib
 from ramavt_jax.losses import masked_mean
 
-__all__ = ["NO_LABEL", "look_ahead_teacher", "teacher_actions", "unseen_yet", "stored_labels", "large_margin_loss",
-           "margin_terms"]
+__all__ = ["NO_LABEL", "RETREAT", "look_ahead_teacher", "teacher_actions", "unseen_yet", "stored_labels",
+           "large_margin_loss", "margin_terms"]
 
 NO_LABEL = -1  # a stored label the margin loss skips (a step whose image cannot show what the label knows)
+RETREAT = int(np.flatnonzero((env_lib.ACTIONS == (0, 0, -1)).all(axis=1))[0])  # back along the camera axis
 
 
 def look_ahead_teacher(config: env_lib.EnvConfig) -> baselines.Policy:
@@ -46,11 +48,15 @@ def unseen_yet(env_state: env_lib.EnvState, camera: env_lib.CameraConfig) -> jax
 
 
 def stored_labels(taught: jax.Array, env_state: env_lib.EnvState, camera: env_lib.CameraConfig,
-                  before_first_sight: bool) -> jax.Array:
-    """[N] int32 the labels to store for the teacher's actions ``taught`` [N]: all of them, or with
-    ``before_first_sight`` False NO_LABEL where the target is :func:`unseen_yet`, which leaves those steps to the TD
-    loss (a search learnt from the reward, not a guess at the hidden label averaged over blank images)."""
-    return taught if before_first_sight else jnp.where(unseen_yet(env_state, camera), NO_LABEL, taught)
+                  blind_label: str) -> jax.Array:
+    """[N] int32 the labels to store for the teacher's actions ``taught`` [N], where the target is
+    :func:`unseen_yet` replaced as LearnerConfig.blind_label says: 'teacher' keeps them, 'none' stores NO_LABEL
+    (those steps left to the TD loss) and 'retreat' stores RETREAT (backing off shrinks the bearing of a target in
+    any direction, so it searches without knowing where the target is)."""
+    if blind_label == "teacher":
+        return taught
+    blind = {"none": NO_LABEL, "retreat": RETREAT}[blind_label]
+    return jnp.where(unseen_yet(env_state, camera), blind, taught).astype(jnp.int32)
 
 
 def large_margin_loss(q: jax.Array, expert_action: jax.Array, mask: jax.Array, margin: float,

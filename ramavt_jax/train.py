@@ -210,7 +210,7 @@ class Trainer:
             obs=actor.obs, action=action, reward=reward, terminated=terminated, truncated=truncated,
             is_first=actor.is_first, recurrent_state=actor.net_state.replace(frames=None),
             privileged=privileged, standoff=standoff, expert_action=imitation.stored_labels(
-                taught, actor.env_state, self.env.config.camera, self.config.learner.label_before_first_sight)
+                taught, actor.env_state, self.env.config.camera, self.config.learner.blind_label)
             if self.labels else None)
         new_actor = ActorState(env_state=env_state, obs=obs, is_first=info["is_first"],
                                net_state=record_action(net_state, action))

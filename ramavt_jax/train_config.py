@@ -58,6 +58,8 @@ class ActingConfig:
             raise ValueError(f"ActingConfig: eps_ladder must be >= 0 (0: no ladder), got {self.eps_ladder}")
 
 
+BLIND_LABELS = ("teacher", "none", "retreat")  # LearnerConfig.blind_label (imitation.stored_labels)
+
 @dataclasses.dataclass(frozen=True)
 class LearnerConfig:
     """When and how much the learner trains, the optimiser, the TD targets and the sampled windows' augmentation."""
@@ -92,9 +94,11 @@ class LearnerConfig:
     # every trained step, the agent's own included, weighted by this (0 = off: no labels computed or stored).
     expert_margin_weight: float = 0.0
     expert_margin: float = 0.05  # how far the labelled action must lead every other, in Q's units (scaled rewards)
-    # False: no label at the steps before the target is first in view (imitation.unseen_yet), whose blank images
-    # cannot show where the look-ahead's label points; the TD loss alone decides how to search there.
-    label_before_first_sight: bool = True
+    # The label at the steps before the target is first in view (imitation.unseen_yet), whose blank images cannot
+    # show where the look-ahead's action points: 'teacher' (that action, as at every other step), 'none' (no label:
+    # the TD loss alone decides how to search) or 'retreat' (back along the camera axis, imitation.RETREAT, which
+    # brings a target at any bearing towards the view).
+    blind_label: str = "teacher"
     target_update: str = "polyak"  # 'polyak' | 'period'
     # 'target' (net, over the whole window) | 'online': the targets bootstrap from the online net's own trained pass
     # under stop_gradient (no target pass); the target net is still averaged, for RunConfig.policy_params='target'.
@@ -133,6 +137,7 @@ class LearnerConfig:
                                ("command_cost", self.command_cost >= 0, ">= 0 (0 = no shaping)"),
                                ("expert_margin_weight", self.expert_margin_weight >= 0, ">= 0 (0 = no margin loss)"),
                                ("expert_margin", self.expert_margin > 0, "> 0"),
+                               ("blind_label", self.blind_label in BLIND_LABELS, f"one of {BLIND_LABELS}"),
                                ("quantile_kappa", self.quantile_kappa > 0, "> 0"),
                                ("replay_ratio", self.replay_ratio > 0, "> 0"),
                                ("target_update", self.target_update in ("polyak", "period"), "'polyak' or 'period'"),

@@ -452,7 +452,12 @@ ARMS["perturb-05-margin"] = lambda c: _table2_in_training(ARMS["expert-margin"](
 # before the target is first in view (one change to 'size-wide-starts'), so that the TD loss alone decides how to
 # search there rather than the look-ahead's hidden label averaged over blank images.
 ARMS["size-wide-starts"] = lambda c: _env(ARMS["size-margin"](c), init_xy_std=2.0)
-ARMS["size-wide-search"] = lambda c: ARMS["size-wide-starts"](c).override(label_before_first_sight=False)
+ARMS["size-wide-search"] = lambda c: ARMS["size-wide-starts"](c).override(blind_label="none")
+# No label before the target is first in view left search to the TD loss, and its seeds then lost more blind starts
+# than with the look-ahead's labels (several moved towards the camera axis, which widens a target's bearing). The
+# label 'retreat' at those steps instead (one change to 'size-wide-starts'): backing off along the axis shrinks the
+# bearing of a target in any direction, the seeds that searched so lost the fewest.
+ARMS["size-wide-retreat"] = lambda c: ARMS["size-wide-starts"](c).override(blind_label="retreat")
 
 def arm_config(name: str, preset: str = "quick", **overrides):
     base = presets.preset(preset, eval_episodes=0, **overrides)

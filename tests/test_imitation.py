@@ -96,9 +96,10 @@ def test_unseen_yet_is_out_of_view_with_every_step_so_far_lost():
     np.testing.assert_array_equal(got, _blind_geometry(states))
     assert 0 < got.sum() < (~seen_before).sum()  # some blind, some in view, and the seen-before never
     taught = jnp.arange(64, dtype=jnp.int32) % 11
-    np.testing.assert_array_equal(imitation.stored_labels(taught, states, SMOKE.env.camera, True), taught)
-    np.testing.assert_array_equal(imitation.stored_labels(taught, states, SMOKE.env.camera, False),
-                                  np.where(got, imitation.NO_LABEL, taught))
+    np.testing.assert_array_equal(imitation.stored_labels(taught, states, SMOKE.env.camera, "teacher"), taught)
+    for blind_label, replaced in (("none", imitation.NO_LABEL), ("retreat", imitation.RETREAT)):
+        np.testing.assert_array_equal(imitation.stored_labels(taught, states, SMOKE.env.camera, blind_label),
+                                      np.where(got, replaced, taught))
 
 
 def test_margin_terms_skip_the_steps_without_a_label():
@@ -112,21 +113,20 @@ def test_margin_terms_skip_the_steps_without_a_label():
     np.testing.assert_allclose(float(agreement), (q.argmax(-1) == expert)[labelled].mean(), rtol=1e-5)
 
 
-def test_without_labels_before_first_sight_the_trainer_stores_none_at_blind_starts():
-    """label_before_first_sight=False: the first step's stored label is NO_LABEL exactly at the envs whose target
-    starts out of view (by hand), and the look-ahead's action elsewhere; True stores the action everywhere."""
-    wide = (("init_xy_std", 3.0),)
-    cfg = SMOKE.override(expert_margin_weight=1.0, env_params=wide, label_before_first_sight=False)
+def test_the_blind_label_replaces_the_look_aheads_at_blind_starts_only():
+    """blind_label 'retreat': the first step's stored label is RETREAT exactly at the envs whose target starts out of
+    view (by hand), and the look-ahead's action elsewhere; 'teacher' stores that action everywhere."""
+    cfg = SMOKE.override(expert_margin_weight=1.0, env_params=(("init_xy_std", 3.0),))
     labels = {}
-    for flag in (False, True):
-        trainer = T.Trainer(cfg.override(label_before_first_sight=flag))
+    for blind_label in ("teacher", "retreat"):  # 'none': the same replacement (stored_labels, above)
+        trainer = T.Trainer(cfg.override(blind_label=blind_label))
         state = trainer.init(jax.random.PRNGKey(4))
         _, transition, _ = jax.jit(trainer.act_step)(state.learner.params, state.actor, jnp.asarray(0.0),
                                                     jax.random.PRNGKey(5))
-        labels[flag], blind = np.asarray(transition.expert_action), _blind_geometry(state.actor.env_state)
-    assert 0 < blind.sum() < blind.size
-    np.testing.assert_array_equal(labels[False], np.where(blind, imitation.NO_LABEL, labels[True]))
-    assert (labels[True] >= 0).all()
+        labels[blind_label], blind = np.asarray(transition.expert_action), _blind_geometry(state.actor.env_state)
+    assert 0 < blind.sum() < blind.size and (labels["teacher"] >= 0).all()
+    np.testing.assert_array_equal(labels["retreat"], np.where(blind, imitation.RETREAT, labels["teacher"]))
+    assert list(env_lib.ACTIONS[imitation.RETREAT]) == [0, 0, -1]  # the chaser backs off: z grows
 
 
 def _window(cfg, key):
@@ -177,6 +177,8 @@ def test_the_trainers_loss_adds_the_weighted_margin_loss_of_the_trained_steps():
     (lambda: LearnerConfig(expert_margin_weight=-1.0),
      r"^LearnerConfig: expert_margin_weight must be >= 0 \(0 = no margin loss\), got -1.0$"),
     (lambda: LearnerConfig(expert_margin=0.0), r"^LearnerConfig: expert_margin must be > 0, got 0.0$"),
+    (lambda: LearnerConfig(blind_label="search"),
+     r"^LearnerConfig: blind_label must be one of \('teacher', 'none', 'retreat'\), got 'search'$"),
 ])
 def test_bad_margin_settings_fail_in_one_line(build, message):
     with pytest.raises(ValueError, match=message):
