@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-import time
 from typing import Sequence
 
 import jax
@@ -386,27 +385,3 @@ def resolve_targets(spec: str | Sequence[str]) -> tuple[str, ...]:
         out.append(targets_lib.sized_name(item))  # one spelling per size: one set of episodes
     return tuple(dict.fromkeys(out))  # keep order, drop repeats
 
-
-# ============================================================================================ speed
-def measure_speed(tracking_env: env_lib.TrackingEnv, policy: Policy, params: env_lib.EnvParams, key: jax.Array,
-                  steps: int = 200) -> float:
-    """Control-loop rate in Hz of one env: policy.act + env.step as one jitted call per step (greedy, batch 1),
-    timed over `steps` calls after a warm-up call. Includes dispatch overhead, as a real control loop would."""
-    @jax.jit
-    def step(carry, k):
-        obs, state, pstate = carry
-        k_act, k_env = jax.random.split(k)
-        action, pstate = policy.act(k_act, pstate, obs, state, params)
-        obs, state, *_ = tracking_env.step_env(k_env, state, action, params)
-        return obs, state, pstate
-
-    k_reset, k_pol, k_loop = jax.random.split(key, 3)
-    obs, state = jax.jit(tracking_env.reset)(k_reset, params)
-    carry = (obs, state, jax.jit(policy.init)(k_pol))
-    keys = list(jax.random.split(k_loop, steps + 1))
-    carry = jax.block_until_ready(step(carry, keys[0]))
-    t0 = time.perf_counter()
-    for k in keys[1:]:
-        carry = step(carry, k)
-    jax.block_until_ready(carry)
-    return steps / (time.perf_counter() - t0)

@@ -147,7 +147,7 @@ def run_suite(entries: list[Entry], targets: tuple[str, ...], episodes: int, max
                 f"AER {overall['return_mean']:9.1f} lost {overall['lost_fraction']:.2f} ({time.time() - t0:.0f} s)")
         row["speed_hz"] = None
         if speed_steps > 0:
-            row["speed_hz"] = rollouts.measure_speed(tracking_env, entry.policy, tracking_env.pinned(params, 0),
+            row["speed_hz"] = measure_speed(tracking_env, entry.policy, tracking_env.pinned(params, 0),
                                                      jax.random.fold_in(root, 99), speed_steps)
             log(f"{entry.name:<22} {row['input']:<6} speed {row['speed_hz']:.1f} Hz (single env, {speed_steps} steps)")
         row["wall_s"] = time.time() - t_entry
@@ -340,3 +340,28 @@ def write(result: dict, out: Path, command: str = "") -> tuple[Path, Path]:
     arms = {setting: seeds.summarise_arms(result, setting) for setting in result["settings"]["perturbation_settings"]}
     js.write_text(dumps({**result, "arms": arms, "command": command}, indent=1, default=float))
     return md, js
+
+
+# ============================================================================================ speed
+def measure_speed(tracking_env: env_lib.TrackingEnv, policy: Policy, params: env_lib.EnvParams, key: jax.Array,
+                  steps: int = 200) -> float:
+    """Control-loop rate in Hz of one env: policy.act + env.step as one jitted call per step (greedy, batch 1),
+    timed over `steps` calls after a warm-up call. Includes dispatch overhead, as a real control loop would."""
+    @jax.jit
+    def step(carry, k):
+        obs, state, pstate = carry
+        k_act, k_env = jax.random.split(k)
+        action, pstate = policy.act(k_act, pstate, obs, state, params)
+        obs, state, *_ = tracking_env.step_env(k_env, state, action, params)
+        return obs, state, pstate
+
+    k_reset, k_pol, k_loop = jax.random.split(key, 3)
+    obs, state = jax.jit(tracking_env.reset)(k_reset, params)
+    carry = (obs, state, jax.jit(policy.init)(k_pol))
+    keys = list(jax.random.split(k_loop, steps + 1))
+    carry = jax.block_until_ready(step(carry, keys[0]))
+    t0 = time.perf_counter()
+    for k in keys[1:]:
+        carry = step(carry, k)
+    jax.block_until_ready(carry)
+    return steps / (time.perf_counter() - t0)
