@@ -60,6 +60,7 @@ class ActingConfig:
 
 BLIND_LABELS = ("teacher", "none", "retreat")  # LearnerConfig.blind_label (imitation.stored_labels)
 
+
 @dataclasses.dataclass(frozen=True)
 class LearnerConfig:
     """When and how much the learner trains, the optimiser, the TD targets and the sampled windows' augmentation."""

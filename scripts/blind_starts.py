@@ -23,6 +23,7 @@ import numpy as np
 
 from lost_episodes import load  # scripts/ is the running script's own folder, first on sys.path
 from ramavt_jax import env as env_lib
+from ramavt_jax import imitation
 from ramavt_jax.evaluation import rollouts, statistics, tables
 
 
@@ -36,19 +37,17 @@ def fly(spec: str, names: tuple[str, ...], episodes: int, seed: int, resolution:
     policy, env_config, run_overrides = load(spec, resolution, names)
     tracking_env = env_lib.TrackingEnv(env_config)
     params = tracking_env.eval_params(**run_overrides)
-    seen = jax.vmap(lambda s: env_lib.in_view(env_lib.relative_position(s) / s.scale, env_config.camera))
     root, out = jax.random.PRNGKey(seed), {}
     for index, name in enumerate(names):
         pinned, key = tracking_env.pinned(params, index), tables.episode_key(root, "none", name)
         starts = rollouts.episode_starts(tracking_env, pinned, key, episodes)
-        stats, _ = jax.device_get(rollouts.run_episodes(tracking_env, policy, pinned, key, episodes))
-        _, first = jax.device_get(rollouts.run_episodes(tracking_env, policy, pinned, key, episodes, SEARCH_STEPS,
-                                                        record=True))  # the same episodes' first steps
-        blind = ~np.asarray(seen(starts))
-        shown = np.cumsum(np.asarray(first.in_view), axis=0) > 0  # [S, N] in view after this step or an earlier
+        blind = np.asarray(imitation.unseen_yet(starts, env_config.camera))  # at the reset: out of view
+        stats, rec = jax.device_get(rollouts.run_episodes(tracking_env, policy, pinned, key, episodes, record=True))
+        first = jax.tree.map(lambda x: np.asarray(x)[:SEARCH_STEPS], rec)  # [S, N, ...]
+        shown = np.cumsum(first.in_view, axis=0) > 0  # [S, N] in view after this step or an earlier
         unseen = blind & ~np.concatenate([np.zeros_like(shown[:1]), shown[:-1]])  # [S, N]
-        out[name] = {"blind": blind, "lost": np.asarray(stats.terminated), "action": np.asarray(first.action),
-                     "unseen": unseen & np.asarray(first.alive)}
+        out[name] = {"blind": blind, "lost": np.asarray(stats.terminated), "action": first.action,
+                     "unseen": unseen & first.alive}
     return out
 
 

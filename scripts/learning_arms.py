@@ -459,6 +459,7 @@ ARMS["size-wide-search"] = lambda c: ARMS["size-wide-starts"](c).override(blind_
 # bearing of a target in any direction, the seeds that searched so lost the fewest.
 ARMS["size-wide-retreat"] = lambda c: ARMS["size-wide-starts"](c).override(blind_label="retreat")
 
+
 def arm_config(name: str, preset: str = "quick", **overrides):
     base = presets.preset(preset, eval_episodes=0, **overrides)
     if preset == "quick" and ARMS["expert-margin"](base) != base:

@@ -148,7 +148,7 @@ def run_suite(entries: list[Entry], targets: tuple[str, ...], episodes: int, max
         row["speed_hz"] = None
         if speed_steps > 0:
             row["speed_hz"] = measure_speed(tracking_env, entry.policy, tracking_env.pinned(params, 0),
-                                                     jax.random.fold_in(root, 99), speed_steps)
+                                            jax.random.fold_in(root, 99), speed_steps)
             log(f"{entry.name:<22} {row['input']:<6} speed {row['speed_hz']:.1f} Hz (single env, {speed_steps} steps)")
         row["wall_s"] = time.time() - t_entry
         results.append(row)
