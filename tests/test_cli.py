@@ -305,6 +305,25 @@ def test_env_params_add_to_a_presets_pairs(monkeypatch):
     monkeypatch.setattr(cli_train, "train_and_evaluate", lambda config, out, **kw: seen.update(config=config))
     monkeypatch.setattr(cli_train, "_print_summary", lambda *a: None)
     cli.main(["train", "--preset", "sizes", "--env-params", "stretch_max=1.5", "size_scale_max=0.8", "--out", "x"])
-    assert dict(seen["config"].env_params) == {"size_scale_min": 0.15, "size_scale_max": 0.8, "stretch_max": 1.5}
+    assert dict(seen["config"].env_params) == {"size_scale_min": 0.15, "size_scale_max": 0.8, "stretch_max": 1.5,
+                                               "init_xy_std": 2.0}
     cli.main(["train", "--preset", "sizes", "--out", "x"])
-    assert dict(seen["config"].env_params) == {"size_scale_min": 0.15, "size_scale_max": 1.0}
+    assert dict(seen["config"].env_params) == {"size_scale_min": 0.15, "size_scale_max": 1.0, "init_xy_std": 2.0}
+
+
+def test_repeated_env_params_add_up_and_a_default_undoes_a_presets_pair(monkeypatch):
+    """--env-params given twice adds up (a later pair of a name wins) instead of the last one replacing the first;
+    a pair at EnvParams' default removes the preset's pair of that name, so the config is the preset's without it."""
+    from ramavt_jax.cli import train as cli_train
+    from ramavt_jax.presets import preset
+
+    seen = {}
+    monkeypatch.setattr(cli_train, "train_and_evaluate", lambda config, out, **kw: seen.update(config=config))
+    monkeypatch.setattr(cli_train, "_print_summary", lambda *a: None)
+    cli.main(["train", "--preset", "sizes", "--env-params", "init_xy_std=1", "stretch_max=2", "--seeds", "1",
+              "--env-params=stretch_max=1.5", "--env-params", "dist_weight=0.5", "--out", "x"])
+    assert dict(seen["config"].env_params) == {"size_scale_min": 0.15, "size_scale_max": 1.0, "stretch_max": 1.5,
+                                               "dist_weight": 0.5}
+    cli.main(["train", "--preset", "sizes", "--env-params", "init_xy_std=1", "--out", "x"])
+    assert seen["config"] == preset("sizes").override(env_params={"size_scale_min": 0.15, "size_scale_max": 1.0})
+    assert cli_train.joined_env_params(["train", "--seeds", "2"]) == ["train", "--seeds", "2"]

@@ -112,6 +112,7 @@ def _changes(arm: str, reference: str) -> dict:
                                                             ("size_scale_min", 0.15))}),
         ("size-wide-search", "size-wide-starts", {"learner.blind_label": "none"}),
         ("size-wide-retreat", "size-wide-starts", {"learner.blind_label": "retreat"}),
+        ("size-retreat", "size-margin", {"learner.blind_label": "retreat"}),
         ("perturb-05-margin", "expert-margin", {"env.frame_history": 3, "env_params": (
             ("actuator_noise", 0.3), ("blur_frames", 3), ("delay_max", 0.5), ("perturb_prob", 0.5))}),
         ("size-1536k", "size-res64", {"run.total_env_steps": 1_536_000, "run.policy_average_from": 36}),
@@ -139,8 +140,14 @@ def test_quick_preset_is_the_depth_row():
 
 def test_sizes_preset_is_the_arm_chosen_for_other_sizes():
     sizes = learning_arms.presets.preset("sizes", eval_episodes=0)
-    assert learning_arms.arm_config("size-margin") == sizes
-    assert dict(sizes.env_params) == {"size_scale_min": 0.15, "size_scale_max": 1.0}
+    assert learning_arms.arm_config("size-wide-retreat") == sizes
+    assert dict(sizes.env_params) == {"size_scale_min": 0.15, "size_scale_max": 1.0, "init_xy_std": 2.0}
+
+
+def test_reproduce_flags_give_the_sizes_preset_before_the_blind_starts_back(monkeypatch):
+    """docs/reproduce.md's $WR0 after `--preset sizes` parses to arm 'size-margin', the sizes preset until
+    'size-wide-retreat' (the preset's wider starts removed, not set to their default)."""
+    assert _config_of_reproduce_flags(monkeypatch, "WR0", "sizes") == learning_arms.arm_config("size-margin")
 
 
 def _config_of_reproduce_flags(monkeypatch, names: str, preset: str):
@@ -167,8 +174,8 @@ def test_reproduce_flags_give_the_earlier_sizes_preset_back(monkeypatch):
 
 
 def test_reproduce_flags_give_the_sizes_preset_at_1152k_back(monkeypatch):
-    """$Q36 after `--preset sizes` is the sizes preset before it trained 1.54M env steps (arm 'size-res64')."""
-    assert _config_of_reproduce_flags(monkeypatch, "Q36", "sizes") == learning_arms.arm_config("size-res64")
+    """$WR0 $Q36 after `--preset sizes` is the sizes preset before it trained 1.54M env steps (arm 'size-res64')."""
+    assert _config_of_reproduce_flags(monkeypatch, "WR0 Q36", "sizes") == learning_arms.arm_config("size-res64")
 
 
 def test_long_preset_is_the_arm_chosen_for_a_longer_budget():
@@ -212,9 +219,9 @@ def test_reproduce_flags_give_the_long_preset_before_the_margin_loss_back(monkey
 
 
 def test_reproduce_flags_give_the_sizes_preset_before_the_margin_loss_back(monkeypatch):
-    """docs/reproduce.md's $M0 after `--preset sizes` parses to arm 'size-1536k', the sizes preset until
+    """docs/reproduce.md's $WR0 $M0 after `--preset sizes` parses to arm 'size-1536k', the sizes preset until
     'size-margin'."""
-    assert _config_of_reproduce_flags(monkeypatch, "M0", "sizes") == learning_arms.arm_config("size-1536k")
+    assert _config_of_reproduce_flags(monkeypatch, "WR0 M0", "sizes") == learning_arms.arm_config("size-1536k")
 
 
 def test_reproduce_flags_give_the_quick_preset_before_the_margin_loss_back(monkeypatch):
@@ -225,10 +232,11 @@ def test_reproduce_flags_give_the_quick_preset_before_the_margin_loss_back(monke
 
 def test_reproduce_flags_give_the_blind_start_arms(monkeypatch):
     """docs/reproduce.md's $W, $WS and $WR after `--preset sizes` parse to arms 'size-wide-starts', 'size-wide-search'
-    and 'size-wide-retreat'."""
+    and 'size-wide-retreat' (the preset since), and $WR0 $R to 'size-retreat'."""
     assert _config_of_reproduce_flags(monkeypatch, "W", "sizes") == learning_arms.arm_config("size-wide-starts")
     assert _config_of_reproduce_flags(monkeypatch, "WS", "sizes") == learning_arms.arm_config("size-wide-search")
     assert _config_of_reproduce_flags(monkeypatch, "WR", "sizes") == learning_arms.arm_config("size-wide-retreat")
+    assert _config_of_reproduce_flags(monkeypatch, "WR0 R", "sizes") == learning_arms.arm_config("size-retreat")
 
 
 def test_report_prints_the_seeds(tmp_path, capsys):

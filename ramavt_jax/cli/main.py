@@ -79,6 +79,8 @@ def _dispatch(argv: list[str], clock_start: float) -> None:
         "plot": evaluate.plot_cmd,
         "bench": commands.bench_main,  # listed for --help; dispatched above
     }
+    if argv[:1] == ["train"]:
+        argv = train.joined_env_params(argv)
     with train.FLAG_TYPES:
         tyro.extras.subcommand_cli_from_dict(cmds, prog="ramavt", args=argv)
 

@@ -19,12 +19,16 @@ from typing_extensions import Annotated
 
 from ramavt_jax import distributed
 from ramavt_jax.cli.checks import positive
+from ramavt_jax.env import EnvParams
 from ramavt_jax.experiment import train_and_evaluate
 from ramavt_jax.presets import PRESETS, preset
 from ramavt_jax.train_config import TrainConfig
 from ramavt_jax.training import driver
 
 DEFAULT_PRESET = "quick"
+ENV_PARAMS_FLAG = "--env-params"
+# EnvParams' scalar defaults: a command-line pair at its default undoes a preset's pair of that name
+ENV_PARAMS_DEFAULTS = {f.name: f.default for f in dataclasses.fields(EnvParams) if f.default is not dataclasses.MISSING}
 PresetName = Literal[tuple(PRESETS)]  # the choices of --preset: presets.PRESETS
 # How tyro parses the one untyped-tuple field, TrainConfig.env_params (--env-params dist_weight=0.5
 # lost_patience=10), and builds the config dataclasses (a failed check is a ConfigError)
@@ -137,7 +141,8 @@ def make_train_cmd(preset_name: str, clock_start: float | None = None):
             config: the training configuration (defaults: the preset's).
             preset: the named defaults of presets.PRESETS, e.g. 'quick' (minutes on 2 CPU cores: 32x32 depth,
                 small RAMAVT), 'long' (quick trained twice as long), 'sizes' (quick at 64x64 with training targets
-                resized to [0.15, 1]x: for other sizes), 'robust' (quick trained under Table II's perturbations),
+                resized to [0.15, 1]x and wider starts: for other sizes), 'robust' (quick trained under Table II's
+                perturbations),
                 'paper' (256x256, full RAMAVT, batch 64, lr 1e-4, gamma 0.99, 50,000-step replay),
                 'smoke' (plumbing checks).
             seeds: number of independent seeds, trained together as ONE jitted program (vmap over seeds, each with
@@ -154,9 +159,7 @@ def make_train_cmd(preset_name: str, clock_start: float | None = None):
         """
         positive("--seeds", seeds)
         positive("--devices", devices, minimum=0)
-        # --env-params adds to the preset's pairs, name by name (`--preset sizes --env-params stretch_max=1.5` keeps
-        # its size randomisation); set a preset's pair to EnvParams' default to undo it
-        config = config.override(env_params={**dict(default.env_params), **dict(config.env_params)})
+        config = config.override(env_params=with_preset_pairs(default.env_params, config.env_params))
         distributed.initialize(coordinator_address, num_processes, process_id)
         summary = train_and_evaluate(config, out, seed=seed, seeds=seeds, resume=resume, progress=progress,
                                      devices=devices, clock_start=clock_start)
@@ -164,6 +167,39 @@ def make_train_cmd(preset_name: str, clock_start: float | None = None):
             _print_summary(summary, seeds)
 
     return train
+
+
+def with_preset_pairs(preset_pairs: tuple, flag_pairs: tuple) -> dict:
+    """The preset's EnvParams (name, value) pairs with the command line's added name by name (`--preset sizes
+    --env-params stretch_max=1.5` keeps its size randomisation). A command-line pair at EnvParams' default removes
+    the preset's pair of that name, so the config is the one built without it (`--env-params init_xy_std=1` after
+    `--preset sizes` is the preset before its wider starts, equal to it as a config)."""
+    preset_values, merged = dict(preset_pairs), {**dict(preset_pairs), **dict(flag_pairs)}
+    for name, value in flag_pairs:
+        default = ENV_PARAMS_DEFAULTS.get(name)
+        if name in preset_values and preset_values[name] != default and value == default:
+            del merged[name]
+    return merged
+
+
+def joined_env_params(args: list[str]) -> list[str]:
+    """A `ramavt train` command line with every --env-params joined into the first one, pairs in order (a later
+    pair of a name wins): flags kept in shell variables (docs/reproduce.md's $WR0, then a command's own
+    --env-params) add up instead of the last one replacing the others."""
+    pairs, rest, first, i = [], [], None, 0
+    while i < len(args):
+        arg = args[i]
+        if arg != ENV_PARAMS_FLAG and not arg.startswith(ENV_PARAMS_FLAG + "="):
+            rest.append(arg)
+            i += 1
+            continue
+        first = len(rest) if first is None else first
+        pairs += [arg.split("=", 1)[1]] if arg != ENV_PARAMS_FLAG else []
+        i += 1
+        while i < len(args) and not args[i].startswith("--"):
+            pairs.append(args[i])
+            i += 1
+    return args if first is None else [*rest[:first], ENV_PARAMS_FLAG, *pairs, *rest[first:]]
 
 
 def preset_in(argv: list[str]) -> str:
