@@ -200,6 +200,13 @@ def test_table2_training_flags_give_the_perturb_arm(monkeypatch):
     assert _config_of_reproduce_flags(monkeypatch, "Q36 T2", "quick") == learning_arms.arm_config("perturb-05")
 
 
+def test_reproduce_flags_give_the_quick_preset_before_the_clip_back(monkeypatch):
+    """docs/reproduce.md's $Q10 and $Q768, which carry `--preset quick` themselves, parse to arms 'patch-768k' (the
+    quick preset at norm 10) and 'clip-1'."""
+    assert _config_of_reproduce_flags(monkeypatch, "Q10", "quick") == learning_arms.arm_config("patch-768k")
+    assert _config_of_reproduce_flags(monkeypatch, "Q768", "quick") == learning_arms.arm_config("clip-1")
+
+
 def test_reproduce_flags_give_the_earlier_quick_preset_back(monkeypatch):
     """docs/reproduce.md's $Q36, put after `--preset quick`, parses to arm 'avg-12', the quick preset until
     'avg-1536k', so the commands recorded before still run as they ran."""
