@@ -80,16 +80,62 @@ def lost_shares(record: dict) -> np.ndarray:
     return lost.mean(0)
 
 
+def same_episodes(*records: dict) -> None:
+    """Exit with a one-line message unless every record flew the same episodes."""
+    same = ("targets", "episodes_per_target", "seed")
+    if any(r[k] != records[0][k] for r in records for k in same):
+        raise SystemExit(f"the records flew different episodes: {[[r[k] for k in same] for r in records]}")
+
+
+PER_POLICY = ("policies", "blind_lost_per_policy", "seen_lost_per_policy", "lost_episodes_per_policy",
+              "actions_before_first_sight_per_policy")
+
+
+def merge(records: list[dict]) -> dict:
+    """One record of the policies of several records of the same episodes (say seeds 0-4 and 5-9 of an arm), its
+    share of blind starts lost and interval over all of them, as if they had been flown in one command."""
+    same_episodes(*records)
+    merged = {**records[0], **{k: [x for r in records for x in r[k]] for k in PER_POLICY}}
+    merged["per_target"] = {name: {**target, **{k: [x for r in records for x in r["per_target"][name][k]]
+                                                for k in ("blind_lost", "seen_lost")}}
+                            for name, target in records[0]["per_target"].items()}
+    share = lost_shares(merged)[np.asarray(merged["blind_episodes"], int)]
+    merged["blind_lost_share"], merged["ci95"] = float(share.mean()), list(statistics.bootstrap_ci(share))
+    return merged
+
+
 def compare(before: dict, after: dict) -> dict:
     """Paired change from ``before`` to ``after`` (records of the same episodes) in the share of episodes lost, over
     the blind starts and over all episodes: mean difference (after - before) with its 95 % bootstrap interval."""
-    same = ("targets", "episodes_per_target", "seed")
-    if any(before[k] != after[k] for k in same):
-        raise SystemExit(f"the two records flew different episodes: {[(before[k], after[k]) for k in same]}")
+    same_episodes(before, after)
     diff, blind = lost_shares(after) - lost_shares(before), np.asarray(before["blind_episodes"], int)
     return {name: {"before": float(lost_shares(before)[idx].mean()), "after": float(lost_shares(after)[idx].mean()),
                    "difference": float(diff[idx].mean()), "ci95": list(statistics.bootstrap_ci(diff[idx]))}
             for name, idx in (("blind_starts", blind), ("all_episodes", np.arange(diff.size)))}
+
+
+def fly_all(args, ap) -> dict:
+    """The record of the command line's policies, each flown on the same episodes."""
+    if args.episodes < 1:
+        ap.error(f"--episodes must be >= 1, got {args.episodes}")
+    names = rollouts.resolve_targets(args.targets)
+    flown = []
+    for spec in args.policies:
+        flown.append(fly(spec, names, args.episodes, args.seed, args.resolution))
+        print(f"{spec}: {sum(int((f['lost'] & f['blind']).sum()) for f in flown[-1].values())} blind starts lost, "
+              f"{sum(int((f['lost'] & ~f['blind']).sum()) for f in flown[-1].values())} others", flush=True)
+    return {"policies": args.policies, "targets": list(names), "episodes_per_target": args.episodes,
+            "seed": args.seed, **summarise(flown, names)}
+
+
+def report(summary: dict) -> None:
+    low, high = summary["ci95"]
+    print(f"{summary['blind_starts']} of {summary['episodes']} episodes start out of view; lost: "
+          f"{100 * summary['blind_lost_share']:.1f} % [{100 * low:.1f}, {100 * high:.1f}] of them "
+          f"(per policy {summary['blind_lost_per_policy']}); other episodes lost per policy "
+          f"{summary['seen_lost_per_policy']}; commands before first sight (actions 0-10) per policy "
+          f"{summary['actions_before_first_sight_per_policy']}")
+
 
 
 def main() -> None:
@@ -97,6 +143,8 @@ def main() -> None:
     ap.add_argument("policies", nargs="*", help="run folders (the seeds of one arm) or a baseline: depth | mpc")
     ap.add_argument("--compare", nargs=2, type=Path, metavar=("BEFORE", "AFTER"),
                     help="two written records of the same episodes: the paired change in the share lost, no flying")
+    ap.add_argument("--merge", nargs="+", type=Path, metavar="RECORD",
+                    help="written records of the same episodes (more seeds of one arm) as one record, to --out")
     ap.add_argument("--targets", default="val-sizes", help="a split or comma-separated catalogue names / MJCF files")
     ap.add_argument("--episodes", type=int, default=400, help="episodes per target")
     ap.add_argument("--seed", type=int, default=0)
@@ -109,27 +157,15 @@ def main() -> None:
             print(f"{name}: lost {100 * c['before']:.2f} % -> {100 * c['after']:.2f} %, change "
                   f"{100 * c['difference']:+.2f} [{100 * c['ci95'][0]:+.2f}, {100 * c['ci95'][1]:+.2f}] points")
         return
-    if not args.policies:
-        ap.error("give the policies to fly, or --compare BEFORE AFTER")
-    if args.episodes < 1:
-        ap.error(f"--episodes must be >= 1, got {args.episodes}")
-    names = rollouts.resolve_targets(args.targets)
-    flown = []
-    for spec in args.policies:
-        flown.append(fly(spec, names, args.episodes, args.seed, args.resolution))
-        print(f"{spec}: {sum(int((f['lost'] & f['blind']).sum()) for f in flown[-1].values())} blind starts lost, "
-              f"{sum(int((f['lost'] & ~f['blind']).sum()) for f in flown[-1].values())} others", flush=True)
-    summary = summarise(flown, names)
-    low, high = summary["ci95"]
-    print(f"{summary['blind_starts']} of {summary['episodes']} episodes start out of view; lost: "
-          f"{100 * summary['blind_lost_share']:.1f} % [{100 * low:.1f}, {100 * high:.1f}] of them "
-          f"(per policy {summary['blind_lost_per_policy']}); other episodes lost per policy "
-          f"{summary['seen_lost_per_policy']}; commands before first sight (actions 0-10) per policy "
-          f"{summary['actions_before_first_sight_per_policy']}")
+    if args.merge:
+        record = merge([json.loads(p.read_text()) for p in args.merge])
+    elif not args.policies:
+        ap.error("give the policies to fly, --compare BEFORE AFTER or --merge RECORD ...")
+    else:
+        record = fly_all(args, ap)
+    report(record)
     if args.out:
         args.out.parent.mkdir(parents=True, exist_ok=True)
-        record = {"policies": args.policies, "targets": list(names), "episodes_per_target": args.episodes,
-                  "seed": args.seed, **summary}
         args.out.write_text(json.dumps(record, indent=1) + "\n")
 
 

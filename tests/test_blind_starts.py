@@ -43,3 +43,27 @@ def test_compare_gives_the_paired_change_in_the_share_lost():
     assert change["all_episodes"]["difference"] == pytest.approx((-1 - 0.5 + 0 + 0.5) / 4)
     with pytest.raises(SystemExit, match="different episodes"):
         blind_starts.compare(before, {**after, "seed": 1})
+
+
+def _record(flown, names, first=0):
+    return {"policies": [f"p{k}" for k in range(first, first + len(flown))], "targets": list(names), "episodes_per_target": 0,
+            "seed": 0, **blind_starts.summarise(flown, names)}
+
+
+def test_merge_of_two_records_is_the_record_of_all_their_policies_flown_at_once():
+    """Seeds 0-4 and 5-9 written apart and merged give the counts, shares and interval of the ten flown together."""
+    rng = np.random.default_rng(0)
+    names = ("a", "b")
+    blind = {n: rng.random(30) < 0.3 for n in names}
+    flown = [{n: {"blind": blind[n], "lost": rng.random(30) < 0.4, "action": rng.integers(0, 11, (3, 30)),
+                  "unseen": rng.random((3, 30)) < 0.5} for n in names} for _ in range(5)]
+    merged = blind_starts.merge([_record(flown[:2], names), _record(flown[2:], names, first=2)])
+    together = _record(flown, names)
+    assert merged.keys() == together.keys()
+    for key, value in together.items():
+        if key == "ci95":  # a bootstrap over the same shares, its draws in the same order
+            np.testing.assert_allclose(merged[key], value)
+        else:
+            assert merged[key] == value, key
+    with pytest.raises(SystemExit, match="different episodes"):
+        blind_starts.merge([_record(flown[:2], names), {**_record(flown[2:], names), "seed": 1}])
