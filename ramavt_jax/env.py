@@ -33,13 +33,7 @@ from ramavt_jax import targets as targets_lib
 from ramavt_jax.render import CameraConfig, Lighting
 
 from ramavt_jax.env_config import (  # noqa: F401 (re-exported: env.EnvConfig, env.ACTIONS, ... are the public names)
-    ACTIONS,
-    HILL_FROM_CAM,
-    NUM_ACTIONS,
-    OBS_CHANNELS,
-    EnvConfig,
-    EnvParams,
-    validate_params,
+    ACTIONS, HILL_FROM_CAM, NUM_ACTIONS, OBS_CHANNELS, RETREAT, EnvConfig, EnvParams, validate_params,
 )
 
 

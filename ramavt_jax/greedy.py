@@ -11,8 +11,9 @@ from flax import struct
 from ramavt_jax import env as env_lib
 from ramavt_jax.baselines import Policy
 from ramavt_jax.network import NetworkConfig, RecurrentState, initial_state, make_network, record_action
+from ramavt_jax.network_inputs import hit_mask
 
-__all__ = ["GreedyState", "greedy_policy", "GreedyPolicyOf", "unbatch_state", "batch_state", "standoff_signal",
+__all__ = ["BLIND_SEARCHES", "GreedyState", "greedy_policy", "GreedyPolicyOf", "unbatch_state", "batch_state", "standoff_signal",
            "true_tracking_state"]
 
 
@@ -48,20 +49,32 @@ def batch_state(s: RecurrentState) -> RecurrentState:
     return jax.tree.map(lambda x: x[:, None], s.replace(frames=None)).replace(frames=s.frames[None])
 
 
+BLIND_SEARCHES = ("learned", "retreat")  # greedy_policy(search=...)
+
+
 @struct.dataclass
 class GreedyState:
     net_state: RecurrentState  # per env (no batch axis): h, c [layers, units], frames [K, H, W, C] (K may be 0)
     first: jax.Array  # [] bool
+    seen: jax.Array  # [] bool: some frame of the episode so far has shown a target pixel
 
 
-def greedy_policy(network: NetworkConfig, params, obs_shape: tuple, name: str = "greedy") -> Policy:
+def greedy_policy(network: NetworkConfig, params, obs_shape: tuple, name: str = "greedy",
+                  search: str = "learned") -> Policy:
     """A ``baselines.Policy`` acting greedily with a trained Q-network (per env; evaluate.run_episodes vmaps it). A
-    state_input network (a diagnostic, not a deployable tracker) also reads the simulator's state through env_state."""
+    state_input network (a diagnostic, not a deployable tracker) also reads the simulator's state through env_state.
+
+    ``search`` is what it commands while no frame of the episode has shown a target pixel: 'learned' (the Q-net's
+    greedy action, as everywhere else) or 'retreat' (back along the camera axis, which shrinks the bearing of a
+    target in any direction). A blank image holds nothing to choose from, so a fixed search loses nothing a
+    learned one could know; the network still sees every frame and is told the command flown."""
+    if search not in BLIND_SEARCHES:
+        raise ValueError(f"search must be one of {BLIND_SEARCHES}, got {search!r}")
     net = make_network(network)
 
     def init(key):
         s = initial_state(network, 1, obs_shape)
-        return GreedyState(net_state=unbatch_state(s), first=jnp.ones((), bool))
+        return GreedyState(net_state=unbatch_state(s), first=jnp.ones((), bool), seen=jnp.zeros((), bool))
 
     def act(key, pstate: GreedyState, obs, env_state, env_params):
         signal = standoff_signal(network, env_state, env_params)
@@ -70,8 +83,11 @@ def greedy_policy(network: NetworkConfig, params, obs_shape: tuple, name: str = 
         q, new = net.apply({"params": params}, obs[None, None], pstate.first[None, None],
                            batch_state(pstate.net_state), standoff=standoff, true_state=true_state)
         action = jnp.argmax(q[0, 0]).astype(jnp.int32)
+        seen = (pstate.seen & ~pstate.first) | jnp.any(hit_mask(obs[None]) > 0)
+        if search == "retreat":
+            action = jnp.where(seen, action, env_lib.RETREAT).astype(jnp.int32)
         new = unbatch_state(record_action(new, action[None]))
-        return action, GreedyState(net_state=new, first=jnp.zeros((), bool))
+        return action, GreedyState(net_state=new, first=jnp.zeros((), bool), seen=seen)
 
     return Policy(name, init, act)
 
@@ -86,6 +102,7 @@ class GreedyPolicyOf:
     network: NetworkConfig
     obs_shape: tuple
     name: str = "greedy"
+    search: str = "learned"
 
     def __call__(self, params) -> Policy:
-        return greedy_policy(self.network, params, tuple(self.obs_shape), self.name)
+        return greedy_policy(self.network, params, tuple(self.obs_shape), self.name, self.search)

@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
-import numpy as np
 
 from ramavt_jax import baselines
 from ramavt_jax import env as env_lib
@@ -21,7 +20,7 @@ __all__ = ["NO_LABEL", "RETREAT", "look_ahead_teacher", "teacher_actions", "unse
            "large_margin_loss", "margin_terms"]
 
 NO_LABEL = -1  # a stored label the margin loss skips (a step whose image cannot show what the label knows)
-RETREAT = int(np.flatnonzero((env_lib.ACTIONS == (0, 0, -1)).all(axis=1))[0])  # back along the camera axis
+RETREAT = env_lib.RETREAT  # back along the camera axis
 
 
 def look_ahead_teacher(config: env_lib.EnvConfig) -> baselines.Policy:

@@ -23,18 +23,19 @@ import numpy as np
 
 from lost_episodes import load  # scripts/ is the running script's own folder, first on sys.path
 from ramavt_jax import env as env_lib
-from ramavt_jax import imitation
+from ramavt_jax import greedy, imitation
 from ramavt_jax.evaluation import rollouts, statistics, tables
 
 
 SEARCH_STEPS = 20  # the evaluation's lost patience: a blind start still unseen after these steps is lost
 
 
-def fly(spec: str, names: tuple[str, ...], episodes: int, seed: int, resolution: int) -> dict[str, dict]:
+def fly(spec: str, names: tuple[str, ...], episodes: int, seed: int, resolution: int,
+        search: str = "learned") -> dict[str, dict]:
     """Per target: 'blind' [N] bool (out of view at the reset, before any action), 'lost' [N] bool (terminated),
     and over the first SEARCH_STEPS steps 'action' [S, N] int and 'unseen' [S, N] bool (the step's action was chosen
     with the target not yet in view at the reset or after any earlier step) of one policy."""
-    policy, env_config, run_overrides = load(spec, resolution, names)
+    policy, env_config, run_overrides = load(spec, resolution, names, search)
     tracking_env = env_lib.TrackingEnv(env_config)
     params = tracking_env.eval_params(**run_overrides)
     root, out = jax.random.PRNGKey(seed), {}
@@ -121,11 +122,11 @@ def fly_all(args, ap) -> dict:
     names = rollouts.resolve_targets(args.targets)
     flown = []
     for spec in args.policies:
-        flown.append(fly(spec, names, args.episodes, args.seed, args.resolution))
+        flown.append(fly(spec, names, args.episodes, args.seed, args.resolution, args.blind_search))
         print(f"{spec}: {sum(int((f['lost'] & f['blind']).sum()) for f in flown[-1].values())} blind starts lost, "
               f"{sum(int((f['lost'] & ~f['blind']).sum()) for f in flown[-1].values())} others", flush=True)
     return {"policies": args.policies, "targets": list(names), "episodes_per_target": args.episodes,
-            "seed": args.seed, **summarise(flown, names)}
+            "seed": args.seed, "blind_search": args.blind_search, **summarise(flown, names)}
 
 
 def report(summary: dict) -> None:
@@ -149,6 +150,8 @@ def main() -> None:
     ap.add_argument("--episodes", type=int, default=400, help="episodes per target")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--resolution", type=int, default=32, help="a baseline's camera (a trained policy uses its own)")
+    ap.add_argument("--blind-search", choices=greedy.BLIND_SEARCHES, default="learned",
+                    help="what a trained policy commands until the target is first in view (greedy.greedy_policy)")
     ap.add_argument("--out", type=Path, default=None, help="JSON file to write")
     args = ap.parse_args()
     if args.compare:

@@ -462,9 +462,6 @@ ARMS["size-wide-retreat"] = lambda c: ARMS["size-wide-starts"](c).override(blind
 # benchmark's starts (one change to 'size-margin'): whether the label alone does it, with blind starts in 4 % of the
 # training episodes instead of 20 %.
 ARMS["size-retreat"] = lambda c: ARMS["size-margin"](c).override(blind_label="retreat")
-# The sizes preset's blind-start recipe (wider starts, "back off" before first sight) on the quick preset, as one
-# change to it ('expert-margin'): whether it carries to the catalogue's sizes at 32x32.
-ARMS["quick-wide-retreat"] = lambda c: _env(ARMS["expert-margin"](c), init_xy_std=2.0).override(blind_label="retreat")
 
 
 def arm_config(name: str, preset: str = "quick", **overrides):

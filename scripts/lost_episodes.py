@@ -23,13 +23,14 @@ from ramavt_jax import env as env_lib
 from ramavt_jax.evaluation import pretrained, rollouts, runs, tables
 
 
-def load(spec: str, resolution: int, names: tuple[str, ...]):
+def load(spec: str, resolution: int, names: tuple[str, ...], search: str = "learned"):
     """(policy, the env it flies on ``names``, EnvParams overrides): a trained policy sees its own run's camera,
-    inputs and env settings (those evaluation keeps: rollouts.run_env_overrides), as `ramavt eval` flies it."""
+    inputs and env settings (those evaluation keeps: rollouts.run_env_overrides), as `ramavt eval` flies it, and
+    commands ``search`` until the target is first in view (greedy.greedy_policy)."""
     if spec in ("depth", "proportional", "mpc"):
         camera = env_lib.CameraConfig(resolution=resolution)
         return baselines.make_policy(spec, camera), env_lib.EnvConfig(camera=camera, targets=names), {}
-    loaded = pretrained.load() if spec == "pretrained" else runs.load_policy(spec)
+    loaded = pretrained.load() if spec == "pretrained" else runs.load_policy(spec, search=search)
     return (loaded.policy, dataclasses.replace(loaded.config.env, targets=names),
             rollouts.run_env_overrides(loaded.config.env_params))
 

@@ -228,9 +228,10 @@ def test_eval_checkpoint_run(tmp_path):
     assert loaded.step == 3 and loaded.config.network.variant == "origin" and loaded.meta["env_steps"] == 960
     out = tmp_path / "eval"
     cli_eval.eval_cmd(policy="checkpoint", run=(run_dir,), baselines=False, targets="Satellite-v2", episodes=1,
-                      max_steps=8, tables=(1, 3), out=out, speed_steps=0)
+                      max_steps=8, tables=(1, 3), out=out, speed_steps=0, blind_search="retreat")
     js = json.loads((out / "results.json").read_text())
     assert js["rows"][0]["info"]["variant"] == "origin" and js["rows"][0]["speed_hz"] is None
+    assert js["rows"][0]["info"]["blind_search"] == "retreat"
     md = (out / "tables.md").read_text()
     assert "## Table III" in md and "| smoke_s0 | origin |" in md
     assert "run `" in md and "checkpoint step 3" in md and "online params" in md

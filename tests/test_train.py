@@ -505,6 +505,29 @@ def test_prev_action_is_stored_with_the_state_and_fed_back_by_the_greedy_policy(
     assert actions == np.asarray(jnp.argmax(q[0], -1)).tolist()
 
 
+def test_the_retreat_search_backs_off_until_a_frame_shows_the_target_then_acts_greedily():
+    """greedy_policy(search='retreat') commands RETREAT while every frame so far is blank, and from the first frame
+    with a target pixel on (blank frames after it included) the network's greedy action, the network having been
+    told the commands flown; an unknown search is a one-line error."""
+    cfg = SMOKE.override(network=dataclasses.replace(SMOKE.network, prev_action=True))
+    tr = T.Trainer(cfg)
+    params = jax.jit(tr.init)(jax.random.PRNGKey(4)).learner.params
+    visible = jax.random.uniform(jax.random.PRNGKey(8), (6, *cfg.env.obs_shape))
+    obs = visible * jnp.array([0, 0, 1, 0, 0, 1], jnp.float32)[:, None, None, None]  # blank, blank, seen, ...
+    policy = greedy.greedy_policy(cfg.network, params, cfg.env.obs_shape, search="retreat")
+    ps, actions, seen = policy.init(jax.random.PRNGKey(0)), [], []
+    for t in range(6):
+        a, ps = policy.act(jax.random.PRNGKey(t), ps, obs[t], None, None)
+        actions.append(int(a))
+        seen.append(bool(ps.seen))
+    assert actions[:2] == [env_lib.RETREAT] * 2 and seen == [False, False, True, True, True, True]
+    reset = jnp.zeros((1, 6), bool).at[0, 0].set(True)
+    q, _ = tr.q_values(params, obs[None], reset, initial_state(cfg.network, 1), jnp.array([actions]))
+    assert actions[2:] == np.asarray(jnp.argmax(q[0], -1)).tolist()[2:]
+    with pytest.raises(ValueError, match="search must be one of"):
+        greedy.greedy_policy(cfg.network, params, cfg.env.obs_shape, search="spiral")
+
+
 # ------------------------------------------------------------------------------------------ seeds
 @pytest.mark.slow  # two compiles of the whole training function (~2-3 min on 2 cores)
 def test_vmapped_seeds_equal_single_seed_runs():

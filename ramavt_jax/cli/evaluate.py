@@ -26,16 +26,16 @@ LABELS = {"mpc": "mpc ceiling (true state)", "proportional": "proportional (true
           "random": "random"}
 
 
-def _run_entries(runs: tuple[Path, ...], policy_params: str | None = None
+def _run_entries(runs: tuple[Path, ...], policy_params: str | None = None, search: str = "learned"
                  ) -> tuple[list[tables_lib.Entry], list[LoadedRun]]:
     entries, loaded = [], []
     for run_dir in runs:
-        lr = load_policy(run_dir, policy_params=policy_params)
+        lr = load_policy(run_dir, policy_params=policy_params, search=search)
         loaded.append(lr)
         cfg = lr.config
         info = {"run_dir": str(run_dir), "variant": cfg.network.variant, "augment": bool(cfg.learner.augment),
                 "seed": lr.seed, "step": lr.step, "env_steps": lr.meta.get("env_steps"),
-                "policy_params": cfg.run.policy_params}
+                "policy_params": cfg.run.policy_params, "blind_search": search}
         entries.append(tables_lib.Entry(row_name(run_dir), "checkpoint", lr.policy, cfg.env,
                                     rollouts.run_env_overrides(cfg.env_params), cfg.env.obs_mode, info))
     return entries, loaded
@@ -92,6 +92,7 @@ def eval_cmd(
     policy: Literal["checkpoint", "pretrained", "mpc", "proportional", "depth", "random"] = "checkpoint",
     run: tuple[Path, ...] = (),
     policy_params: Literal["online", "target", "averaged"] | None = None,
+    blind_search: Literal["learned", "retreat"] = "learned",
     agent: str = pretrained.DEFAULT_AGENT,
     baselines: bool = True,
     targets: str = "test",
@@ -124,6 +125,8 @@ def eval_cmd(
         policy_params: the runs' parameter set: 'online', 'target' (the Polyak-averaged target net's) or 'averaged'
             (the target net's averaged over the chunks after `run.policy_average_from`); default: each run's own
             `run.policy_params`.
+        blind_search: what the --run policies command until a frame first shows the target: 'learned' (their own
+            greedy action) or 'retreat' (back along the camera axis; greedy.greedy_policy).
         agent: the shipped agent evaluated by --policy pretrained.
         baselines: with --policy checkpoint, also evaluate mpc, proportional, depth tracker and random in every table (a
             baseline given as --policy is evaluated alone).
@@ -164,7 +167,7 @@ def eval_cmd(
     finite("--delay-max", delay_max)
     names = _check_eval_args(policy, agent, run, targets, episodes, max_steps, tables, blur_frames, out, policy_params)
     with run_folder.RunLock(Path(out), OTHER_WRITER):  # a second command writing into --out is refused
-        entries, loaded = _run_entries(run, policy_params)
+        entries, loaded = _run_entries(run, policy_params, blind_search)
         if policy == "pretrained":
             entries.insert(0, _pretrained_entry(agent))
         trained = policy in ("checkpoint", "pretrained")

@@ -49,7 +49,7 @@ def check_policy_params(run_dir, policy_params: str | None, config: TrainConfig 
 
 
 def load_policy(run_dir, step: int | None = None, name: str | None = None,
-                policy_params: str | None = None, log=print) -> LoadedRun:
+                policy_params: str | None = None, log=print, search: str = "learned") -> LoadedRun:
     """The greedy policy of a training run folder written by ``ramavt train`` (config.json + checkpoints/).
 
     One network parameter set is read from the checkpoint (not the replay buffer): the online net's, the target
@@ -57,7 +57,8 @@ def load_policy(run_dir, step: int | None = None, name: str | None = None,
     run's config (RunConfig.policy_params) says (check_policy_params refuses a set the run does not keep). The
     returned config records the set that was read. Without ``step``, a damaged newest checkpoint is skipped (reported through
     ``log`` in one line, left on disk) for the newest that loads. An incomplete config.json is refused
-    (RunFolderError naming the missing field)."""
+    (RunFolderError naming the missing field). ``search``: what the policy commands before the target is first in
+    view (greedy.greedy_policy)."""
     run_dir = Path(run_dir)
     cfg_file = run_dir / folders.CONFIG_FILE
     if not cfg_file.is_file():
@@ -82,7 +83,8 @@ def load_policy(run_dir, step: int | None = None, name: str | None = None,
     finally:
         store.close()
     params = jax.tree.map(jnp.asarray, params)
-    policy = greedy_policy(config.network, params, tuple(config.env.obs_shape), name=name or run_dir.name)
+    policy = greedy_policy(config.network, params, tuple(config.env.obs_shape), name=name or run_dir.name,
+                           search=search)
     meta = {k: v for k, v in meta.items() if k not in ("_num_leaves", "_leaf_paths", "config")}
     return LoadedRun(policy=policy, config=config, params=params, run_dir=str(run_dir),
                      seed=int(saved.get("seed", -1)), step=int(step), meta=meta)
