@@ -29,7 +29,7 @@ ACTIONS = np.array(
     dtype=np.float32,
 )
 NUM_ACTIONS = ACTIONS.shape[0]
-RETREAT = 6  # back along the camera axis: shrinks the bearing of a target in any direction (a search from a blank image)
+RETREAT = 6  # back along the camera axis: shrinks a target's bearing in any direction (a search from a blank image)
 OBS_CHANNELS = OBSERVATION_MODES  # one home: the renderer defines the modes and their channels
 
 # Hill coordinates of the camera axes (columns): hill = HILL_FROM_CAM @ cam.

@@ -13,8 +13,8 @@ from ramavt_jax.baselines import Policy
 from ramavt_jax.network import NetworkConfig, RecurrentState, initial_state, make_network, record_action
 from ramavt_jax.network_inputs import hit_mask
 
-__all__ = ["BLIND_SEARCHES", "GreedyState", "greedy_policy", "GreedyPolicyOf", "unbatch_state", "batch_state", "standoff_signal",
-           "true_tracking_state"]
+__all__ = ["BLIND_SEARCHES", "GreedyState", "greedy_policy", "GreedyPolicyOf", "unbatch_state", "batch_state",
+           "standoff_signal", "true_tracking_state"]
 
 
 def standoff_signal(network: NetworkConfig, env_state: env_lib.EnvState, env_params: env_lib.EnvParams):
@@ -66,8 +66,9 @@ def greedy_policy(network: NetworkConfig, params, obs_shape: tuple, name: str = 
 
     ``search`` is what it commands while no frame of the episode has shown a target pixel: 'learned' (the Q-net's
     greedy action, as everywhere else) or 'retreat' (back along the camera axis, which shrinks the bearing of a
-    target in any direction). A blank image holds nothing to choose from, so a fixed search loses nothing a
-    learned one could know; the network still sees every frame and is told the command flown."""
+    target in any direction). A blank image shows nothing to choose by, so a fixed search gives up only what a
+    policy may have learned of where targets tend to start; the network still sees every frame and is told the
+    command flown."""
     if search not in BLIND_SEARCHES:
         raise ValueError(f"search must be one of {BLIND_SEARCHES}, got {search!r}")
     net = make_network(network)

@@ -46,8 +46,8 @@ def test_compare_gives_the_paired_change_in_the_share_lost():
 
 
 def _record(flown, names, first=0):
-    return {"policies": [f"p{k}" for k in range(first, first + len(flown))], "targets": list(names), "episodes_per_target": 0,
-            "seed": 0, **blind_starts.summarise(flown, names)}
+    return {"policies": [f"p{k}" for k in range(first, first + len(flown))], "targets": list(names),
+            "episodes_per_target": 0, "seed": 0, **blind_starts.summarise(flown, names)}
 
 
 def test_merge_of_two_records_is_the_record_of_all_their_policies_flown_at_once():

@@ -113,6 +113,8 @@ def _changes(arm: str, reference: str) -> dict:
         ("size-wide-search", "size-wide-starts", {"learner.blind_label": "none"}),
         ("size-wide-retreat", "size-wide-starts", {"learner.blind_label": "retreat"}),
         ("size-retreat", "size-margin", {"learner.blind_label": "retreat"}),
+        ("size-wider-retreat", "size-wide-retreat", {"env_params": (("init_xy_std", 3.0), ("size_scale_max", 1.0),
+                                                                    ("size_scale_min", 0.15))}),
         ("perturb-05-margin", "expert-margin", {"env.frame_history": 3, "env_params": (
             ("actuator_noise", 0.3), ("blur_frames", 3), ("delay_max", 0.5), ("perturb_prob", 0.5))}),
         ("size-1536k", "size-res64", {"run.total_env_steps": 1_536_000, "run.policy_average_from": 36}),
@@ -239,11 +241,12 @@ def test_reproduce_flags_give_the_quick_preset_before_the_margin_loss_back(monke
 
 def test_reproduce_flags_give_the_blind_start_arms(monkeypatch):
     """docs/reproduce.md's $W, $WS and $WR after `--preset sizes` parse to arms 'size-wide-starts', 'size-wide-search'
-    and 'size-wide-retreat' (the preset since), and $WR0 $R to 'size-retreat'."""
+    and 'size-wide-retreat' (the preset since), $WR0 $R to 'size-retreat' and $WR3 to 'size-wider-retreat'."""
     assert _config_of_reproduce_flags(monkeypatch, "W", "sizes") == learning_arms.arm_config("size-wide-starts")
     assert _config_of_reproduce_flags(monkeypatch, "WS", "sizes") == learning_arms.arm_config("size-wide-search")
     assert _config_of_reproduce_flags(monkeypatch, "WR", "sizes") == learning_arms.arm_config("size-wide-retreat")
     assert _config_of_reproduce_flags(monkeypatch, "WR0 R", "sizes") == learning_arms.arm_config("size-retreat")
+    assert _config_of_reproduce_flags(monkeypatch, "WR3", "sizes") == learning_arms.arm_config("size-wider-retreat")
 
 
 def test_report_prints_the_seeds(tmp_path, capsys):
