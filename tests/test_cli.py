@@ -306,9 +306,9 @@ def test_env_params_add_to_a_presets_pairs(monkeypatch):
     monkeypatch.setattr(cli_train, "_print_summary", lambda *a: None)
     cli.main(["train", "--preset", "sizes", "--env-params", "stretch_max=1.5", "size_scale_max=0.8", "--out", "x"])
     assert dict(seen["config"].env_params) == {"size_scale_min": 0.15, "size_scale_max": 0.8, "stretch_max": 1.5,
-                                               "init_xy_std": 2.0}
+                                               "init_xy_std": 3.0}
     cli.main(["train", "--preset", "sizes", "--out", "x"])
-    assert dict(seen["config"].env_params) == {"size_scale_min": 0.15, "size_scale_max": 1.0, "init_xy_std": 2.0}
+    assert dict(seen["config"].env_params) == {"size_scale_min": 0.15, "size_scale_max": 1.0, "init_xy_std": 3.0}
 
 
 def test_repeated_env_params_add_up_and_a_default_undoes_a_presets_pair(monkeypatch):

@@ -142,8 +142,8 @@ def test_quick_preset_is_the_depth_row():
 
 def test_sizes_preset_is_the_arm_chosen_for_other_sizes():
     sizes = learning_arms.presets.preset("sizes", eval_episodes=0)
-    assert learning_arms.arm_config("size-wide-retreat") == sizes
-    assert dict(sizes.env_params) == {"size_scale_min": 0.15, "size_scale_max": 1.0, "init_xy_std": 2.0}
+    assert learning_arms.arm_config("size-wider-retreat") == sizes
+    assert dict(sizes.env_params) == {"size_scale_min": 0.15, "size_scale_max": 1.0, "init_xy_std": 3.0}
 
 
 def test_reproduce_flags_give_the_sizes_preset_before_the_blind_starts_back(monkeypatch):
