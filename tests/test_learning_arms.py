@@ -241,7 +241,7 @@ def test_reproduce_flags_give_the_quick_preset_before_the_margin_loss_back(monke
 
 def test_reproduce_flags_give_the_blind_start_arms(monkeypatch):
     """docs/reproduce.md's $W, $WS and $WR after `--preset sizes` parse to arms 'size-wide-starts', 'size-wide-search'
-    and 'size-wide-retreat' (the preset since), $WR0 $R to 'size-retreat' and $WR3 to 'size-wider-retreat'."""
+    and 'size-wide-retreat', $WR0 $R to 'size-retreat' and $WR3 to 'size-wider-retreat' (the preset since)."""
     assert _config_of_reproduce_flags(monkeypatch, "W", "sizes") == learning_arms.arm_config("size-wide-starts")
     assert _config_of_reproduce_flags(monkeypatch, "WS", "sizes") == learning_arms.arm_config("size-wide-search")
     assert _config_of_reproduce_flags(monkeypatch, "WR", "sizes") == learning_arms.arm_config("size-wide-retreat")
