@@ -103,7 +103,6 @@ class GreedyPolicyOf:
     network: NetworkConfig
     obs_shape: tuple
     name: str = "greedy"
-    search: str = "learned"
 
     def __call__(self, params) -> Policy:
-        return greedy_policy(self.network, params, tuple(self.obs_shape), self.name, self.search)
+        return greedy_policy(self.network, params, tuple(self.obs_shape), self.name)
