@@ -11,13 +11,14 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
+import optax
 
 from ramavt_jax import baselines
 from ramavt_jax import env as env_lib
 from ramavt_jax.losses import masked_mean
 
 __all__ = ["NO_LABEL", "RETREAT", "look_ahead_teacher", "teacher_actions", "unseen_yet", "stored_labels",
-           "large_margin_loss", "margin_terms"]
+           "large_margin_loss", "margin_terms", "policy_terms"]
 
 NO_LABEL = -1  # a stored label the margin loss skips (a step whose image cannot show what the label knows)
 RETREAT = env_lib.RETREAT  # back along the camera axis
@@ -83,3 +84,15 @@ def margin_terms(q: jax.Array, expert_action: jax.Array, mask: jax.Array, margin
     mask = mask * (expert_action != NO_LABEL)
     agreement = jax.lax.stop_gradient((jnp.argmax(q, axis=-1) == expert_action).astype(q.dtype))
     return large_margin_loss(q, expert_action, mask, margin, weights), masked_mean(agreement, mask)
+
+
+def policy_terms(logits: jax.Array, expert_action: jax.Array, mask: jax.Array,
+                 weights: jax.Array | None = None) -> tuple[jax.Array, jax.Array]:
+    """(the masked mean cross-entropy of a policy head's ``logits`` [B, T, A] against the labels ``expert_action``
+    [B, T], the share of the masked steps whose argmax is the label, a constant to log); ``mask`` [B, T] and
+    ``weights`` [B] as in :func:`large_margin_loss`. Steps labelled NO_LABEL are masked out of both."""
+    mask = mask * (expert_action != NO_LABEL)
+    labels = jnp.maximum(expert_action, 0)  # a NO_LABEL step is masked out; any action keeps the lookup in range
+    cross_entropy = optax.softmax_cross_entropy_with_integer_labels(logits, labels)
+    agreement = jax.lax.stop_gradient((jnp.argmax(logits, axis=-1) == expert_action).astype(logits.dtype))
+    return masked_mean(cross_entropy, mask, weights), masked_mean(agreement, mask)

@@ -217,12 +217,12 @@ class Encoder(nn.Module):
 
 class QNetwork(nn.Module):
     """Q-network. __call__(obs [B, T, H, W, C], reset [B, T] bool, state, actions [B, T] | None, standoff [B, T] |
-    None, true_state [B, T, 6] | None) -> (q [B, T, A] float32, state). ``actions`` (taken at each step) matter
-    only with ``prev_action``: the returned state's prev_action is then ``actions[:, T - 1]``, else unchanged (acting
-    code records its pick: record_action). ``standoff`` (each step's stand-off signal, greedy.standoff_signal: the
-    scale k or the command gain, 1 for catalogue targets) is needed with ``standoff_input`` or
-    ``command_gain_input``, ignored without; ``true_state`` [B, T, 6] (greedy.true_tracking_state per step) with
-    ``state_input``, ignored without."""
+    None, true_state [B, T, 6] | None) -> (q [B, T, A] float32, state); with ``policy_head`` q is the policy's logits
+    (argmax: the greedy action) and Q is sown. ``actions`` (taken at each step) matter only with ``prev_action``:
+    the returned state's prev_action is then ``actions[:, T - 1]``, else unchanged (acting code records its pick:
+    record_action). ``standoff`` (each step's stand-off signal, greedy.standoff_signal: the scale k or the command
+    gain, 1 for catalogue targets) is needed with ``standoff_input`` or ``command_gain_input``, ignored without;
+    ``true_state`` [B, T, 6] (greedy.true_tracking_state per step) with ``state_input``, ignored without."""
 
     config: NetworkConfig
 
@@ -269,6 +269,9 @@ class QNetwork(nn.Module):
             y = nn.Dense(cfg.head, dtype=dtype, kernel_init=he_init, name="head")(y)
             y = nn.relu(_maybe_norm(cfg, "head_norm", y))
             q = q_outputs(cfg, y)
+            if cfg.policy_head:  # acting takes the logits' argmax, the TD loss Q (NetworkConfig.policy_head)
+                self.sow("intermediates", "q_values", q.astype(jnp.float32))
+                q = nn.Dense(cfg.num_actions, dtype=dtype, kernel_init=lecun_init, name="policy")(y)
             new_state = RecurrentState(h=h, c=c, frames=frames.astype(state.frames.dtype), prev_action=prev_action,
                                        exposure=exposure)
         else:

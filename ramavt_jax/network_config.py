@@ -75,6 +75,11 @@ class NetworkConfig:
     # N quantiles of the return per action (QR-DQN, Dabney et al. 2018; 0 = expected values only): the head outputs
     # A * N values, sown as intermediates 'quantiles' [B, T, A, N] for the quantile loss; Q is their mean.
     quantiles: int = 0
+    # A policy head beside Q, as a student distilled from a privileged teacher (Chen et al. 2019, "Learning by
+    # Cheating"): A logits from the head's features, fitted by cross-entropy to the true-state look-ahead's labels
+    # (LearnerConfig.policy_weight). The network returns the logits, whose argmax every acting path takes, and sows
+    # Q as intermediates 'q_values' for the TD loss. Recurrent variants only; not with quantiles.
+    policy_head: bool = False
     # LayerNorm between the dense layer and its ReLU, and between the head and its ReLU (PQN's normalisation of the
     # value network, Gallici et al. 2024, who credit it with stable bootstrapping from the online net; on the quick
     # preset it lost, docs/experiments.md arm dense-norm). Recurrent variants only.
@@ -162,6 +167,8 @@ class NetworkConfig:
         if isinstance(self.quantiles, bool) or not isinstance(self.quantiles, (int, np.integer)) or (
                 self.quantiles == 1 or self.quantiles < 0):
             fail(f"quantiles must be 0 (expected values) or an integer >= 2, got {self.quantiles!r}")
+        if self.policy_head and (self.quantiles or not self.recurrent):
+            fail("policy_head needs a recurrent variant (the head reads the LSTM output) and no quantiles")
         if self.quantiles and self.dueling:
             fail("quantiles and dueling are not combined (a dueling head of quantiles is not defined here)")
         if self.standoff_input and self.command_gain_input:

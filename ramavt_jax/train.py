@@ -29,7 +29,6 @@ import functools
 import jax
 import jax.numpy as jnp
 import optax
-from flax import struct
 
 from ramavt_jax import distributed, imitation
 from ramavt_jax import env as env_lib
@@ -41,15 +40,9 @@ from ramavt_jax.network import (TRUE_STATE_SIZE, init_params, initial_state, mak
                                 window_start_frames)
 from ramavt_jax.train_config import TrainConfig
 from ramavt_jax.train_state import (ActorState, ChunkMetrics, EpisodeStats, LearnerState, LearnStats, PreparedBatch,
-                                    RunnerState, average_policy)
+                                    RolloutCarry, RunnerState, average_policy)
 
 __all__ = ["Trainer", "make_train"]
-
-
-@struct.dataclass
-class _RolloutCarry:
-    actor: ActorState
-    env_steps: jax.Array  # [] int32, all envs together
 
 
 def _raw_key(key: jax.Array) -> jax.Array:
@@ -91,8 +84,8 @@ class Trainer:
                           if learner.max_grad_norm > 0 else lr_tx)
         self.augment_fn = (functools.partial(augment_batch, config=learner.augment_config) if learner.augment
                            else None)
-        # the look-ahead flies teacher_envs envs; with expert_margin_weight it labels every env's steps (replay: stored)
-        self.labels = bool(learner.expert_margin_weight)
+        # the look-ahead flies teacher_envs envs; with a margin loss or a policy head it labels every env's steps
+        self.labels = bool(learner.expert_margin_weight) or config.network.policy_head  # (stored in the replay)
         self.replay = replay_lib.make_replay(config.replay, config.acting.num_envs, self._example_transition())
         self.taught_envs = config.acting.num_envs if self.labels else config.acting.teacher_envs
         self.teacher = imitation.look_ahead_teacher(self.env.config) if self.taught_envs else None
@@ -224,24 +217,25 @@ class Trainer:
         step's exploration rate averaged over envs)."""
         c = self.config.acting
 
-        def body(carry: _RolloutCarry, k):
+        def body(carry: RolloutCarry, k):
             eps = self.epsilon(carry.env_steps)
             actor, tr, stats = self.act_step(params, carry.actor, eps, k)
-            return _RolloutCarry(actor=actor, env_steps=carry.env_steps + c.num_envs), (tr, stats, eps)
+            return RolloutCarry(actor=actor, env_steps=carry.env_steps + c.num_envs), (tr, stats, eps)
 
-        last, (traj, stats, eps) = jax.lax.scan(body, _RolloutCarry(actor=actor, env_steps=env_steps),
+        last, (traj, stats, eps) = jax.lax.scan(body, RolloutCarry(actor=actor, env_steps=env_steps),
                                                 jax.random.split(key, c.rollout_steps))
         return last.actor, replay_lib.chunk_to_storage(traj), jax.tree.map(jnp.sum, stats), eps[-1].mean()
 
     # ---------------------------------------------------------------- learning
     def _target_values(self, params, obs, reset, state, actions, standoff, privileged):
         """The target net's values over a window: q [B, L, A], or its quantiles [B, L, A, N] for a quantile network
-        (NetworkConfig.quantiles), which the quantile loss takes."""
-        if not self.config.network.quantiles:
+        (NetworkConfig.quantiles), which the quantile loss takes; a policy head's network sows its Q."""
+        network = self.config.network
+        if not (network.quantiles or network.policy_head):
             return self.q_values(params, obs, reset, state, actions, standoff, privileged)[0]
         _, sown = self.net.apply({"params": params}, obs, reset, state, actions=actions, standoff=standoff,
                                  true_state=self._true_state(privileged), mutable=["intermediates"])
-        return sown["intermediates"]["quantiles"][0]
+        return sown["intermediates"]["quantiles" if network.quantiles else "q_values"][0]
 
     def prepare(self, params, target_params, batch: replay_lib.SequenceBatch, key: jax.Array) -> PreparedBatch:
         """Everything the loss needs that takes no gradient: (augmented) observations, the target net's Q over the
@@ -275,15 +269,19 @@ class Trainer:
                              expert_action=steps(batch.expert_action, trained))
 
     def trained_loss(self, params, prepared: PreparedBatch):
-        """TD loss over the trained part of the window, plus aux_weight times the auxiliary head's squared error and
-        expert_margin_weight times the large-margin loss (imitation.large_margin_loss), gradient w.r.t. params only.
-        Returns (loss, aux); aux holds q_mean, aux_loss and margin_loss (unweighted, 0 without), expert_agreement and
-        with a prioritised replay each window's priority [B] (losses.sequence_priority)."""
+        """TD loss over the trained part of the window, plus aux_weight times the auxiliary head's squared error,
+        expert_margin_weight times the large-margin loss (imitation.large_margin_loss) and policy_weight times a
+        policy head's cross-entropy (imitation.policy_terms), gradient w.r.t. params only. Returns (loss, aux); aux
+        holds q_mean, aux_loss, margin_loss and policy_loss (unweighted, 0 without), expert_agreement (of the acting
+        head) and with a prioritised replay each window's priority [B] (losses.sequence_priority)."""
         (q_online, _), sown = self.net.apply({"params": params}, prepared.obs, prepared.reset, prepared.state,
                                              actions=prepared.td.action, standoff=prepared.standoff,
                                              true_state=self._true_state(prepared.privileged),
                                              mutable=["intermediates"])
         mask, learner, expert = prepared.td.mask.astype(jnp.float32), self.config.learner, prepared.expert_action
+        logits, policy_loss = q_online, jnp.zeros(())
+        if self.config.network.policy_head:  # the returned values are the policy's logits; Q is sown
+            q_online = sown["intermediates"]["q_values"][0]
         margin_loss, agreement = (imitation.margin_terms(q_online[:, :-1], expert, mask, learner.expert_margin,
                                                          prepared.td.weight)  # on Q (a quantile network's mean)
                                   if learner.expert_margin_weight else (jnp.zeros(()), jnp.zeros(())))
@@ -294,6 +292,9 @@ class Trainer:
             td = td.replace(q_target=jax.lax.stop_gradient(q_online))
         loss, aux = td_loss(q_online, td, self.td)
         loss = loss + learner.expert_margin_weight * margin_loss
+        if self.config.network.policy_head:  # its agreement, the acting head's, is the one logged
+            policy_loss, agreement = imitation.policy_terms(logits[:, :-1], expert, mask, prepared.td.weight)
+            loss = loss + learner.policy_weight * policy_loss
         aux_loss = jnp.zeros(())
         if learner.aux_weight:  # the aux head's squared error at the trained obs (LearnerConfig)
             label = prepared.privileged[:, :-1, :self.config.network.aux_outputs]
@@ -301,7 +302,7 @@ class Trainer:
             aux_loss = masked_mean(miss, mask)
             loss = loss + learner.aux_weight * aux_loss
         aux = dict(aux, q_mean=masked_mean(aux["q_taken"], mask), aux_loss=aux_loss, margin_loss=margin_loss,
-                   expert_agreement=agreement)
+                   expert_agreement=agreement, policy_loss=policy_loss)
         if self.config.replay.prioritised:  # uniform sampling needs no priorities
             td_error = jax.lax.stop_gradient(aux["td_error"])
             aux["priority"] = sequence_priority(td_error, mask, self.config.replay.priority_max_share)
@@ -336,7 +337,7 @@ class Trainer:
             replay_state = self.replay.set_priorities(replay_state, batch, aux["priority"])
         return new, replay_state, LearnStats(loss=loss, aux_loss=aux["aux_loss"], q_mean=aux["q_mean"],
                                              margin_loss=aux["margin_loss"], expert_agreement=aux["expert_agreement"],
-                                             grad_norm=optax.tree.norm(grads), updates=jnp.ones((), jnp.int32))
+                                             policy_loss=aux["policy_loss"], grad_norm=optax.tree.norm(grads), updates=jnp.ones((), jnp.int32))
 
     def learn(self, learner: LearnerState, replay_state, env_steps: jax.Array, key: jax.Array):
         """``updates_per_iteration`` steps if the replay is ready, else none. Returns (learner, replay_state,
@@ -355,9 +356,7 @@ class Trainer:
             return carry, jax.tree.map(jnp.sum, stats)
 
         def skip(carry):
-            z = jnp.zeros(())
-            return carry, LearnStats(loss=z, aux_loss=z, q_mean=z, margin_loss=z, expert_agreement=z, grad_norm=z,
-                                     updates=jnp.zeros((), jnp.int32))
+            return carry, LearnStats.zeros()
 
         (learner, sampling), stats = jax.lax.cond(ready, do, skip, (learner, replay.sampling_state(replay_state)))
         return learner, replay.with_sampling_state(replay_state, sampling), stats
@@ -374,6 +373,7 @@ class Trainer:
                                episode_return_sum=stats.return_sum, loss_sum=learned.loss,
                                aux_loss_sum=learned.aux_loss, q_sum=learned.q_mean,
                                margin_loss_sum=learned.margin_loss, expert_agreement_sum=learned.expert_agreement,
+                               policy_loss_sum=learned.policy_loss,
                                grad_norm_sum=learned.grad_norm, updates=learned.updates, epsilon=eps,
                                env_steps=env_steps)
         runner = runner.replace(learner=learner, actor=actor, replay=replay_state, key=key, env_steps=env_steps)

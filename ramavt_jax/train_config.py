@@ -95,6 +95,9 @@ class LearnerConfig:
     # every trained step, the agent's own included, weighted by this (0 = off: no labels computed or stored).
     expert_margin_weight: float = 0.0
     expert_margin: float = 0.05  # how far the labelled action must lead every other, in Q's units (scaled rewards)
+    # The weight of a policy head's cross-entropy towards the same labels (NetworkConfig.policy_head; unused without
+    # it). The labels are computed and stored whenever the network has the head.
+    policy_weight: float = 1.0
     # The label at the steps before the target is first in view (imitation.unseen_yet), whose blank images cannot
     # show where the look-ahead's action points: 'teacher' (that action, as at every other step), 'none' (no label:
     # the TD loss alone decides how to search) or 'retreat' (back along the camera axis, imitation.RETREAT, which
@@ -138,6 +141,7 @@ class LearnerConfig:
                                ("command_cost", self.command_cost >= 0, ">= 0 (0 = no shaping)"),
                                ("expert_margin_weight", self.expert_margin_weight >= 0, ">= 0 (0 = no margin loss)"),
                                ("expert_margin", self.expert_margin > 0, "> 0"),
+                               ("policy_weight", self.policy_weight > 0, "> 0"),
                                ("blind_label", self.blind_label in BLIND_LABELS, f"one of {BLIND_LABELS}"),
                                ("quantile_kappa", self.quantile_kappa > 0, "> 0"),
                                ("replay_ratio", self.replay_ratio > 0, "> 0"),

@@ -15,8 +15,8 @@ from ramavt_jax import env as env_lib
 from ramavt_jax.losses import TDBatch
 from ramavt_jax.network import RecurrentState
 
-__all__ = ["TrainingDivergedError", "LearnerState", "ActorState", "RunnerState", "ChunkMetrics", "EpisodeStats",
-           "LearnStats", "PreparedBatch"]
+__all__ = ["TrainingDivergedError", "LearnerState", "ActorState", "RolloutCarry", "RunnerState", "ChunkMetrics",
+           "EpisodeStats", "LearnStats", "PreparedBatch"]
 
 
 class TrainingDivergedError(RuntimeError):
@@ -53,6 +53,14 @@ class ActorState:
 
 
 @struct.dataclass
+class RolloutCarry:
+    """What a rollout's lax.scan carries from one acting step to the next."""
+
+    actor: ActorState
+    env_steps: jax.Array  # [] int32, all envs together
+
+
+@struct.dataclass
 class RunnerState:
     learner: LearnerState
     actor: ActorState
@@ -73,6 +81,7 @@ class ChunkMetrics:
     aux_loss_sum: jax.Array  # the auxiliary head's unweighted squared error per update, summed
     margin_loss_sum: jax.Array  # the large-margin loss per update, unweighted, summed (0 without it)
     expert_agreement_sum: jax.Array  # share of trained steps whose greedy action is the label, per update, summed
+    policy_loss_sum: jax.Array  # the policy head's cross-entropy per update, unweighted, summed (0 without the head)
     q_sum: jax.Array  # mean taken Q per update, summed
     grad_norm_sum: jax.Array
     updates: jax.Array  # gradient steps done this iteration
@@ -93,13 +102,21 @@ class EpisodeStats:
 class LearnStats:
     """One gradient step (``update``), or the sums over an iteration's steps (``learn``): all ``[]``."""
 
-    loss: jax.Array  # the TD loss plus the weighted auxiliary and margin losses
+    loss: jax.Array  # the TD loss plus the weighted auxiliary, margin and policy losses
     aux_loss: jax.Array  # the auxiliary head's squared error, unweighted (0 without the head)
     margin_loss: jax.Array  # the large-margin loss, unweighted (0 without it: LearnerConfig.expert_margin_weight)
     expert_agreement: jax.Array  # share of the trained steps whose greedy action is the look-ahead's (0 without)
+    policy_loss: jax.Array  # the policy head's cross-entropy, unweighted (0 without it: NetworkConfig.policy_head)
     q_mean: jax.Array  # mean taken Q over the trained transitions
     grad_norm: jax.Array
     updates: jax.Array  # int32 gradient steps
+
+    @classmethod
+    def zeros(cls) -> "LearnStats":
+        """No gradient step (the replay not yet ready)."""
+        z = jnp.zeros(())
+        return cls(loss=z, aux_loss=z, margin_loss=z, expert_agreement=z, policy_loss=z, q_mean=z, grad_norm=z,
+                   updates=jnp.zeros((), jnp.int32))
 
 
 @struct.dataclass

@@ -466,6 +466,15 @@ ARMS["size-retreat"] = lambda c: ARMS["size-margin"](c).override(blind_label="re
 # (one change to 'size-wide-retreat'): more blind starts in training, so more steps carry the back-off label.
 ARMS["size-wider-retreat"] = lambda c: _env(ARMS["size-wide-retreat"](c), init_xy_std=3.0)
 
+# Target 2 asks 90 % of the ceiling. A policy head beside Q (NetworkConfig.policy_head), fitted by cross-entropy to the
+# same labels and acting by its argmax, one change to 'expert-margin' (the quick preset): through the margin loss the
+# greedy action matches the label on 43-45 % of the trained steps, and a heavier margin does not raise it, since Q
+# must also fit the TD targets; a classifier of the labels answers to nothing else (Learning by Cheating's student).
+ARMS["policy-head"] = lambda c: _net(ARMS["expert-margin"](c), policy_head=True)
+# The same true state as 'state-input-gain10' with the labels (one change to it): with perfect perception, do the
+# labels close what the learner leaves to the ceiling (15 points without them)?
+ARMS["state-input-gain10-margin"] = lambda c: ARMS["state-input-gain10"](c).override(expert_margin_weight=1.0)
+
 
 def arm_config(name: str, preset: str = "quick", **overrides):
     base = presets.preset(preset, eval_episodes=0, **overrides)

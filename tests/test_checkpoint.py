@@ -229,6 +229,10 @@ def test_the_loss_is_split_where_there_is_an_auxiliary_head(full_run):
     assert metrics.split_loss(margin, 3.0, 2.0) == dict(margin, td_loss=pytest.approx(0.1))
     assert metrics.split_loss(margin, 0.0, 2.0) == {"loss": 0.5, "margin_loss": 0.05, "expert_agreement": 0.4,
                                                     "td_loss": pytest.approx(0.4)}
+    policy = {"loss": 0.5, "aux_loss": 0.0, "margin_loss": 0.05, "expert_agreement": 0.4, "policy_loss": 0.1}
+    assert metrics.split_loss(policy, 0.0, 0.0, 2.0) == {"loss": 0.5, "expert_agreement": 0.4, "policy_loss": 0.1,
+                                                         "td_loss": pytest.approx(0.3)}
+    assert metrics.split_loss(policy, 0.0, 2.0, 2.0)["td_loss"] == pytest.approx(0.2)
 
 
 def test_other_config_is_refused_before_writing_and_a_run_can_be_extended(tmp_path, full_run):

@@ -173,10 +173,69 @@ def test_the_trainers_loss_adds_the_weighted_margin_loss_of_the_trained_steps():
     np.testing.assert_allclose(float(logged["expert_agreement"]), agreement, rtol=1e-5)
 
 
+def test_policy_terms_are_the_step_by_step_cross_entropy_of_the_labelled_steps():
+    logits = np.asarray(jax.random.normal(jax.random.PRNGKey(0), (3, 5, 11)))
+    expert = np.array(jax.random.randint(jax.random.PRNGKey(1), (3, 5), 0, 11))
+    expert[0, 1:3], expert[2, 4] = imitation.NO_LABEL, imitation.NO_LABEL
+    mask = np.asarray(jax.random.uniform(jax.random.PRNGKey(2), (3, 5)) < 0.8)
+    loss, agreement = imitation.policy_terms(jnp.asarray(logits), jnp.asarray(expert), jnp.asarray(mask, jnp.float32))
+    labelled = mask & (expert != imitation.NO_LABEL)
+    nll = [np.log(np.exp(logits[b, t]).sum()) - logits[b, t, expert[b, t]] for b, t in zip(*np.nonzero(labelled))]
+    np.testing.assert_allclose(float(loss), np.mean(nll), rtol=1e-5)
+    np.testing.assert_allclose(float(agreement), (logits.argmax(-1) == expert)[labelled].mean(), rtol=1e-5)
+    grad = np.asarray(jax.grad(lambda x: imitation.policy_terms(x, jnp.asarray(expert), jnp.ones((3, 5)))[0])(
+        jnp.asarray(logits)))
+    assert (grad[0, 1:3] == 0).all() and grad[0, 0, expert[0, 0]] < 0  # unlabelled: no pull; labelled: raised
+
+
+def test_a_policy_head_acts_and_its_cross_entropy_joins_the_loss_while_q_trains_by_td():
+    """With NetworkConfig.policy_head the network returns the head's logits (what acting takes the argmax of) and
+    sows Q: the loss is the TD loss of that Q (a network without the head, the same other params), plus the margin
+    loss on Q, plus policy_weight times the logits' cross-entropy at the trained transitions' labels; the logged
+    agreement is the logits'. Acting stores the look-ahead's labels even without a margin loss."""
+    base = SMOKE.override(expert_margin_weight=0.5, expert_margin=0.1)
+    cfg = base.override(network=dataclasses.replace(base.network, policy_head=True), policy_weight=2.0)
+    trainer, burn = T.Trainer(cfg), cfg.replay.burn_in
+    params = trainer.init(jax.random.PRNGKey(0)).learner.params
+    q_params = {k: v for k, v in params.items() if k != "policy"}
+    assert set(params) - set(q_params) == {"policy"}
+    prepared = trainer.prepare(params, params, replay_lib.sequence_batch(_window(cfg, jax.random.PRNGKey(1)), burn),
+                               jax.random.PRNGKey(2))
+    q_trainer = T.Trainer(base)
+
+    @jax.jit
+    def losses(p):
+        logits = trainer.q_values(params, p.obs, p.reset, p.state, actions=p.td.action)[0]
+        return q_trainer.trained_loss(q_params, p), trainer.trained_loss(params, p), logits
+
+    (q_loss, q_logged), (loss, logged), logits = losses(prepared)
+    mask, labels = np.asarray(prepared.td.mask), np.asarray(prepared.expert_action)
+    ce, agreement = imitation.policy_terms(logits[:, :-1], jnp.asarray(labels), jnp.asarray(mask, jnp.float32))
+    assert float(ce) > 0 and float(q_logged["margin_loss"]) > 0
+    np.testing.assert_allclose(float(loss), float(q_loss) + 2.0 * float(ce), rtol=1e-5)
+    np.testing.assert_allclose(float(logged["margin_loss"]), float(q_logged["margin_loss"]), rtol=1e-5)
+    np.testing.assert_allclose(float(logged["policy_loss"]), float(ce), rtol=1e-5)
+    np.testing.assert_allclose(float(logged["expert_agreement"]), float(agreement), rtol=1e-5)
+    assert float(q_logged["policy_loss"]) == 0.0
+
+    no_margin = cfg.override(expert_margin_weight=0.0)
+    acting = T.Trainer(no_margin)
+    state = acting.init(jax.random.PRNGKey(4))
+    _, transition, _ = jax.jit(acting.act_step)(state.learner.params, state.actor, jnp.asarray(0.0),
+                                               jax.random.PRNGKey(5))
+    assert transition.expert_action is not None and (np.asarray(transition.expert_action) >= 0).all()
+    a = state.actor
+    logits = acting.q_values(state.learner.params, a.obs[:, None], a.is_first[:, None], a.net_state)[0][:, 0]
+    np.testing.assert_array_equal(np.asarray(transition.action), np.asarray(logits.argmax(-1)))  # epsilon 0
+
+
 @pytest.mark.parametrize("build, message", [
     (lambda: LearnerConfig(expert_margin_weight=-1.0),
      r"^LearnerConfig: expert_margin_weight must be >= 0 \(0 = no margin loss\), got -1.0$"),
     (lambda: LearnerConfig(expert_margin=0.0), r"^LearnerConfig: expert_margin must be > 0, got 0.0$"),
+    (lambda: LearnerConfig(policy_weight=0.0), r"^LearnerConfig: policy_weight must be > 0, got 0.0$"),
+    (lambda: dataclasses.replace(SMOKE.network, policy_head=True, quantiles=8),
+     r"^NetworkConfig: policy_head needs a recurrent variant \(the head reads the LSTM output\) and no quantiles$"),
     (lambda: LearnerConfig(blind_label="search"),
      r"^LearnerConfig: blind_label must be one of \('teacher', 'none', 'retreat'\), got 'search'$"),
 ])

@@ -106,6 +106,8 @@ def _changes(arm: str, reference: str) -> dict:
         ("n-step-3", "avg-1536k", {"learner.n_step": 3}),
         ("expert-margin", "avg-1536k", {"learner.expert_margin_weight": 1.0}),
         ("expert-margin-w3", "expert-margin", {"learner.expert_margin_weight": 3.0}),
+        ("policy-head", "expert-margin", {"network.policy_head": True}),
+        ("state-input-gain10-margin", "state-input-gain10", {"learner.expert_margin_weight": 1.0}),
         ("size-margin", "size-1536k", {"learner.expert_margin_weight": 1.0}),
         ("long-margin", "avg-2304k", {"learner.expert_margin_weight": 1.0}),
         ("size-wide-starts", "size-margin", {"env_params": (("init_xy_std", 2.0), ("size_scale_max", 1.0),

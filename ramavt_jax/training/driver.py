@@ -161,7 +161,8 @@ class _Loop:
         for k in range(num_seeds):
             record = {"chunk": self.chunk_no, **aggregate(_seed_slice(m, k, num_seeds), wall, c.env_steps_per_chunk)}
             record["trained_frames_per_s"] = record["updates_per_s"] * c.replay.batch_size * c.replay.train_len
-            record = split_loss(record, c.learner.aux_weight, c.learner.expert_margin_weight)
+            record = split_loss(record, c.learner.aux_weight, c.learner.expert_margin_weight,
+                                c.learner.policy_weight if c.network.policy_head else 0.0)
             record["compile_s"] = self.prog.compile_s
             record["since_start_s"] = since_start
             record["started_at"] = self.clock_start  # epoch second: tells one process's records from a resume's

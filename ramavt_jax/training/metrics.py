@@ -37,6 +37,7 @@ def aggregate(m: ChunkMetrics, wall_s: float, env_steps: int) -> dict:
         "aux_loss": ratio(m.aux_loss_sum.sum(), updates),
         "margin_loss": ratio(m.margin_loss_sum.sum(), updates),
         "expert_agreement": ratio(m.expert_agreement_sum.sum(), updates),
+        "policy_loss": ratio(m.policy_loss_sum.sum(), updates),
         "q_mean": ratio(m.q_sum.sum(), updates),
         "grad_norm": ratio(m.grad_norm_sum.sum(), updates),
         "epsilon": float(m.epsilon[-1]),
@@ -72,18 +73,19 @@ def process_start_time() -> float:
     return min(now - since_start, _IMPORTED_AT)
 
 
-def split_loss(record: dict, aux_weight: float, margin_weight: float = 0.0) -> dict:
+def split_loss(record: dict, aux_weight: float, margin_weight: float = 0.0, policy_weight: float = 0.0) -> dict:
     """The record with its loss told apart: ``td_loss`` beside ``loss = td_loss + aux_weight * aux_loss +
-    margin_weight * margin_loss`` when the run has an auxiliary head or a margin loss; the record holds neither term
-    (nor the agreement with the margin's labels) where the run has not got it (its 0 would read as a perfect fit)."""
+    margin_weight * margin_loss + policy_weight * policy_loss`` when the run has any of those terms
+    (``policy_weight`` 0 for a network without a policy head); the record holds no term (nor the agreement with the
+    labels) that the run has not got (its 0 would read as a perfect fit)."""
     record = dict(record)
-    if aux_weight or margin_weight:
-        record["td_loss"] = (record["loss"] - aux_weight * record.get("aux_loss", 0.0)
-                             - margin_weight * record.get("margin_loss", 0.0))
-    if not aux_weight:
-        record.pop("aux_loss", None)
-    if not margin_weight:
-        record.pop("margin_loss", None)
+    weights = dict(aux_loss=aux_weight, margin_loss=margin_weight, policy_loss=policy_weight)
+    if any(weights.values()):
+        record["td_loss"] = record["loss"] - sum(w * record.get(name, 0.0) for name, w in weights.items())
+    for name, weight in weights.items():
+        if not weight:
+            record.pop(name, None)
+    if not (margin_weight or policy_weight):
         record.pop("expert_agreement", None)
     return record
 
