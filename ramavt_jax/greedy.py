@@ -13,8 +13,8 @@ from ramavt_jax.baselines import Policy
 from ramavt_jax.network import NetworkConfig, RecurrentState, initial_state, make_network, record_action
 from ramavt_jax.network_inputs import hit_mask
 
-__all__ = ["BLIND_SEARCHES", "GreedyState", "greedy_policy", "GreedyPolicyOf", "unbatch_state", "batch_state",
-           "standoff_signal", "true_tracking_state"]
+__all__ = ["BLIND_SEARCHES", "GreedyState", "greedy_policy", "stack_params", "GreedyPolicyOf", "unbatch_state",
+           "batch_state", "standoff_signal", "true_tracking_state"]
 
 
 def standoff_signal(network: NetworkConfig, env_state: env_lib.EnvState, env_params: env_lib.EnvParams):
@@ -54,13 +54,14 @@ BLIND_SEARCHES = ("learned", "retreat")  # greedy_policy(search=...)
 
 @struct.dataclass
 class GreedyState:
-    net_state: RecurrentState  # per env (no batch axis): h, c [layers, units], frames [K, H, W, C] (K may be 0)
+    net_state: RecurrentState  # per env (no batch axis): h, c [layers, units], frames [K, H, W, C] (K may be 0);
+    # an ensemble (greedy_policy(members=M)) has one per member, each leaf [M, ...]
     first: jax.Array  # [] bool
     seen: jax.Array  # [] bool: some frame of the episode so far has shown a target pixel
 
 
 def greedy_policy(network: NetworkConfig, params, obs_shape: tuple, name: str = "greedy",
-                  search: str = "learned") -> Policy:
+                  search: str = "learned", members: int = 0) -> Policy:
     """A ``baselines.Policy`` acting greedily with a trained Q-network (per env; evaluate.run_episodes vmaps it). A
     state_input network (a diagnostic, not a deployable tracker) also reads the simulator's state through env_state.
 
@@ -68,29 +69,50 @@ def greedy_policy(network: NetworkConfig, params, obs_shape: tuple, name: str = 
     greedy action, as everywhere else) or 'retreat' (back along the camera axis, which shrinks the bearing of a
     target in any direction). A blank image shows nothing to choose by, so a fixed search gives up only what a
     policy may have learned of where targets tend to start; the network still sees every frame and is told the
-    command flown."""
+    command flown.
+
+    ``members`` > 0: ``params`` holds that many parameter sets of this one network stacked on a leading axis
+    (:func:`stack_params`, e.g. the seeds of a sweep). Each member keeps its own memory and is told the command
+    flown; the policy takes the argmax of the members' mean output (Q, or a policy head's logits)."""
     if search not in BLIND_SEARCHES:
         raise ValueError(f"search must be one of {BLIND_SEARCHES}, got {search!r}")
     net = make_network(network)
 
+    def forward(member_params, net_state, first, obs, standoff, true_state):  # one network, one step: q [A], state
+        q, new = net.apply({"params": member_params}, obs[None, None], first[None, None], batch_state(net_state),
+                           standoff=standoff, true_state=true_state)
+        return q[0, 0], new
+
     def init(key):
-        s = initial_state(network, 1, obs_shape)
-        return GreedyState(net_state=unbatch_state(s), first=jnp.ones((), bool), seen=jnp.zeros((), bool))
+        s = unbatch_state(initial_state(network, 1, obs_shape))
+        if members:
+            s = jax.tree.map(lambda x: jnp.broadcast_to(x, (members, *x.shape)), s)
+        return GreedyState(net_state=s, first=jnp.ones((), bool), seen=jnp.zeros((), bool))
 
     def act(key, pstate: GreedyState, obs, env_state, env_params):
         signal = standoff_signal(network, env_state, env_params)
         standoff = None if signal is None else signal[None, None]  # [1, 1]
         true_state = true_tracking_state(env_state, env_params)[None, None] if network.state_input else None
-        q, new = net.apply({"params": params}, obs[None, None], pstate.first[None, None],
-                           batch_state(pstate.net_state), standoff=standoff, true_state=true_state)
-        action = jnp.argmax(q[0, 0]).astype(jnp.int32)
+        inputs = (pstate.first, obs, standoff, true_state)
+        if members:
+            q, new = jax.vmap(forward, in_axes=(0, 0) + (None,) * 4)(params, pstate.net_state, *inputs)
+            q = q.mean(0)
+        else:
+            q, new = forward(params, pstate.net_state, *inputs)
+        action = jnp.argmax(q).astype(jnp.int32)
         seen = (pstate.seen & ~pstate.first) | jnp.any(hit_mask(obs[None]) > 0)
         if search == "retreat":
             action = jnp.where(seen, action, env_lib.RETREAT).astype(jnp.int32)
-        new = unbatch_state(record_action(new, action[None]))
+        told = lambda s: unbatch_state(record_action(s, action[None]))  # noqa: E731
+        new = jax.vmap(told)(new) if members else told(new)
         return action, GreedyState(net_state=new, first=jnp.zeros((), bool), seen=seen)
 
     return Policy(name, init, act)
+
+
+def stack_params(params_list) -> object:
+    """Parameter sets of one network (a list of pytrees) stacked on a new leading axis, for greedy_policy(members=)."""
+    return jax.tree.map(lambda *leaves: jnp.stack(leaves), *params_list)
 
 
 @dataclasses.dataclass(frozen=True)

@@ -237,6 +237,23 @@ def test_eval_checkpoint_run(tmp_path):
     assert "run `" in md and "checkpoint step 3" in md and "online params" in md
 
 
+def test_an_ensemble_row_flies_the_runs_together_and_of_one_run_twice_equals_it(tmp_path):
+    """--ensemble adds one row; two copies of one run fly as that run does (the mean of equal Q values), while
+    one --run folder alone is a one-line usage error."""
+    first, _ = _fake_run(tmp_path / "runs" / "a" / "seed_0")
+    copy, _ = _fake_run(tmp_path / "runs" / "b" / "seed_0")
+    out = tmp_path / "eval"
+    cli_eval.eval_cmd(policy="checkpoint", run=(first, copy), ensemble=True, baselines=False, targets="Satellite-v2",
+                      episodes=2, max_steps=30, tables=(1,), out=out, speed_steps=0)
+    rows = json.loads((out / "results.json").read_text())["rows"]
+    assert [r["name"] for r in rows] == ["a/seed_0", "b/seed_0", "ensemble of 2: a, b"]
+    single, together = rows[0]["settings"]["none"]["overall"], rows[2]["settings"]["none"]["overall"]
+    assert together == pytest.approx(single) and together["length_mean"] > 1
+    assert "flying together, greedy on their mean Q" in (out / "tables.md").read_text()
+    with pytest.raises(cli_eval.UsageError, match=r"^--ensemble needs at least two --run folders, got 1$"):
+        cli_eval.eval_cmd(policy="checkpoint", run=(first,), ensemble=True, out=tmp_path / "eval1")
+
+
 def test_load_policy_reads_the_parameter_set_the_config_or_the_caller_names(tmp_path):
     run_dir, online = _fake_run(tmp_path / "run")
     target = runs.load_policy(run_dir, policy_params="target")

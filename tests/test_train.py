@@ -528,6 +528,24 @@ def test_the_retreat_search_backs_off_until_a_frame_shows_the_target_then_acts_g
         greedy.greedy_policy(cfg.network, params, cfg.env.obs_shape, search="spiral")
 
 
+def test_an_ensemble_takes_the_argmax_of_its_members_mean_q_each_told_the_commands_flown():
+    """greedy_policy(members=2) over two parameter sets: at every step the argmax of the two networks' mean Q, each
+    network run over the episode so far from its own memory with the ensemble's commands as its previous actions."""
+    cfg = SMOKE.override(network=dataclasses.replace(SMOKE.network, prev_action=True))
+    tr = T.Trainer(cfg)
+    members = [jax.jit(tr.init)(jax.random.PRNGKey(k)).learner.params for k in (4, 5)]
+    obs = jax.random.uniform(jax.random.PRNGKey(8), (6, *cfg.env.obs_shape))
+    policy = greedy.greedy_policy(cfg.network, greedy.stack_params(members), cfg.env.obs_shape, members=2)
+    ps, actions = policy.init(jax.random.PRNGKey(0)), []
+    for t in range(6):
+        a, ps = policy.act(jax.random.PRNGKey(t), ps, obs[t], None, None)
+        actions.append(int(a))
+    reset = jnp.zeros((1, 6), bool).at[0, 0].set(True)
+    qs = [tr.q_values(p, obs[None], reset, initial_state(cfg.network, 1), jnp.array([actions]))[0][0] for p in members]
+    assert actions == np.asarray(jnp.argmax(qs[0] + qs[1], -1)).tolist()
+    assert np.asarray(jnp.argmax(qs[0], -1)).tolist() != np.asarray(jnp.argmax(qs[1], -1)).tolist()  # they differ
+
+
 # ------------------------------------------------------------------------------------------ seeds
 @pytest.mark.slow  # two compiles of the whole training function (~2-3 min on 2 cores)
 def test_vmapped_seeds_equal_single_seed_runs():

@@ -13,7 +13,7 @@ import jax
 
 from ramavt_jax import baselines as baselines_lib
 from ramavt_jax import env as env_lib
-from ramavt_jax import render
+from ramavt_jax import greedy, render
 from ramavt_jax.cli.checks import UsageError, finite, keeps_policy_params, output_folder, positive
 from ramavt_jax.evaluation import pretrained, rollouts
 from ramavt_jax.evaluation import tables as tables_lib
@@ -39,6 +39,25 @@ def _run_entries(runs: tuple[Path, ...], policy_params: str | None = None, searc
         entries.append(tables_lib.Entry(row_name(run_dir), "checkpoint", lr.policy, cfg.env,
                                     rollouts.run_env_overrides(cfg.env_params), cfg.env.obs_mode, info))
     return entries, loaded
+
+
+def _ensemble_entry(loaded: list[LoadedRun], search: str) -> tables_lib.Entry:
+    """One row for the runs ``loaded`` flying as an ensemble (greedy.greedy_policy(members=)); their network, env
+    and env settings must agree (a one-line UsageError names the first run that differs)."""
+    first = loaded[0].config
+    for lr in loaded[1:]:
+        c = lr.config
+        if (c.network, c.env, c.env_params) != (first.network, first.env, first.env_params):
+            raise UsageError(f"--ensemble: {lr.run_dir} has another network, env or env settings than "
+                             f"{loaded[0].run_dir}; an ensemble's runs share one config")
+    params = greedy.stack_params([lr.params for lr in loaded])
+    policy = greedy.greedy_policy(first.network, params, tuple(first.env.obs_shape), "ensemble", search,
+                                  members=len(loaded))
+    sweeps = sorted({Path(lr.run_dir).resolve().parent.name for lr in loaded})
+    info = {"ensemble_of": [lr.run_dir for lr in loaded], "variant": first.network.variant,
+            "policy_params": first.run.policy_params, "blind_search": search}
+    return tables_lib.Entry(f"ensemble of {len(loaded)}: {', '.join(sweeps)}", "checkpoint", policy, first.env,
+                            rollouts.run_env_overrides(first.env_params), first.env.obs_mode, info)
 
 
 def _pretrained_entry(name: str) -> tables_lib.Entry:
@@ -93,6 +112,7 @@ def eval_cmd(
     run: tuple[Path, ...] = (),
     policy_params: Literal["online", "target", "averaged"] | None = None,
     blind_search: Literal["learned", "retreat"] = "learned",
+    ensemble: bool = False,
     agent: str = pretrained.DEFAULT_AGENT,
     baselines: bool = True,
     targets: str = "test",
@@ -127,6 +147,8 @@ def eval_cmd(
             `run.policy_params`.
         blind_search: what the --run policies command until a frame first shows the target: 'learned' (their own
             greedy action) or 'retreat' (back along the camera axis; greedy.greedy_policy).
+        ensemble: one more row: the --run policies flying together, each with its own memory, greedy on their
+            mean Q (runs of one network and env config, e.g. the seeds of a sweep; greedy.greedy_policy(members=)).
         agent: the shipped agent evaluated by --policy pretrained.
         baselines: with --policy checkpoint, also evaluate mpc, proportional, depth tracker and random in every table (a
             baseline given as --policy is evaluated alone).
@@ -166,8 +188,12 @@ def eval_cmd(
     finite("--actuator-noise", actuator_noise)
     finite("--delay-max", delay_max)
     names = _check_eval_args(policy, agent, run, targets, episodes, max_steps, tables, blur_frames, out, policy_params)
+    if ensemble and len(run) < 2:
+        raise UsageError(f"--ensemble needs at least two --run folders, got {len(run)}")
     with run_folder.RunLock(Path(out), OTHER_WRITER):  # a second command writing into --out is refused
         entries, loaded = _run_entries(run, policy_params, blind_search)
+        if ensemble:
+            entries.append(_ensemble_entry(loaded, blind_search))
         if policy == "pretrained":
             entries.insert(0, _pretrained_entry(agent))
         trained = policy in ("checkpoint", "pretrained")

@@ -312,6 +312,10 @@ def to_markdown(result: dict, command: str = "") -> str:
             head.append(f"- {r['name']}: the agent shipped with the package, variant {i.get('variant')}, trained by "
                         f"`{i.get('command')}` (training seed {i.get('seed')}, {i.get('chunks')} chunks), "
                         f"{i.get('policy_params')} params, {r['resolution']}x{r['resolution']} {r['obs_mode']}")
+        elif r["kind"] == "checkpoint" and i.get("ensemble_of"):  # greedy on the mean Q of several runs
+            head.append(f"- {r['name']}: the runs {', '.join(f'`{d}`' for d in i['ensemble_of'])} flying together, "
+                        f"greedy on their mean Q, {i.get('policy_params', 'online')} params, "
+                        f"{r['resolution']}x{r['resolution']} {r['obs_mode']}")
         elif r["kind"] == "checkpoint":
             head.append(f"- {r['name']}: run `{i.get('run_dir')}`, variant {i.get('variant')}, training seed "
                         f"{i.get('seed')}, checkpoint step {i.get('step')} ({i.get('env_steps')} env steps), "
