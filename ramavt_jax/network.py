@@ -261,7 +261,7 @@ class QNetwork(nn.Module):
             if cfg.reads_standoff:
                 x = jnp.concatenate([x, standoff_feature(standoff, reset.shape)[..., None].astype(dtype)], axis=-1)
             if cfg.state_input:
-                seen = true_state_feature(true_state, reset.shape) * cfg.state_input_gain
+                seen = true_state_feature(true_state, reset.shape) * cfg.state_input_gain * cfg.state_input_mask
                 x = jnp.concatenate([x, seen.astype(dtype)], axis=-1)
             y, (h, c) = LSTMStack(cfg.lstm, cfg.lstm_layers, dtype=dtype, name="lstm")(x, reset, (state.h, state.c))
             if cfg.aux_outputs:  # [B, T, aux_outputs], read by auxiliary losses only

@@ -93,6 +93,10 @@ class NetworkConfig:
     # The true state times this at the LSTM's input (state_input only). In stand-off distances a 0.05 m error reads
     # 0.01 beside features of order 1: a gain asks whether the diagnostic's shortfall is the learner's or the scale's.
     state_input_gain: float = 1.0
+    # Which of the TRUE_STATE_SIZE entries the network reads (state_input only; the others read 0): 0-2 the error
+    # across the image (x, y) and along the boresight (z), 3-5 the relative velocity likewise. A subset asks which
+    # part of the state the images fail to give.
+    state_input_entries: tuple[int, ...] = tuple(range(TRUE_STATE_SIZE))
     # A motion cue: the change of each pixel since the previous frame (0 at an episode's first step) as one more input
     # channel per observation channel, beside the hit mask. Velocity otherwise has to be read by the LSTM from two
     # pooled feature vectors; here the first conv sees the target's edges move and its surface come nearer. The
@@ -183,6 +187,13 @@ class NetworkConfig:
             fail(f"state_input_gain must be a finite number > 0, got {g!r}")
         if g != 1.0 and not self.state_input:
             fail("state_input_gain scales the true state at the input: it needs state_input=True")
+        entries = self.state_input_entries
+        if not (isinstance(entries, tuple) and entries and len(set(entries)) == len(entries) and all(
+                isinstance(i, (int, np.integer)) and not isinstance(i, bool) and 0 <= i < TRUE_STATE_SIZE
+                for i in entries)):
+            fail(f"state_input_entries must be distinct indices in 0-{TRUE_STATE_SIZE - 1}, got {entries!r}")
+        if set(entries) != set(range(TRUE_STATE_SIZE)) and not self.state_input:
+            fail("state_input_entries picks entries of the true state at the input: it needs state_input=True")
         r = self.exposure_rate
         if isinstance(r, bool) or not isinstance(r, (int, float, np.floating, np.integer)) or not 0 <= r <= 1:
             fail(f"exposure_rate must be a number in [0, 1] (0: off), got {r!r}")
@@ -212,6 +223,11 @@ class NetworkConfig:
     @property
     def recurrent(self) -> bool:
         return self.variant != "drlavt"
+
+    @property
+    def state_input_mask(self) -> np.ndarray:
+        """[TRUE_STATE_SIZE] float32: 1 for the true-state entries the network reads (state_input_entries), else 0."""
+        return np.isin(np.arange(TRUE_STATE_SIZE), self.state_input_entries).astype(np.float32)
 
     @property
     def reads_standoff(self) -> bool:

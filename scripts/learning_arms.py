@@ -474,6 +474,10 @@ ARMS["policy-head"] = lambda c: _net(ARMS["expert-margin"](c), policy_head=True)
 # The same true state as 'state-input-gain10' with the labels (one change to it): with perfect perception, do the
 # labels close what the learner leaves to the ceiling (15 points without them)?
 ARMS["state-input-gain10-margin"] = lambda c: ARMS["state-input-gain10"](c).override(expert_margin_weight=1.0)
+# The same with only the boresight entries of the true state (error and relative velocity along the camera axis;
+# NetworkConfig.state_input_entries), one change to 'state-input-gain10-margin': the probes find the image agents'
+# error worst along the boresight; how much of the way to the ceiling does that axis alone give?
+ARMS["state-boresight-margin"] = lambda c: _net(ARMS["state-input-gain10-margin"](c), state_input_entries=(2, 5))
 
 
 def arm_config(name: str, preset: str = "quick", **overrides):

@@ -653,6 +653,25 @@ def test_state_input_gain_scales_the_true_state_at_the_input():
         small("ramavt", state_input=True, state_input_gain=0.0)
 
 
+def test_state_input_entries_read_only_the_chosen_parts_of_the_true_state():
+    """state_input_entries (2, 5): q of the true state s equals q of the full diagnostic given s with every other
+    entry zeroed, so changing those entries changes nothing, and changing entry 2 does."""
+    cfg = small("ramavt", state_input=True, state_input_entries=(2, 5))
+    full = dataclasses.replace(cfg, state_input_entries=tuple(range(6)))
+    _, variables, obs = _setup(cfg, b=2, t=3)
+    reset, state = jnp.zeros((2, 3), bool), initial_state(cfg, 2)
+    true_state = jax.random.normal(jax.random.key(5), (2, 3, 6))
+    kept = true_state * jnp.array([0, 0, 1, 0, 0, 1], jnp.float32)
+    q = make_network(cfg).apply(variables, obs, reset, state, true_state=true_state)[0]
+    np.testing.assert_allclose(q, make_network(full).apply(variables, obs, reset, state, true_state=kept)[0], atol=1e-5)
+    moved = make_network(cfg).apply(variables, obs, reset, state, true_state=true_state.at[..., 2].add(1.0))[0]
+    assert not np.allclose(q, moved, atol=1e-5)
+    with pytest.raises(ValueError, match=r"state_input_entries must be distinct indices in 0-5, got \(2, 2\)"):
+        small("ramavt", state_input=True, state_input_entries=(2, 2))
+    with pytest.raises(ValueError, match="state_input_entries picks entries .* needs state_input=True"):
+        small("ramavt", state_input_entries=(2,))
+
+
 def test_long_exposure_acting_equals_unroll_and_restarts_with_each_episode():
     """exposure_rate r: the encoder also sees e_t = e_(t-1) + r (x_t - e_(t-1)) of the frame with its hit mask
     (e_t = x_t where an episode starts), carried in the state; step by step equals the unrolled window."""

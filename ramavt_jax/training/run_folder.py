@@ -48,7 +48,8 @@ ADDED_FIELDS = ("network.depth_centre", "network.depth_gain", "learner.polyak_ta
                 "network.dense_norm", "acting.eps_ladder", "acting.teacher_envs", "network.state_input",
                 "learner.command_cost", "network.frame_difference",
                 "network.state_input_gain", "network.exposure_rate", "learner.expert_margin_weight",
-                "learner.expert_margin", "learner.blind_label", "network.policy_head", "learner.policy_weight")
+                "learner.expert_margin", "learner.blind_label", "network.policy_head", "learner.policy_weight",
+                "network.state_input_entries")
 _SEED_DIR = re.compile(r"seed_\d+")
 
 
