@@ -478,6 +478,8 @@ ARMS["state-input-gain10-margin"] = lambda c: ARMS["state-input-gain10"](c).over
 # NetworkConfig.state_input_entries), one change to 'state-input-gain10-margin': the probes find the image agents'
 # error worst along the boresight; how much of the way to the ceiling does that axis alone give?
 ARMS["state-boresight-margin"] = lambda c: _net(ARMS["state-input-gain10-margin"](c), state_input_entries=(2, 5))
+# And the other four entries (across the image), one change to 'state-input-gain10-margin': the complement.
+ARMS["state-lateral-margin"] = lambda c: _net(ARMS["state-input-gain10-margin"](c), state_input_entries=(0, 1, 3, 4))
 
 
 def arm_config(name: str, preset: str = "quick", **overrides):
