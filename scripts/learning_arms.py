@@ -480,6 +480,9 @@ ARMS["state-input-gain10-margin"] = lambda c: ARMS["state-input-gain10"](c).over
 ARMS["state-boresight-margin"] = lambda c: _net(ARMS["state-input-gain10-margin"](c), state_input_entries=(2, 5))
 # And the other four entries (across the image), one change to 'state-input-gain10-margin': the complement.
 ARMS["state-lateral-margin"] = lambda c: _net(ARMS["state-input-gain10-margin"](c), state_input_entries=(0, 1, 3, 4))
+# Both halves of the true state are needed, and the auxiliary head fits only the error. The head also fitted to
+# the relative velocity, as 'aux-velocity' did before the labels, one change to 'expert-margin' (the quick preset).
+ARMS["aux-velocity-margin"] = lambda c: _net(ARMS["expert-margin"](c), aux_outputs=6)
 
 
 def arm_config(name: str, preset: str = "quick", **overrides):

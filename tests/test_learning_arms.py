@@ -110,6 +110,7 @@ def _changes(arm: str, reference: str) -> dict:
         ("state-input-gain10-margin", "state-input-gain10", {"learner.expert_margin_weight": 1.0}),
         ("state-boresight-margin", "state-input-gain10-margin", {"network.state_input_entries": (2, 5)}),
         ("state-lateral-margin", "state-input-gain10-margin", {"network.state_input_entries": (0, 1, 3, 4)}),
+        ("aux-velocity-margin", "expert-margin", {"network.aux_outputs": 6}),
         ("size-margin", "size-1536k", {"learner.expert_margin_weight": 1.0}),
         ("long-margin", "avg-2304k", {"learner.expert_margin_weight": 1.0}),
         ("size-wide-starts", "size-margin", {"env_params": (("init_xy_std", 2.0), ("size_scale_max", 1.0),
