@@ -76,6 +76,10 @@ def greedy_policy(network: NetworkConfig, params, obs_shape: tuple, name: str = 
     flown; the policy takes the argmax of the members' mean output (Q, or a policy head's logits)."""
     if search not in BLIND_SEARCHES:
         raise ValueError(f"search must be one of {BLIND_SEARCHES}, got {search!r}")
+    stacked = {leaf.shape[0] for leaf in jax.tree.leaves(params)} if members else {members}
+    if members < 0 or stacked != {members}:
+        raise ValueError(f"members must be 0 (one network) or the leading axis of every stacked parameter, got "
+                         f"{members} for leading axes {sorted(stacked)}")
     net = make_network(network)
 
     def forward(member_params, net_state, first, obs, standoff, true_state):  # one network, one step: q [A], state

@@ -1,5 +1,6 @@
 """Learning from the true-state look-ahead: its actions, for envs that fly it (ActingConfig.teacher_envs) and as
-labels of the agent's own steps (LearnerConfig.expert_margin_weight), and DQfD's large-margin loss towards them.
+labels of the agent's own steps (LearnerConfig.expert_margin_weight, NetworkConfig.policy_head), and DQfD's
+large-margin loss and a policy head's cross-entropy towards them.
 
 The look-ahead (:func:`ramavt_jax.baselines.mpc_policy` at horizon 1: each of the 11 commands simulated one step on
 the noise-free model, the best kept) reads the simulator state, so it is a teacher for training only: the trained

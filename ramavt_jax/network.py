@@ -218,11 +218,12 @@ class Encoder(nn.Module):
 class QNetwork(nn.Module):
     """Q-network. __call__(obs [B, T, H, W, C], reset [B, T] bool, state, actions [B, T] | None, standoff [B, T] |
     None, true_state [B, T, 6] | None) -> (q [B, T, A] float32, state); with ``policy_head`` q is the policy's logits
-    (argmax: the greedy action) and Q is sown. ``actions`` (taken at each step) matter only with ``prev_action``:
-    the returned state's prev_action is then ``actions[:, T - 1]``, else unchanged (acting code records its pick:
-    record_action). ``standoff`` (each step's stand-off signal, greedy.standoff_signal: the scale k or the command
-    gain, 1 for catalogue targets) is needed with ``standoff_input`` or ``command_gain_input``, ignored without;
-    ``true_state`` [B, T, 6] (greedy.true_tracking_state per step) with ``state_input``, ignored without."""
+    (argmax: the greedy action), Q sown as intermediates 'q_values' [B, T, A]. ``actions`` (taken at each step)
+    matter only with ``prev_action``: the returned state's prev_action is then ``actions[:, T - 1]``, else unchanged
+    (acting code records its pick: record_action). ``standoff`` (each step's stand-off signal,
+    greedy.standoff_signal: the scale k or the command gain, 1 for catalogue targets) is needed with
+    ``standoff_input`` or ``command_gain_input``, ignored without; ``true_state`` [B, T, 6]
+    (greedy.true_tracking_state per step) with ``state_input``, ignored without."""
 
     config: NetworkConfig
 

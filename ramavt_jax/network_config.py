@@ -188,10 +188,12 @@ class NetworkConfig:
         if g != 1.0 and not self.state_input:
             fail("state_input_gain scales the true state at the input: it needs state_input=True")
         entries = self.state_input_entries
-        if not (isinstance(entries, tuple) and entries and len(set(entries)) == len(entries) and all(
+        if not (isinstance(entries, (tuple, list)) and entries and len(set(entries)) == len(entries) and all(
                 isinstance(i, (int, np.integer)) and not isinstance(i, bool) and 0 <= i < TRUE_STATE_SIZE
                 for i in entries)):
             fail(f"state_input_entries must be distinct indices in 0-{TRUE_STATE_SIZE - 1}, got {entries!r}")
+        entries = tuple(int(i) for i in entries)  # hashable and JSON-friendly
+        object.__setattr__(self, "state_input_entries", entries)
         if set(entries) != set(range(TRUE_STATE_SIZE)) and not self.state_input:
             fail("state_input_entries picks entries of the true state at the input: it needs state_input=True")
         r = self.exposure_rate

@@ -139,9 +139,9 @@ class Trainer:
         return c.eps_start + (end - c.eps_start) * frac
 
     def q_values(self, params, obs, reset, state, actions=None, standoff=None, privileged=None):
-        """Online/target forward: obs [B, T, H, W, C], reset [B, T], actions [B, T] (the actions taken; used by
-        prev_action networks), standoff [B, T] (networks that read it: greedy.standoff_signal), privileged [B, T, K]
-        (the stored true state; read by state_input networks) -> (q [B, T, A], state)."""
+        """Online/target forward: obs [B, T, H, W, C], reset [B, T], actions [B, T] (taken; read by prev_action
+        networks), standoff [B, T] (greedy.standoff_signal), privileged [B, T, K] (the stored true state; read by
+        state_input networks) -> (q [B, T, A], state); with NetworkConfig.policy_head q is the logits, Q sown."""
         return self.net.apply({"params": params}, obs, reset, state, actions=actions, standoff=standoff,
                               true_state=self._true_state(privileged))
 
@@ -337,7 +337,8 @@ class Trainer:
             replay_state = self.replay.set_priorities(replay_state, batch, aux["priority"])
         return new, replay_state, LearnStats(loss=loss, aux_loss=aux["aux_loss"], q_mean=aux["q_mean"],
                                              margin_loss=aux["margin_loss"], expert_agreement=aux["expert_agreement"],
-                                             policy_loss=aux["policy_loss"], grad_norm=optax.tree.norm(grads), updates=jnp.ones((), jnp.int32))
+                                             policy_loss=aux["policy_loss"], grad_norm=optax.tree.norm(grads),
+                                             updates=jnp.ones((), jnp.int32))
 
     def learn(self, learner: LearnerState, replay_state, env_steps: jax.Array, key: jax.Array):
         """``updates_per_iteration`` steps if the replay is ready, else none. Returns (learner, replay_state,

@@ -82,7 +82,7 @@ class LearnerConfig:
     advantage_alpha: float = 0.0  # advantage learning: widen the action gaps (losses.TDConfig); 0 = off
     # Auxiliary loss weight (0 = off): the aux head (NetworkConfig.aux_outputs = 3) predicts the true tracking error
     # (camera frame, in stand-off distances) at each trained obs: simulator state, stored in the replay, acted on only
-    # by a diagnostic NetworkConfig.state_input network, which reads all six entries.
+    # by a diagnostic NetworkConfig.state_input network, which reads all six (of them, its state_input_entries).
     # With aux_outputs = 6 it also predicts the target's velocity relative to the chaser (stand-off distances per s).
     aux_weight: float = 0.0
     reward_scale: float = 0.1  # rewards are multiplied by this in the TD targets
@@ -92,7 +92,8 @@ class LearnerConfig:
     # costs it. The env's reward (and so evaluation) is unchanged.
     command_cost: float = 0.0
     # DQfD's large-margin loss (imitation.large_margin_loss) towards the true-state one-step look-ahead's action at
-    # every trained step, the agent's own included, weighted by this (0 = off: no labels computed or stored).
+    # every trained step, the agent's own included, weighted by this (0 = off: no labels computed or stored unless
+    # NetworkConfig.policy_head).
     expert_margin_weight: float = 0.0
     expert_margin: float = 0.05  # how far the labelled action must lead every other, in Q's units (scaled rewards)
     # The weight of a policy head's cross-entropy towards the same labels (NetworkConfig.policy_head; unused without

@@ -44,7 +44,7 @@ def merge(name: str, results: list[dict]) -> dict:
                 or any(mine["eval_params"][k] != first["eval_params"][k] for k in shared)):
             raise SystemExit("the results flew different episodes or rules; merge only results of the same episodes")
         for row in result["rows"]:
-            if row.get("kind") != "checkpoint":
+            if row.get("kind") != "checkpoint" or row["info"].get("ensemble_of"):  # one seed per row
                 continue
             seed = row["info"]["seed"]
             if seed in seeds:

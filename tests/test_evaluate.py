@@ -249,9 +249,14 @@ def test_an_ensemble_row_flies_the_runs_together_and_of_one_run_twice_equals_it(
     assert [r["name"] for r in rows] == ["a/seed_0", "b/seed_0", "ensemble of 2: a, b"]
     single, together = rows[0]["settings"]["none"]["overall"], rows[2]["settings"]["none"]["overall"]
     assert together == pytest.approx(single) and together["length_mean"] > 1
-    assert "flying together, greedy on their mean Q" in (out / "tables.md").read_text()
+    assert "flying together, greedy on their mean output" in (out / "tables.md").read_text()
     with pytest.raises(cli_eval.UsageError, match=r"^--ensemble needs at least two --run folders, got 1$"):
         cli_eval.eval_cmd(policy="checkpoint", run=(first,), ensemble=True, out=tmp_path / "eval1")
+    saved = json.loads((copy / "config.json").read_text())
+    saved["config"]["env_params"] = [["init_xy_std", 2.0]]
+    (copy / "config.json").write_text(json.dumps(saved))
+    with pytest.raises(cli_eval.UsageError, match=r"^--ensemble: .*b/seed_0 has another network, env, env settings"):
+        cli_eval.eval_cmd(policy="checkpoint", run=(first, copy), ensemble=True, out=tmp_path / "eval2")
 
 
 def test_load_policy_reads_the_parameter_set_the_config_or_the_caller_names(tmp_path):

@@ -202,6 +202,9 @@ def test_a_policy_head_acts_and_its_cross_entropy_joins_the_loss_while_q_trains_
     prepared = trainer.prepare(params, params, replay_lib.sequence_batch(_window(cfg, jax.random.PRNGKey(1)), burn),
                                jax.random.PRNGKey(2))
     q_trainer = T.Trainer(base)
+    q_prepared = q_trainer.prepare(q_params, q_params, replay_lib.sequence_batch(_window(cfg, jax.random.PRNGKey(1)),
+                                                                                 burn), jax.random.PRNGKey(2))
+    np.testing.assert_allclose(prepared.td.q_target, q_prepared.td.q_target, rtol=1e-5)  # targets from Q, not logits
 
     @jax.jit
     def losses(p):
@@ -235,6 +238,8 @@ def test_a_policy_head_acts_and_its_cross_entropy_joins_the_loss_while_q_trains_
     (lambda: LearnerConfig(expert_margin=0.0), r"^LearnerConfig: expert_margin must be > 0, got 0.0$"),
     (lambda: LearnerConfig(policy_weight=0.0), r"^LearnerConfig: policy_weight must be > 0, got 0.0$"),
     (lambda: dataclasses.replace(SMOKE.network, policy_head=True, quantiles=8),
+     r"^NetworkConfig: policy_head needs a recurrent variant \(the head reads the LSTM output\) and no quantiles$"),
+    (lambda: dataclasses.replace(SMOKE.network, policy_head=True, variant="drlavt"),
      r"^NetworkConfig: policy_head needs a recurrent variant \(the head reads the LSTM output\) and no quantiles$"),
     (lambda: LearnerConfig(blind_label="search"),
      r"^LearnerConfig: blind_label must be one of \('teacher', 'none', 'retreat'\), got 'search'$"),

@@ -543,7 +543,10 @@ def test_an_ensemble_takes_the_argmax_of_its_members_mean_q_each_told_the_comman
     reset = jnp.zeros((1, 6), bool).at[0, 0].set(True)
     qs = [tr.q_values(p, obs[None], reset, initial_state(cfg.network, 1), jnp.array([actions]))[0][0] for p in members]
     assert actions == np.asarray(jnp.argmax(qs[0] + qs[1], -1)).tolist()
-    assert np.asarray(jnp.argmax(qs[0], -1)).tolist() != np.asarray(jnp.argmax(qs[1], -1)).tolist()  # they differ
+    for q in qs:  # neither member alone would have flown these commands
+        assert actions != np.asarray(jnp.argmax(q, -1)).tolist()
+    with pytest.raises(ValueError, match=r"members must be 0 \(one network\) or the leading axis"):
+        greedy.greedy_policy(cfg.network, greedy.stack_params(members), cfg.env.obs_shape, members=3)
 
 
 # ------------------------------------------------------------------------------------------ seeds

@@ -47,13 +47,15 @@ def _ensemble_entry(loaded: list[LoadedRun], search: str) -> tables_lib.Entry:
     first = loaded[0].config
     for lr in loaded[1:]:
         c = lr.config
-        if (c.network, c.env, c.env_params) != (first.network, first.env, first.env_params):
-            raise UsageError(f"--ensemble: {lr.run_dir} has another network, env or env settings than "
-                             f"{loaded[0].run_dir}; an ensemble's runs share one config")
+        if ((c.network, c.env, c.env_params, c.run.policy_params)
+                != (first.network, first.env, first.env_params, first.run.policy_params)):
+            raise UsageError(f"--ensemble: {lr.run_dir} has another network, env, env settings or parameter set "
+                             f"than {loaded[0].run_dir}; an ensemble's runs share one config")
     params = greedy.stack_params([lr.params for lr in loaded])
     policy = greedy.greedy_policy(first.network, params, tuple(first.env.obs_shape), "ensemble", search,
                                   members=len(loaded))
-    sweeps = sorted({Path(lr.run_dir).resolve().parent.name for lr in loaded})
+    sweeps = sorted({(path.parent if run_folder.is_seed_dir(path) else path).name
+                     for path in (Path(lr.run_dir).resolve() for lr in loaded)})
     info = {"ensemble_of": [lr.run_dir for lr in loaded], "variant": first.network.variant,
             "policy_params": first.run.policy_params, "blind_search": search}
     return tables_lib.Entry(f"ensemble of {len(loaded)}: {', '.join(sweeps)}", "checkpoint", policy, first.env,
@@ -148,7 +150,8 @@ def eval_cmd(
         blind_search: what the --run policies command until a frame first shows the target: 'learned' (their own
             greedy action) or 'retreat' (back along the camera axis; greedy.greedy_policy).
         ensemble: one more row: the --run policies flying together, each with its own memory, greedy on their
-            mean Q (runs of one network and env config, e.g. the seeds of a sweep; greedy.greedy_policy(members=)).
+            mean output, Q or a policy head's logits (runs of one network, env and parameter-set config, e.g. the
+            seeds of a sweep; greedy.greedy_policy(members=)).
         agent: the shipped agent evaluated by --policy pretrained.
         baselines: with --policy checkpoint, also evaluate mpc, proportional, depth tracker and random in every table (a
             baseline given as --policy is evaluated alone).

@@ -314,7 +314,8 @@ def to_markdown(result: dict, command: str = "") -> str:
                         f"{i.get('policy_params')} params, {r['resolution']}x{r['resolution']} {r['obs_mode']}")
         elif r["kind"] == "checkpoint" and i.get("ensemble_of"):  # greedy on the mean Q of several runs
             head.append(f"- {r['name']}: the runs {', '.join(f'`{d}`' for d in i['ensemble_of'])} flying together, "
-                        f"greedy on their mean Q, {i.get('policy_params', 'online')} params, "
+                        f"greedy on their mean output (Q, or a policy head's logits), "
+                        f"{i.get('policy_params', 'online')} params, "
                         f"{r['resolution']}x{r['resolution']} {r['obs_mode']}")
         elif r["kind"] == "checkpoint":
             head.append(f"- {r['name']}: run `{i.get('run_dir')}`, variant {i.get('variant')}, training seed "
