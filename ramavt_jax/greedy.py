@@ -57,7 +57,7 @@ class GreedyState:
     net_state: RecurrentState  # per env (no batch axis): h, c [layers, units], frames [K, H, W, C] (K may be 0);
     # an ensemble (greedy_policy(members=M)) has one per member, each leaf [M, ...]
     first: jax.Array  # [] bool
-    seen: jax.Array  # [] bool: some frame of the episode so far has shown a target pixel
+    seen: jax.Array  # [] bool: some frame of the episode so far has shown a target pixel (search 'retreat' only)
 
 
 def greedy_policy(network: NetworkConfig, params, obs_shape: tuple, name: str = "greedy",
@@ -76,10 +76,10 @@ def greedy_policy(network: NetworkConfig, params, obs_shape: tuple, name: str = 
     flown; the policy takes the argmax of the members' mean output (Q, or a policy head's logits)."""
     if search not in BLIND_SEARCHES:
         raise ValueError(f"search must be one of {BLIND_SEARCHES}, got {search!r}")
-    stacked = {leaf.shape[0] for leaf in jax.tree.leaves(params)} if members else {members}
-    if members < 0 or stacked != {members}:
+    leading = {leaf.shape[0] for leaf in jax.tree.leaves(params)} if members else set()
+    if members < 0 or (members and leading != {members}):
         raise ValueError(f"members must be 0 (one network) or the leading axis of every stacked parameter, got "
-                         f"{members} for leading axes {sorted(stacked)}")
+                         f"{members} for leading axes {sorted(leading)}")
     net = make_network(network)
 
     def forward(member_params, net_state, first, obs, standoff, true_state):  # one network, one step: q [A], state
@@ -104,8 +104,9 @@ def greedy_policy(network: NetworkConfig, params, obs_shape: tuple, name: str = 
         else:
             q, new = forward(params, pstate.net_state, *inputs)
         action = jnp.argmax(q).astype(jnp.int32)
-        seen = (pstate.seen & ~pstate.first) | jnp.any(hit_mask(obs[None]) > 0)
+        seen = pstate.seen  # tracked for the fixed search only: one reduction over the frame a step
         if search == "retreat":
+            seen = (pstate.seen & ~pstate.first) | jnp.any(hit_mask(obs[None]) > 0)
             action = jnp.where(seen, action, env_lib.RETREAT).astype(jnp.int32)
         told = lambda s: unbatch_state(record_action(s, action[None]))  # noqa: E731
         new = jax.vmap(told)(new) if members else told(new)
