@@ -18,11 +18,10 @@ from ramavt_jax import baselines
 from ramavt_jax import env as env_lib
 from ramavt_jax.losses import masked_mean
 
-__all__ = ["NO_LABEL", "RETREAT", "look_ahead_teacher", "teacher_actions", "unseen_yet", "stored_labels",
+__all__ = ["NO_LABEL", "look_ahead_teacher", "teacher_actions", "unseen_yet", "stored_labels",
            "large_margin_loss", "margin_terms", "policy_terms"]
 
 NO_LABEL = -1  # a stored label the margin loss skips (a step whose image cannot show what the label knows)
-RETREAT = env_lib.RETREAT  # back along the camera axis
 
 
 def look_ahead_teacher(config: env_lib.EnvConfig) -> baselines.Policy:
@@ -52,11 +51,11 @@ def stored_labels(taught: jax.Array, env_state: env_lib.EnvState, camera: env_li
                   blind_label: str) -> jax.Array:
     """[N] int32 the labels to store for the teacher's actions ``taught`` [N], where the target is
     :func:`unseen_yet` replaced as LearnerConfig.blind_label says: 'teacher' keeps them, 'none' stores NO_LABEL
-    (those steps left to the TD loss) and 'retreat' stores RETREAT (backing off shrinks the bearing of a target in
+    (those steps left to the TD loss) and 'retreat' stores env.RETREAT (backing off shrinks the bearing of a target in
     any direction, so it searches without knowing where the target is)."""
     if blind_label == "teacher":
         return taught
-    blind = {"none": NO_LABEL, "retreat": RETREAT}[blind_label]
+    blind = {"none": NO_LABEL, "retreat": env_lib.RETREAT}[blind_label]
     return jnp.where(unseen_yet(env_state, camera), blind, taught).astype(jnp.int32)
 
 

@@ -61,7 +61,7 @@ def _sizes() -> TrainConfig:
     (small targets need the practice), seen at 64x64 depth (a small target needs the pixels) through an 8x8 first patch,
     which keeps the quick preset's 4x4 attention tokens. Training starts spread three times as wide across the view
     (39 % start with the target out of view, against 4 %), and until the target is first in view the margin loss's
-    label is "back off along the camera axis" (imitation.RETREAT), a search that widens the view, instead of the
+    label is "back off along the camera axis" (env.RETREAT), a search that widens the view, instead of the
     look-ahead's action, which a blank image cannot show. Everything else is the quick preset's, its margin loss and 1.54M env steps
     included (48 chunks, the policy averaged over 37-48), as chosen (docs/experiments.md, arms size-quick,
     size-res64, size-1536k, size-margin, size-wide-retreat and size-wider-retreat: on the resized validation models

@@ -101,7 +101,7 @@ class LearnerConfig:
     policy_weight: float = 1.0
     # The label at the steps before the target is first in view (imitation.unseen_yet), whose blank images cannot
     # show where the look-ahead's action points: 'teacher' (that action, as at every other step), 'none' (no label:
-    # the TD loss alone decides how to search) or 'retreat' (back along the camera axis, imitation.RETREAT, which
+    # the TD loss alone decides how to search) or 'retreat' (back along the camera axis, env.RETREAT, which
     # brings a target at any bearing towards the view).
     blind_label: str = "teacher"
     target_update: str = "polyak"  # 'polyak' | 'period'

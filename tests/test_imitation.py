@@ -97,7 +97,7 @@ def test_unseen_yet_is_out_of_view_with_every_step_so_far_lost():
     assert 0 < got.sum() < (~seen_before).sum()  # some blind, some in view, and the seen-before never
     taught = jnp.arange(64, dtype=jnp.int32) % 11
     np.testing.assert_array_equal(imitation.stored_labels(taught, states, SMOKE.env.camera, "teacher"), taught)
-    for blind_label, replaced in (("none", imitation.NO_LABEL), ("retreat", imitation.RETREAT)):
+    for blind_label, replaced in (("none", imitation.NO_LABEL), ("retreat", env_lib.RETREAT)):
         np.testing.assert_array_equal(imitation.stored_labels(taught, states, SMOKE.env.camera, blind_label),
                                       np.where(got, replaced, taught))
 
@@ -125,8 +125,8 @@ def test_the_blind_label_replaces_the_look_aheads_at_blind_starts_only():
                                                     jax.random.PRNGKey(5))
         labels[blind_label], blind = np.asarray(transition.expert_action), _blind_geometry(state.actor.env_state)
     assert 0 < blind.sum() < blind.size and (labels["teacher"] >= 0).all()
-    np.testing.assert_array_equal(labels["retreat"], np.where(blind, imitation.RETREAT, labels["teacher"]))
-    assert list(env_lib.ACTIONS[imitation.RETREAT]) == [0, 0, -1]  # the chaser backs off: z grows
+    np.testing.assert_array_equal(labels["retreat"], np.where(blind, env_lib.RETREAT, labels["teacher"]))
+    assert list(env_lib.ACTIONS[env_lib.RETREAT]) == [0, 0, -1]  # the chaser backs off: z grows
 
 
 def _window(cfg, key):
