@@ -15,6 +15,7 @@ from ramavt_jax import env as env_lib
 from ramavt_jax.cli import evaluate as cli_eval
 from ramavt_jax.evaluation import pretrained, rollouts, runs
 from ramavt_jax.evaluation import tables as tables_lib
+from ramavt_jax.greedy import BLIND_SEARCHES
 
 TINY = dict(resolution=16, speed_steps=5, seed=0)
 
@@ -322,6 +323,23 @@ def test_the_shipped_agents_row_names_how_it_was_trained():
     agent = pretrained.load()
     assert "None" not in line and f"`{agent.info['command']}`" in line
     assert f"{agent.config.run.policy_params} params" in line
+
+
+def test_the_shipped_agent_flies_the_blind_search_asked_for():
+    """--blind-search reaches the shipped agent's row: with 'retreat' it backs off while every frame is blank and
+    flies as the 'learned' agent once a frame shows the target; the row records the search."""
+    learned, retreat = (cli_eval._pretrained_entry(pretrained.DEFAULT_AGENT, search) for search in BLIND_SEARCHES)
+    assert (learned.info["blind_search"], retreat.info["blind_search"]) == BLIND_SEARCHES
+    shape = tuple(learned.env_config.obs_shape)
+    frames = jnp.zeros((4, *shape)).at[2:].set(jax.random.uniform(jax.random.PRNGKey(3), (2, *shape)))
+    flown = {}
+    for entry in (learned, retreat):
+        state, flown[entry.info["blind_search"]] = entry.policy.init(jax.random.PRNGKey(0)), []
+        for t, frame in enumerate(frames):
+            action, state = entry.policy.act(jax.random.PRNGKey(t), state, frame, None, None)
+            flown[entry.info["blind_search"]].append(int(action))
+    assert flown["learned"][:2] != [env_lib.RETREAT] * 2  # else the search would not show
+    assert flown["retreat"][:2] == [env_lib.RETREAT] * 2
 
 
 @pytest.mark.parametrize("name", ["quick", "paper", "smoke"])

@@ -62,11 +62,11 @@ def _ensemble_entry(loaded: list[LoadedRun], search: str) -> tables_lib.Entry:
                             rollouts.run_env_overrides(first.env_params), first.env.obs_mode, info)
 
 
-def _pretrained_entry(name: str) -> tables_lib.Entry:
-    agent = pretrained.load(name)
+def _pretrained_entry(name: str, search: str = "learned") -> tables_lib.Entry:
+    agent = pretrained.load(name, search=search)
     cfg = agent.config
     info = {"variant": cfg.network.variant, "augment": bool(cfg.learner.augment), "pretrained": name, **agent.info,
-            "policy_params": cfg.run.policy_params}
+            "policy_params": cfg.run.policy_params, "blind_search": search}
     return tables_lib.Entry(f"pretrained:{name}", "checkpoint", agent.policy, cfg.env,
                             rollouts.run_env_overrides(cfg.env_params), cfg.env.obs_mode, info)
 
@@ -147,7 +147,7 @@ def eval_cmd(
         policy_params: the runs' parameter set: 'online', 'target' (the Polyak-averaged target net's) or 'averaged'
             (the target net's averaged over the chunks after `run.policy_average_from`); default: each run's own
             `run.policy_params`.
-        blind_search: what the --run policies command until a frame first shows the target: 'learned' (their own
+        blind_search: what the --run policies and a pretrained agent command until a frame first shows the target: 'learned' (their own
             greedy action) or 'retreat' (back along the camera axis; greedy.greedy_policy).
         ensemble: one more row: the --run policies flying together, each with its own memory, greedy on their
             mean output, Q or a policy head's logits (runs of one network, env and parameter-set config, e.g. the
@@ -198,7 +198,7 @@ def eval_cmd(
         if ensemble:
             entries.append(_ensemble_entry(loaded, blind_search))
         if policy == "pretrained":
-            entries.insert(0, _pretrained_entry(agent))
+            entries.insert(0, _pretrained_entry(agent, blind_search))
         trained = policy in ("checkpoint", "pretrained")
         wanted = [] if trained else [policy]
         if baselines and trained:

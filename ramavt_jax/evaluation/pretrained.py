@@ -53,8 +53,9 @@ def _path_key(path) -> str:
     return "/".join(str(getattr(k, "key", k)) for k in path)
 
 
-def load(name: str = DEFAULT_AGENT, agents_dir: Path = AGENTS_DIR) -> PretrainedAgent:
-    """Load a shipped agent by name (see :func:`available`)."""
+def load(name: str = DEFAULT_AGENT, agents_dir: Path = AGENTS_DIR, search: str = "learned") -> PretrainedAgent:
+    """Load a shipped agent by name (see :func:`available`); ``search`` is what its policy commands until a frame
+    first shows the target (greedy.greedy_policy)."""
     folder = Path(agents_dir) / name
     if not (folder / "params.npz").is_file():
         raise PretrainedError(f"no pretrained agent {name!r}; available: {', '.join(available(agents_dir)) or 'none'}")
@@ -72,7 +73,7 @@ def load(name: str = DEFAULT_AGENT, agents_dir: Path = AGENTS_DIR) -> Pretrained
         return jax.numpy.asarray(stored[key], like.dtype)
 
     params = jax.tree_util.tree_map_with_path(fill, template)
-    policy = greedy_policy(config.network, params, obs_shape, name=f"pretrained:{name}")
+    policy = greedy_policy(config.network, params, obs_shape, name=f"pretrained:{name}", search=search)
     return PretrainedAgent(name=name, policy=policy, config=config, params=params, info=saved.get("info", {}))
 
 
