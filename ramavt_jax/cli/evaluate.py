@@ -147,8 +147,8 @@ def eval_cmd(
         policy_params: the runs' parameter set: 'online', 'target' (the Polyak-averaged target net's) or 'averaged'
             (the target net's averaged over the chunks after `run.policy_average_from`); default: each run's own
             `run.policy_params`.
-        blind_search: what the --run policies and a pretrained agent command until a frame first shows the target: 'learned' (their own
-            greedy action) or 'retreat' (back along the camera axis; greedy.greedy_policy).
+        blind_search: what the --run policies and a pretrained agent command until a frame first shows the target:
+            'learned' (their own greedy action) or 'retreat' (back along the camera axis; greedy.greedy_policy).
         ensemble: one more row: the --run policies flying together, each with its own memory, greedy on their
             mean output, Q or a policy head's logits (runs of one network, env and parameter-set config, e.g. the
             seeds of a sweep; greedy.greedy_policy(members=)).
