@@ -27,6 +27,7 @@ rays keep the kernel's operands in cache. Neither ``chunk`` nor ``tile`` changes
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 
 import jax
@@ -141,123 +142,171 @@ def render_batch(
     return Frame(depth=out[0], rgb=out[1] if shade else no_rgb, hit=out[0] > 0)
 
 
-def _render_seen(targets: TargetModel, positions: jax.Array, rotations: jax.Array, lighting: Lighting,
-                 cam: CameraConfig, shade: bool, chunk: int | None, tile: int, specialise: bool) -> Frame:
-    """`render_batch` without the visibility shortcut: the work list and the casting loops."""
-    b = positions.shape[0]
-    n_geoms = targets.geom_type.shape[-1]
-    nt = -(-cam.resolution // tile)
-    n_pairs = b * n_geoms
-    if chunk is None:
-        if jax.default_backend() == "cpu":  # cache-sized chunks; small batches must not pay for a mostly empty one
-            chunk = max(8, min(DEFAULT_CHUNK_RAYS // (tile * tile), (b * nt * nt * 2) // 8))
-        else:  # accelerators: a few large fixed-size iterations for the whole batch
-            chunk = max(1024, b * nt * nt // 2)
-    chunk = int(chunk)
+@dataclasses.dataclass(frozen=True)
+class _WorkList:
+    """The batch's work items (step 2 of the module doc), laid out for the casting loops: one list per geom class,
+    each padded to whole chunks and laid end to end, so that chunk j belongs to one class and runs its kernel."""
 
-    p, r = geometry.geom_frames(targets, positions, rotations)
-    m, o, q, e, hl = geometry.unit_frames(targets, p, r)
-    table = geometry.cast_table(targets, m, o, q, e, hl)  # [B*G, F]: an item gathers one contiguous row
+    table: jax.Array  # [B*G, F] cast features per (env, geom) pair: an item gathers one contiguous row
+    counts: jax.Array  # [B*G] items per pair (the area of its tile rectangle; 0 if it cannot be seen)
+    tu0: jax.Array  # [B*G] first tile column of the pair's rectangle
+    tv0: jax.Array  # [B*G] first tile row
+    nu: jax.Array  # [B*G] tile columns of the rectangle (>= 1)
+    ends: jax.Array  # [K, B*G] inclusive prefix sums of each class's item counts over the pairs
+    n_items: jax.Array  # [K] items per class
+    chunk_end: jax.Array  # [K] chunks up to and including each class's
+    levels: list  # `_search_levels` of ends
+    kernels: tuple  # K intersection kernels, one per class
+    batch: int  # B
+    n_geoms: int  # G
+    tiles: int  # tiles per image side
+    chunk: int  # items per chunk
+
+    @property
+    def n_chunks(self) -> jax.Array:
+        return self.chunk_end[-1]
+
+
+@dataclasses.dataclass(frozen=True)
+class _Chunk:
+    """The items of one chunk, each [C] (C = chunk), and their rays."""
+
+    cls: jax.Array  # [] the chunk's geom class
+    pair: jax.Array  # (env, geom) pair index
+    env: jax.Array  # env index; B for padding (scatters drop it)
+    tv: jax.Array  # tile row
+    tu: jax.Array  # tile column
+    x: jax.Array  # [C, 1, tile] ray slope of each pixel column
+    y: jax.Array  # [C, tile, 1] ray slope of each pixel row
+
+
+def _chunk_items(b: int, nt: int, tile: int, chunk: int | None) -> int:
+    """Items per loop iteration when ``chunk`` is None: cache-sized on CPU, where small batches must not pay for a
+    mostly empty chunk; a few large fixed-size iterations for the whole batch on accelerators."""
+    if chunk is not None:
+        return int(chunk)
+    if jax.default_backend() == "cpu":
+        return int(max(8, min(DEFAULT_CHUNK_RAYS // (tile * tile), (b * nt * nt * 2) // 8)))
+    return int(max(1024, b * nt * nt // 2))
+
+
+def _work_list(targets: TargetModel, p: jax.Array, r: jax.Array, unit: tuple, cam: CameraConfig, tile: int,
+               chunk: int | None, specialise: bool) -> _WorkList:
+    """The work items of B targets (leading [B]): their geoms' frames p, r (geometry.geom_frames) and unit frames
+    ``unit`` (geometry.unit_frames)."""
+    b, n_geoms = targets.geom_type.shape  # [B, G]
+    nt = -(-cam.resolution // tile)
+    chunk = _chunk_items(b, nt, tile, chunk)
     umin, umax, vmin, vmax, visible = geometry.screen_boxes(targets, p, r, cam)
     tu0, nu = geometry.tile_range(umin, umax, tile, nt)
     tv0, nv = geometry.tile_range(vmin, vmax, tile, nt)
-    counts = jnp.where(visible, nu * nv, 0).reshape(-1)  # items per (env, geom)
-    tu0, tv0, nu = tu0.reshape(-1), tv0.reshape(-1), jnp.maximum(nu.reshape(-1), 1)
+    counts = jnp.where(visible, nu * nv, 0).reshape(-1)
     gtype = targets.geom_type.reshape(-1)
     classes = _CLASSES if specialise else (("all", (SPHERE, CAPSULE, ELLIPSOID, CYLINDER, BOX), intersect.cast),)
-    kernels = [k for _, _, k in classes]
-    n_cls = len(classes)
-
-    # One list per geom class (ends [K, B*G]: inclusive prefix sums of the class's item counts over the pairs), each
-    # padded to whole chunks and laid end to end: chunk j belongs to class cls(j) and runs that class's kernel.
     member = jnp.stack([functools.reduce(jnp.logical_or, [gtype == t for t in types]) for _, types, _ in classes])
-    ends = _prefix_sum(jnp.where(member, counts, 0))  # [K, B*G]
-    n_items = ends[:, -1]  # [K]
-    chunk_end = jnp.cumsum((n_items + chunk - 1) // chunk)  # [K]
-    levels = _search_levels(ends)
-    n_chunks = chunk_end[-1]
+    ends = _prefix_sum(jnp.where(member, counts, 0))
+    n_items = ends[:, -1]
+    return _WorkList(table=geometry.cast_table(targets, *unit), counts=counts, tu0=tu0.reshape(-1),
+                     tv0=tv0.reshape(-1), nu=jnp.maximum(nu.reshape(-1), 1), ends=ends, n_items=n_items,
+                     chunk_end=jnp.cumsum((n_items + chunk - 1) // chunk), levels=_search_levels(ends),
+                     kernels=tuple(k for _, _, k in classes), batch=b, n_geoms=n_geoms, tiles=nt, chunk=chunk)
 
-    tx0 = jnp.asarray((np.arange(nt) * tile - cam.centre()) / cam.focal(), jnp.float32)
+
+def _items(work: _WorkList, j: jax.Array, cam: CameraConfig, tile: int) -> _Chunk:
+    """Chunk j's items: their class, pair, env, tile and ray coordinates."""
+    cls = jnp.sum(j >= work.chunk_end, dtype=jnp.int32)
+    first = jnp.where(cls > 0, work.chunk_end[jnp.maximum(cls - 1, 0)], 0)
+    k = (j - first) * work.chunk + jnp.arange(work.chunk, dtype=jnp.int32)
+    pair = jnp.minimum(_find_pair(work.levels, cls, k), work.batch * work.n_geoms - 1)
+    local = k - (work.ends[cls, pair] - work.counts[pair])
+    nu_k = work.nu[pair]
+    dv = local // nu_k
+    tv = jnp.clip(work.tv0[pair] + dv, 0, work.tiles - 1)
+    tu = jnp.clip(work.tu0[pair] + (local - dv * nu_k), 0, work.tiles - 1)
+    env = jnp.where(k < work.n_items[cls], pair // work.n_geoms, work.batch)
+    tx0 = jnp.asarray((np.arange(work.tiles) * tile - cam.centre()) / cam.focal(), jnp.float32)
     px = jnp.asarray(np.arange(tile) / cam.focal(), jnp.float32)
-    item_iota = jnp.arange(chunk, dtype=jnp.int32)
+    return _Chunk(cls=cls, pair=pair, env=env, tv=tv, tu=tu, x=(tx0[tu][:, None] + px)[:, None, :],
+                  y=(tx0[tv][:, None] + px)[:, :, None])
 
-    def items(j):
-        """Chunk j: class, pair index, env (b for padding: dropped), tile row/column, ray coordinates."""
-        cls = jnp.sum(j >= chunk_end, dtype=jnp.int32)
-        first = jnp.where(cls > 0, chunk_end[jnp.maximum(cls - 1, 0)], 0)
-        k = (j - first) * chunk + item_iota
-        pair = jnp.minimum(_find_pair(levels, cls, k), n_pairs - 1)
-        local = k - (ends[cls, pair] - counts[pair])
-        nu_k = nu[pair]
-        dv = local // nu_k
-        tv = jnp.clip(tv0[pair] + dv, 0, nt - 1)
-        tu = jnp.clip(tu0[pair] + (local - dv * nu_k), 0, nt - 1)
-        env = jnp.where(k < n_items[cls], pair // n_geoms, b)
-        x = (tx0[tu][:, None] + px)[:, None, :]  # [C, 1, tile] (pixel column)
-        y = (tx0[tv][:, None] + px)[:, :, None]  # [C, tile, 1] (pixel row)
-        return cls, pair, env, tv, tu, x, y
 
-    def cast(cls, pair, x, y):
-        rows = table[pair]  # [C, F], one operand (the switch materialises its operands)
+def _cast(work: _WorkList, items: _Chunk, near: float) -> jax.Array:
+    """[C, tile, tile] each item's ray depths through its geom (inf where missed), by its class's kernel."""
+    rows = work.table[items.pair]  # [C, F], one operand (the switch materialises its operands)
 
-        def branch(kernel):
-            return lambda rows, x, y: kernel(_columns(rows), x, y, cam.near)
+    def branch(kernel):
+        return lambda rows, x, y: kernel(_columns(rows), x, y, near)
 
-        if n_cls == 1:
-            return branch(kernels[0])(rows, x, y)
-        return jax.lax.switch(cls, [branch(k) for k in kernels], rows, x, y)
+    if len(work.kernels) == 1:
+        return branch(work.kernels[0])(rows, items.x, items.y)
+    return jax.lax.switch(items.cls, [branch(k) for k in work.kernels], rows, items.x, items.y)
 
-    # Buffers in image layout [B, tile rows, pixel row in tile, tile columns, pixel column in tile]: an item's
-    # pixels are one [tile, tile] window, and the final image is a reshape (no transpose pass).
-    def depth_body(state):
+
+def _depth_pass(work: _WorkList, cam: CameraConfig, tile: int) -> jax.Array:
+    """The nearest depth per pixel, in image layout [B, tile rows, pixel row in tile, tile columns, pixel column in
+    tile]: an item's pixels are one [tile, tile] window, and the final image is a reshape (no transpose pass)."""
+    def body(state):
         j, dbuf = state
-        cls, pair, env, tv, tu, x, y = items(j)
-        t = cast(cls, pair, x, y)  # [C, tile, tile]
-        return j + 1, dbuf.at[env, tv, :, tu, :].min(t, mode="drop")
+        items = _items(work, j, cam, tile)
+        t = _cast(work, items, cam.near)
+        return j + 1, dbuf.at[items.env, items.tv, :, items.tu, :].min(t, mode="drop")
 
-    dbuf = jnp.full((b, nt, tile, nt, tile), jnp.inf, jnp.float32)
-    _, dbuf = jax.lax.while_loop(lambda s: s[0] < n_chunks, depth_body, (jnp.int32(0), dbuf))
+    nt = work.tiles
+    dbuf = jnp.full((work.batch, nt, tile, nt, tile), jnp.inf, jnp.float32)
+    return jax.lax.while_loop(lambda s: s[0] < work.n_chunks, body, (jnp.int32(0), dbuf))[1]
 
-    if shade:
-        stable = geometry.shade_table(targets, m, o, q, e, hl)  # [B*G, S]
-        # lighting may be shared ([3], []) or per env ([B, 3], [B]), e.g. when env params are randomised
-        sun_all = jnp.broadcast_to(jnp.asarray(lighting.sun_dir, jnp.float32), (b, 3))
-        amb_all = jnp.broadcast_to(jnp.asarray(lighting.ambient, jnp.float32), (b,))
 
-        def colour_body(state):
-            j, bufs = state
-            cls, pair, env, tv, tu, x, y = items(j)
-            t = cast(cls, pair, x, y)
-            safe_env = jnp.minimum(env, b - 1)
-            best = dbuf[safe_env, tv, :, tu, :]  # [C, tile, tile]
-            win = (t <= best * (1.0 + _WIN_RTOL)) & (t <= cam.far)
-            st = _columns(stable[pair])  # S x [C, 1, 1]
-            n = intersect.surface_normal(st, x, y, jnp.where(win, t, 1.0))
-            sun = sun_all[safe_env].T[:, :, None, None]  # [3, C, 1, 1]
-            amb = amb_all[safe_env][:, None, None]
-            lam = jnp.maximum(n[0] * sun[0] + n[1] * sun[1] + n[2] * sun[2], 0.0)
-            light = amb + (1.0 - amb) * lam
-            # Two scatters: the light and which (env, geom) pair won each pixel; the colour is looked up once after the
-            # loop. With one scatter per colour channel XLA recomputed the normal and the light for each channel.
-            lbuf, wbuf = bufs
-            lbuf = lbuf.at[env, tv, :, tu, :].max(jnp.where(win, light, 0.0), mode="drop")
-            wbuf = wbuf.at[env, tv, :, tu, :].max(jnp.where(win, pair[:, None, None], -1), mode="drop")
-            return j + 1, (lbuf, wbuf)
+def _colour_pass(work: _WorkList, stable: jax.Array, lighting: Lighting, dbuf: jax.Array, cam: CameraConfig,
+                 tile: int) -> tuple[jax.Array, jax.Array]:
+    """The Lambertian light [B, ...] and the winning pair's index [B, ...] (-1: no hit) per pixel, in dbuf's layout;
+    ``stable`` [B*G, S] is geometry.shade_table's."""
+    b = work.batch
+    # lighting may be shared ([3], []) or per env ([B, 3], [B]), e.g. when env params are randomised
+    sun_all = jnp.broadcast_to(jnp.asarray(lighting.sun_dir, jnp.float32), (b, 3))
+    amb_all = jnp.broadcast_to(jnp.asarray(lighting.ambient, jnp.float32), (b,))
 
-        bufs = (jnp.zeros((b, nt, tile, nt, tile), jnp.float32), jnp.full((b, nt, tile, nt, tile), -1, jnp.int32))
-        _, (lbuf, wbuf) = jax.lax.while_loop(lambda s: s[0] < n_chunks, colour_body, (jnp.int32(0), bufs))
+    def body(state):
+        j, (lbuf, wbuf) = state
+        items = _items(work, j, cam, tile)
+        t = _cast(work, items, cam.near)
+        safe_env = jnp.minimum(items.env, b - 1)
+        best = dbuf[safe_env, items.tv, :, items.tu, :]  # [C, tile, tile]
+        win = (t <= best * (1.0 + _WIN_RTOL)) & (t <= cam.far)
+        st = _columns(stable[items.pair])  # S x [C, 1, 1]
+        n = intersect.surface_normal(st, items.x, items.y, jnp.where(win, t, 1.0))
+        sun = sun_all[safe_env].T[:, :, None, None]  # [3, C, 1, 1]
+        amb = amb_all[safe_env][:, None, None]
+        light = amb + (1.0 - amb) * jnp.maximum(n[0] * sun[0] + n[1] * sun[1] + n[2] * sun[2], 0.0)
+        # Two scatters: the light and which (env, geom) pair won each pixel; the colour is looked up once after the
+        # loop. With one scatter per colour channel XLA recomputed the normal and the light for each channel.
+        where = (items.env, items.tv, slice(None), items.tu, slice(None))
+        lbuf = lbuf.at[where].max(jnp.where(win, light, 0.0), mode="drop")
+        wbuf = wbuf.at[where].max(jnp.where(win, items.pair[:, None, None], -1), mode="drop")
+        return j + 1, (lbuf, wbuf)
 
-    res = cam.resolution
-    depth = dbuf.reshape(b, nt * tile, nt * tile)[:, :res, :res]
+    bufs = (jnp.zeros(dbuf.shape, jnp.float32), jnp.full(dbuf.shape, -1, jnp.int32))
+    return jax.lax.while_loop(lambda s: s[0] < work.n_chunks, body, (jnp.int32(0), bufs))[1]
+
+
+def _render_seen(targets: TargetModel, positions: jax.Array, rotations: jax.Array, lighting: Lighting,
+                 cam: CameraConfig, shade: bool, chunk: int | None, tile: int, specialise: bool) -> Frame:
+    """`render_batch` without the visibility shortcut: the work list and the casting loops."""
+    p, r = geometry.geom_frames(targets, positions, rotations)
+    unit = geometry.unit_frames(targets, p, r)  # m, o, q, e, hl
+    work = _work_list(targets, p, r, unit, cam, tile, chunk, specialise)
+    dbuf = _depth_pass(work, cam, tile)
+    b, res, side = work.batch, cam.resolution, work.tiles * tile
+    depth = dbuf.reshape(b, side, side)[:, :res, :res]
     hit = depth <= cam.far
     depth = jnp.where(hit, depth, 0.0)
-    if shade:
-        winner = wbuf.reshape(b, nt * tile, nt * tile)[:, :res, :res]  # [B, H, W] pair index, -1: no hit
-        light = lbuf.reshape(b, nt * tile, nt * tile)[:, :res, :res, None]
-        albedo = stable[jnp.maximum(winner, 0), intersect.S_RGB0:intersect.S_RGB0 + 3]  # [B, H, W, 3]
-        rgb = jnp.where(winner[..., None] >= 0, jnp.clip(albedo * light, 0.0, 1.0), 0.0)
-    else:
-        rgb = jnp.zeros(depth.shape + (3,), jnp.float32)
+    if not shade:
+        return Frame(depth=depth, rgb=jnp.zeros(depth.shape + (3,), jnp.float32), hit=hit)
+    stable = geometry.shade_table(targets, *unit)  # [B*G, S]
+    lbuf, wbuf = _colour_pass(work, stable, lighting, dbuf, cam, tile)
+    winner = wbuf.reshape(b, side, side)[:, :res, :res]  # [B, H, W] pair index, -1: no hit
+    light = lbuf.reshape(b, side, side)[:, :res, :res, None]
+    albedo = stable[jnp.maximum(winner, 0), intersect.S_RGB0:intersect.S_RGB0 + 3]  # [B, H, W, 3]
+    rgb = jnp.where(winner[..., None] >= 0, jnp.clip(albedo * light, 0.0, 1.0), 0.0)
     return Frame(depth=depth, rgb=rgb, hit=hit)
 
 
