@@ -17,6 +17,30 @@ DTYPES = {"float32": jnp.float32, "bfloat16": jnp.bfloat16}
 TRUE_STATE_SIZE = 6  # NetworkConfig.state_input: tracking error [3] and relative velocity [3]
 
 
+# Switches that only a recurrent variant has, with why ('drlavt' stacks frames into one conv input and has no LSTM).
+_RECURRENT_ONLY = {
+    "aux_outputs": "the head reads the LSTM output",
+    "silhouette_stats": "one frame per encoder input",
+    "dense_norm": "it normalises the dense layer and head around the LSTM",
+    "prev_action": "the previous action is an LSTM input",
+    "state_input": "an LSTM input",
+    "exposure_rate": "its average rides in the recurrent state",
+    "frame_difference": "the previous frame rides in the recurrent state; 'drlavt' has frame_stack",
+}
+
+
+def _fail(msg: str):
+    raise ValueError(f"NetworkConfig: {msg}")
+
+
+def _is_int(v) -> bool:
+    return isinstance(v, (int, np.integer)) and not isinstance(v, bool)
+
+
+def _is_number(v) -> bool:
+    return isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool)
+
+
 @dataclasses.dataclass(frozen=True)
 class NetworkConfig:
     """Q-network hyper-parameters (docs/design.md lists where they depart from the original). Validated on
@@ -112,102 +136,83 @@ class NetworkConfig:
     exposure_rate: float = 0.0
 
     def __post_init__(self):
-        def fail(msg):
-            raise ValueError(f"NetworkConfig: {msg}")
-
         if self.variant not in VARIANTS:
-            fail(f"variant={self.variant!r} is not one of {VARIANTS}")
-        if self.norm not in NORMS:
-            fail(f"norm={self.norm!r} is not one of {NORMS}")
-        if self.conv_impl not in CONV_IMPLS:
-            fail(f"conv_impl={self.conv_impl!r} is not one of {CONV_IMPLS}")
-        if self.dtype not in DTYPES:
-            fail(f"dtype={self.dtype!r} is not one of {tuple(DTYPES)}")
-        for name in ("channels", "kernels", "strides", "pools", "drlavt_dense"):
-            if not isinstance(getattr(self, name), (tuple, list)):
-                fail(f"{name} must be a tuple, got {getattr(self, name)!r}")
-            object.__setattr__(self, name, tuple(getattr(self, name)))  # lists -> tuples (hashable, jit-static)
-        n = len(self.channels)
-        if n == 0:
-            fail("channels must name at least one conv block")
-        if not (len(self.kernels) == len(self.strides) == len(self.pools) == n):
-            fail(
-                f"channels, kernels, strides and pools must have the same length (one entry per conv block), "
-                f"got {len(self.channels)}, {len(self.kernels)}, {len(self.strides)}, {len(self.pools)}"
-            )
-        for name in ("channels", "kernels", "strides", "drlavt_dense"):
-            vals = getattr(self, name)
-            if not all(isinstance(v, (int, np.integer)) and not isinstance(v, bool) and v >= 1 for v in vals):
-                fail(f"{name} must be positive integers, got {vals!r}")
-        if not all(k % 2 == 1 or k == s for k, s in zip(self.kernels, self.strides)):
-            fail(f"kernels must be odd (padding k//2 keeps the grid centred) or equal to their block's stride (a "
-                 f"patch layer), got kernels {self.kernels!r} with strides {self.strides!r}")
+            _fail(f"variant={self.variant!r} is not one of {VARIANTS}")
+        for name, allowed in (("norm", NORMS), ("conv_impl", CONV_IMPLS), ("dtype", tuple(DTYPES))):
+            if getattr(self, name) not in allowed:
+                _fail(f"{name}={getattr(self, name)!r} is not one of {allowed}")
+        self._check_encoder()
         for name in ("num_actions", "se_reduction", "attention_heads", "dense", "lstm", "lstm_layers", "head",
                      "frame_stack"):
             v = getattr(self, name)
-            if not isinstance(v, (int, np.integer)) or isinstance(v, bool) or v < 1:
-                fail(f"{name} must be a positive integer, got {v!r}")
-        if not isinstance(self.aux_outputs, (int, np.integer)) or self.aux_outputs < 0:
-            fail(f"aux_outputs must be an integer >= 0, got {self.aux_outputs!r}")
-        if self.aux_outputs and not self.recurrent:
-            fail("aux_outputs needs a recurrent variant (the head reads the LSTM output), not 'drlavt'")
+            if not _is_int(v) or v < 1:
+                _fail(f"{name} must be a positive integer, got {v!r}")
+        if self.use_mha and self.channels[-1] % self.attention_heads != 0:
+            _fail(f"attention_heads={self.attention_heads} must divide the last block's channels "
+                  f"({self.channels[-1]}) for variant {self.variant!r}")
+        if not _is_int(self.aux_outputs) or self.aux_outputs < 0:
+            _fail(f"aux_outputs must be an integer >= 0, got {self.aux_outputs!r}")
         for name in ("depth_centre", "depth_gain"):
-            v = getattr(self, name)
-            if not isinstance(v, (int, float, np.floating, np.integer)) or isinstance(v, bool) or not np.isfinite(v):
-                fail(f"{name} must be a finite number, got {v!r}")
+            if not _is_number(getattr(self, name)) or not np.isfinite(getattr(self, name)):
+                _fail(f"{name} must be a finite number, got {getattr(self, name)!r}")
         if not self.depth_gain > 0:
-            fail(f"depth_gain must be > 0 (1 = the observation as it is), got {self.depth_gain!r}")
+            _fail(f"depth_gain must be > 0 (1 = the observation as it is), got {self.depth_gain!r}")
         if self.rescales_depth and not self.coord_channels:
-            fail("depth_centre / depth_gain need coord_channels=True: once centred, a target pixel at depth_centre "
-                 "reads 0 like the background, and only the hit mask tells them apart")
-        if self.silhouette_stats and not self.recurrent:
-            fail("silhouette_stats needs a recurrent variant (one frame per encoder input), not 'drlavt', whose "
-                 "encoder sees a stack of frames")
-        if self.dense_norm and not self.recurrent:
-            fail("dense_norm needs a recurrent variant (it normalises the dense layer and head around the LSTM), not "
-                 "'drlavt'")
-        if self.prev_action and not self.recurrent:
-            fail("prev_action needs a recurrent variant (the previous action is an LSTM input), not 'drlavt'")
-        if isinstance(self.quantiles, bool) or not isinstance(self.quantiles, (int, np.integer)) or (
-                self.quantiles == 1 or self.quantiles < 0):
-            fail(f"quantiles must be 0 (expected values) or an integer >= 2, got {self.quantiles!r}")
+            _fail("depth_centre / depth_gain need coord_channels=True: once centred, a target pixel at depth_centre "
+                  "reads 0 like the background, and only the hit mask tells them apart")
+        if not _is_int(self.quantiles) or self.quantiles == 1 or self.quantiles < 0:
+            _fail(f"quantiles must be 0 (expected values) or an integer >= 2, got {self.quantiles!r}")
         if self.policy_head and (self.quantiles or not self.recurrent):
-            fail("policy_head needs a recurrent variant (the head reads the LSTM output) and no quantiles")
+            _fail("policy_head needs a recurrent variant (the head reads the LSTM output) and no quantiles")
         if self.quantiles and self.dueling:
-            fail("quantiles and dueling are not combined (a dueling head of quantiles is not defined here)")
+            _fail("quantiles and dueling are not combined (a dueling head of quantiles is not defined here)")
         if self.standoff_input and self.command_gain_input:
-            fail("standoff_input and command_gain_input are two forms of one input: choose one")
-        if self.reads_standoff and not self.recurrent:
-            fail("standoff_input / command_gain_input need a recurrent variant (an LSTM input), not 'drlavt'")
-        if self.state_input and not self.recurrent:
-            fail("state_input needs a recurrent variant (an LSTM input), not 'drlavt'")
+            _fail("standoff_input and command_gain_input are two forms of one input: choose one")
+        r = self.exposure_rate
+        if not _is_number(r) or not 0 <= r <= 1:
+            _fail(f"exposure_rate must be a number in [0, 1] (0: off), got {r!r}")
+        self._check_state_input()
+        if not self.recurrent:
+            for name, why in _RECURRENT_ONLY.items():
+                if getattr(self, name):
+                    _fail(f"{name} needs a recurrent variant ({why}), not 'drlavt'")
+            if self.reads_standoff:
+                _fail("standoff_input / command_gain_input need a recurrent variant (an LSTM input), not 'drlavt'")
+
+    def _check_encoder(self):
+        """The conv blocks: one entry per block in channels, kernels, strides and pools (lists stored as tuples)."""
+        for name in ("channels", "kernels", "strides", "pools", "drlavt_dense"):
+            if not isinstance(getattr(self, name), (tuple, list)):
+                _fail(f"{name} must be a tuple, got {getattr(self, name)!r}")
+            object.__setattr__(self, name, tuple(getattr(self, name)))  # lists -> tuples (hashable, jit-static)
+        n = len(self.channels)
+        if n == 0:
+            _fail("channels must name at least one conv block")
+        if not (len(self.kernels) == len(self.strides) == len(self.pools) == n):
+            _fail(f"channels, kernels, strides and pools must have the same length (one entry per conv block), "
+                  f"got {len(self.channels)}, {len(self.kernels)}, {len(self.strides)}, {len(self.pools)}")
+        for name in ("channels", "kernels", "strides", "drlavt_dense"):
+            if not all(_is_int(v) and v >= 1 for v in getattr(self, name)):
+                _fail(f"{name} must be positive integers, got {getattr(self, name)!r}")
+        if not all(k % 2 == 1 or k == s for k, s in zip(self.kernels, self.strides)):
+            _fail(f"kernels must be odd (padding k//2 keeps the grid centred) or equal to their block's stride (a "
+                  f"patch layer), got kernels {self.kernels!r} with strides {self.strides!r}")
+
+    def _check_state_input(self):
+        """The diagnostic true-state input: its gain and entries need state_input (entries stored as ints)."""
         g = self.state_input_gain
-        if isinstance(g, bool) or not isinstance(g, (int, float, np.floating, np.integer)) or not (
-                np.isfinite(g) and g > 0):
-            fail(f"state_input_gain must be a finite number > 0, got {g!r}")
+        if not _is_number(g) or not (np.isfinite(g) and g > 0):
+            _fail(f"state_input_gain must be a finite number > 0, got {g!r}")
         if g != 1.0 and not self.state_input:
-            fail("state_input_gain scales the true state at the input: it needs state_input=True")
+            _fail("state_input_gain scales the true state at the input: it needs state_input=True")
         entries = self.state_input_entries
         if not (isinstance(entries, (tuple, list)) and entries and len(set(entries)) == len(entries) and all(
-                isinstance(i, (int, np.integer)) and not isinstance(i, bool) and 0 <= i < TRUE_STATE_SIZE
-                for i in entries)):
-            fail(f"state_input_entries must be distinct indices in 0-{TRUE_STATE_SIZE - 1}, got {entries!r}")
+                _is_int(i) and 0 <= i < TRUE_STATE_SIZE for i in entries)):
+            _fail(f"state_input_entries must be distinct indices in 0-{TRUE_STATE_SIZE - 1}, got {entries!r}")
         entries = tuple(int(i) for i in entries)  # hashable and JSON-friendly
         object.__setattr__(self, "state_input_entries", entries)
         if set(entries) != set(range(TRUE_STATE_SIZE)) and not self.state_input:
-            fail("state_input_entries picks entries of the true state at the input: it needs state_input=True")
-        r = self.exposure_rate
-        if isinstance(r, bool) or not isinstance(r, (int, float, np.floating, np.integer)) or not 0 <= r <= 1:
-            fail(f"exposure_rate must be a number in [0, 1] (0: off), got {r!r}")
-        if r and not self.recurrent:
-            fail("exposure_rate needs a recurrent variant (its average rides in the recurrent state), not 'drlavt'")
-        if self.frame_difference and not self.recurrent:
-            fail("frame_difference needs a recurrent variant, not 'drlavt' (which stacks whole frames: frame_stack)")
-        if self.use_mha and self.channels[-1] % self.attention_heads != 0:
-            fail(
-                f"attention_heads={self.attention_heads} must divide the last block's channels "
-                f"({self.channels[-1]}) for variant {self.variant!r}"
-            )
+            _fail("state_input_entries picks entries of the true state at the input: it needs state_input=True")
 
     # Derived switches (not fields: nothing is written back into the config).
     @property
