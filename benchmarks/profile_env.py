@@ -175,7 +175,7 @@ def _label(stack, op_name, thunk):
     if short.startswith("render/"):
         body = "render_batch))/while/body" in op_name or "render_batch)/while/body" in op_name
         kind = "cast loop" if body else "setup, work list, assembly"
-        if "colour_body" in " ".join(fn for _, fn, _ in stack):
+        if "_colour_pass" in " ".join(fn for _, fn, _ in stack):
             kind = "colour loop"
         return f"render: {kind} | {short}:{own[1]}: {_line(own[0], own[2])[:60]}"
     if short == "dynamics.py":

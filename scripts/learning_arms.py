@@ -499,6 +499,7 @@ ARMS["res64-margin"] = lambda c: _res64(ARMS["expert-margin"](c))
 ARMS["state-error-margin"] = lambda c: _net(ARMS["state-input-gain10-margin"](c), state_input_entries=(0, 1, 2))
 ARMS["state-velocity-margin"] = lambda c: _net(ARMS["state-input-gain10-margin"](c), state_input_entries=(3, 4, 5))
 
+
 def arm_config(name: str, preset: str = "quick", **overrides):
     base = presets.preset(preset, eval_episodes=0, **overrides)
     if preset == "quick" and ARMS["expert-margin"](base) != base:

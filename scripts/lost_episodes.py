@@ -30,7 +30,7 @@ def load(spec: str, resolution: int, names: tuple[str, ...], search: str = "lear
     if spec in ("depth", "proportional", "mpc"):
         camera = env_lib.CameraConfig(resolution=resolution)
         return baselines.make_policy(spec, camera), env_lib.EnvConfig(camera=camera, targets=names), {}
-    loaded = pretrained.load() if spec == "pretrained" else runs.load_policy(spec, search=search)
+    loaded = pretrained.load(search=search) if spec == "pretrained" else runs.load_policy(spec, search=search)
     return (loaded.policy, dataclasses.replace(loaded.config.env, targets=names),
             rollouts.run_env_overrides(loaded.config.env_params))
 

@@ -326,8 +326,8 @@ def test_the_shipped_agents_row_names_how_it_was_trained():
 
 
 def test_the_shipped_agent_flies_the_blind_search_asked_for():
-    """--blind-search reaches the shipped agent's row: with 'retreat' it backs off while every frame is blank and
-    flies as the 'learned' agent once a frame shows the target; the row records the search."""
+    """The shipped agent's row flies the blind search asked for: with 'retreat' it backs off while every frame is
+    blank, then its own greedy action; the row records the search."""
     learned, retreat = (cli_eval._pretrained_entry(pretrained.DEFAULT_AGENT, search) for search in BLIND_SEARCHES)
     assert (learned.info["blind_search"], retreat.info["blind_search"]) == BLIND_SEARCHES
     shape = tuple(learned.env_config.obs_shape)
@@ -340,6 +340,24 @@ def test_the_shipped_agent_flies_the_blind_search_asked_for():
             flown[entry.info["blind_search"]].append(int(action))
     assert flown["learned"][:2] != [env_lib.RETREAT] * 2  # else the search would not show
     assert flown["retreat"][:2] == [env_lib.RETREAT] * 2
+
+
+def test_eval_hands_the_blind_search_to_the_shipped_agent(tmp_path, monkeypatch):
+    """`ramavt eval --policy pretrained --blind-search retreat` builds the shipped agent's row with that search."""
+    asked = []
+
+    class Built(Exception):
+        pass
+
+    def entry(name, search="learned"):
+        asked.append((name, search))
+        raise Built
+
+    monkeypatch.setattr(cli_eval, "_pretrained_entry", entry)
+    with pytest.raises(Built):
+        cli_eval.eval_cmd(policy="pretrained", baselines=False, targets="Satellite-v2", episodes=1, max_steps=8,
+                          tables=(1,), out=tmp_path / "eval", speed_steps=0, blind_search="retreat")
+    assert asked == [(pretrained.DEFAULT_AGENT, "retreat")]
 
 
 @pytest.mark.parametrize("name", ["quick", "paper", "smoke"])

@@ -66,7 +66,8 @@ def _written(target, folder: Path) -> Path:
     return path
 
 
-@pytest.mark.parametrize("arm, reference", [("procedural-48", "avg-1536k"), ("size-procedural-48", "size-1536k")])
+@pytest.mark.parametrize("arm, reference", [("procedural-48", "avg-1536k"), ("size-procedural-48", "size-1536k"),
+                                            ("procedural-48-margin", "expert-margin")])
 def test_the_arm_adds_the_models_to_the_training_targets_only(arm, reference, tmp_path, monkeypatch):
     monkeypatch.setattr(learning_arms, "PROCEDURAL_DIR", tmp_path)
     arm, reference = learning_arms.arm_config(arm), learning_arms.arm_config(reference)

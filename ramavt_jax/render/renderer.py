@@ -155,7 +155,7 @@ class _WorkList:
     ends: jax.Array  # [K, B*G] inclusive prefix sums of each class's item counts over the pairs
     n_items: jax.Array  # [K] items per class
     chunk_end: jax.Array  # [K] chunks up to and including each class's
-    levels: list  # `_search_levels` of ends
+    levels: tuple  # `_search_levels` of ends
     kernels: tuple  # K intersection kernels, one per class
     batch: int  # B
     n_geoms: int  # G
@@ -180,7 +180,7 @@ class _Chunk:
     y: jax.Array  # [C, tile, 1] ray slope of each pixel row
 
 
-def _chunk_items(b: int, nt: int, tile: int, chunk: int | None) -> int:
+def _chunk_size(b: int, nt: int, tile: int, chunk: int | None) -> int:
     """Items per loop iteration when ``chunk`` is None: cache-sized on CPU, where small batches must not pay for a
     mostly empty chunk; a few large fixed-size iterations for the whole batch on accelerators."""
     if chunk is not None:
@@ -196,7 +196,7 @@ def _work_list(targets: TargetModel, p: jax.Array, r: jax.Array, unit: tuple, ca
     ``unit`` (geometry.unit_frames)."""
     b, n_geoms = targets.geom_type.shape  # [B, G]
     nt = -(-cam.resolution // tile)
-    chunk = _chunk_items(b, nt, tile, chunk)
+    chunk = _chunk_size(b, nt, tile, chunk)
     umin, umax, vmin, vmax, visible = geometry.screen_boxes(targets, p, r, cam)
     tu0, nu = geometry.tile_range(umin, umax, tile, nt)
     tv0, nv = geometry.tile_range(vmin, vmax, tile, nt)
@@ -208,11 +208,11 @@ def _work_list(targets: TargetModel, p: jax.Array, r: jax.Array, unit: tuple, ca
     n_items = ends[:, -1]
     return _WorkList(table=geometry.cast_table(targets, *unit), counts=counts, tu0=tu0.reshape(-1),
                      tv0=tv0.reshape(-1), nu=jnp.maximum(nu.reshape(-1), 1), ends=ends, n_items=n_items,
-                     chunk_end=jnp.cumsum((n_items + chunk - 1) // chunk), levels=_search_levels(ends),
+                     chunk_end=jnp.cumsum((n_items + chunk - 1) // chunk), levels=tuple(_search_levels(ends)),
                      kernels=tuple(k for _, _, k in classes), batch=b, n_geoms=n_geoms, tiles=nt, chunk=chunk)
 
 
-def _items(work: _WorkList, j: jax.Array, cam: CameraConfig, tile: int) -> _Chunk:
+def _chunk_items(work: _WorkList, j: jax.Array, cam: CameraConfig, tile: int) -> _Chunk:
     """Chunk j's items: their class, pair, env, tile and ray coordinates."""
     cls = jnp.sum(j >= work.chunk_end, dtype=jnp.int32)
     first = jnp.where(cls > 0, work.chunk_end[jnp.maximum(cls - 1, 0)], 0)
@@ -247,13 +247,14 @@ def _depth_pass(work: _WorkList, cam: CameraConfig, tile: int) -> jax.Array:
     tile]: an item's pixels are one [tile, tile] window, and the final image is a reshape (no transpose pass)."""
     def body(state):
         j, dbuf = state
-        items = _items(work, j, cam, tile)
+        items = _chunk_items(work, j, cam, tile)
         t = _cast(work, items, cam.near)
         return j + 1, dbuf.at[items.env, items.tv, :, items.tu, :].min(t, mode="drop")
 
     nt = work.tiles
     dbuf = jnp.full((work.batch, nt, tile, nt, tile), jnp.inf, jnp.float32)
-    return jax.lax.while_loop(lambda s: s[0] < work.n_chunks, body, (jnp.int32(0), dbuf))[1]
+    n_chunks = work.n_chunks
+    return jax.lax.while_loop(lambda s: s[0] < n_chunks, body, (jnp.int32(0), dbuf))[1]
 
 
 def _colour_pass(work: _WorkList, stable: jax.Array, lighting: Lighting, dbuf: jax.Array, cam: CameraConfig,
@@ -267,7 +268,7 @@ def _colour_pass(work: _WorkList, stable: jax.Array, lighting: Lighting, dbuf: j
 
     def body(state):
         j, (lbuf, wbuf) = state
-        items = _items(work, j, cam, tile)
+        items = _chunk_items(work, j, cam, tile)
         t = _cast(work, items, cam.near)
         safe_env = jnp.minimum(items.env, b - 1)
         best = dbuf[safe_env, items.tv, :, items.tu, :]  # [C, tile, tile]
@@ -285,7 +286,8 @@ def _colour_pass(work: _WorkList, stable: jax.Array, lighting: Lighting, dbuf: j
         return j + 1, (lbuf, wbuf)
 
     bufs = (jnp.zeros(dbuf.shape, jnp.float32), jnp.full(dbuf.shape, -1, jnp.int32))
-    return jax.lax.while_loop(lambda s: s[0] < work.n_chunks, body, (jnp.int32(0), bufs))[1]
+    n_chunks = work.n_chunks
+    return jax.lax.while_loop(lambda s: s[0] < n_chunks, body, (jnp.int32(0), bufs))[1]
 
 
 def _render_seen(targets: TargetModel, positions: jax.Array, rotations: jax.Array, lighting: Lighting,
