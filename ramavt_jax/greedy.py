@@ -12,9 +12,10 @@ from ramavt_jax import env as env_lib
 from ramavt_jax.baselines import Policy
 from ramavt_jax.network import NetworkConfig, RecurrentState, initial_state, make_network, record_action
 from ramavt_jax.network_inputs import hit_mask
+from ramavt_jax.render import CameraConfig, camera_rays
 
 __all__ = ["BLIND_SEARCHES", "GreedyState", "greedy_policy", "stack_params", "GreedyPolicyOf", "unbatch_state",
-           "batch_state", "standoff_signal", "true_tracking_state"]
+           "batch_state", "standoff_signal", "true_tracking_state", "visible_tracking_state", "tracking_state_of"]
 
 
 def standoff_signal(network: NetworkConfig, env_state: env_lib.EnvState, env_params: env_lib.EnvParams):
@@ -36,6 +37,33 @@ def true_tracking_state(env_state: env_lib.EnvState, env_params: env_lib.EnvPara
     error = (env_lib.relative_position(env_state) / env_state.scale - p.desired_pos) / p.desired_pos[2]
     velocity = env_lib.HILL_FROM_CAM.T @ (env_state.target_vel - env_state.chaser_vel)
     return jnp.concatenate([error, velocity / env_state.scale / p.desired_pos[2]])
+
+
+def visible_tracking_state(env_state: env_lib.EnvState, env_params: env_lib.EnvParams,
+                           camera: CameraConfig) -> jax.Array:
+    """[6] true_tracking_state with the error measured to the centroid of the target's visible surface instead of
+    its centre of mass: the mean camera-frame point of the newest frame's target pixels (depth last in every
+    observation mode, depth / far). The true state on a frame without a target pixel. A diagnostic: what a perfect
+    reading of the visible surface gives (NetworkConfig.state_input_point 'visible')."""
+    depth = env_state.frames[-1][..., -1] * camera.far  # [H, W] m, 0 where no hit
+    hit = depth > 0
+    count = jnp.sum(hit)
+    points = camera_rays(camera) * depth[..., None]  # [H, W, 3]: ray (x, y, 1) times z depth
+    centroid = jnp.sum(jnp.where(hit[..., None], points, 0.0), axis=(0, 1)) / jnp.maximum(count, 1)
+    p = env_params
+    error = (centroid / env_state.scale - p.desired_pos) / p.desired_pos[2]
+    true = true_tracking_state(env_state, env_params)
+    return jnp.where(count > 0, true.at[:3].set(error), true)
+
+
+def tracking_state_of(network: NetworkConfig, camera: CameraConfig | None = None):
+    """The function (env_state, env_params) -> [6] a state_input network reads (NetworkConfig.state_input_point):
+    true_tracking_state, or visible_tracking_state on ``camera`` (the env's; refused if missing)."""
+    if network.state_input_point == "centre":
+        return true_tracking_state
+    if camera is None:
+        raise ValueError("a state_input_point 'visible' network needs the env's camera (greedy_policy(camera=...))")
+    return lambda env_state, env_params: visible_tracking_state(env_state, env_params, camera)
 
 
 def unbatch_state(s: RecurrentState) -> RecurrentState:
@@ -61,7 +89,7 @@ class GreedyState:
 
 
 def greedy_policy(network: NetworkConfig, params, obs_shape: tuple, name: str = "greedy",
-                  search: str = "learned", members: int = 0) -> Policy:
+                  search: str = "learned", members: int = 0, camera: CameraConfig | None = None) -> Policy:
     """A ``baselines.Policy`` acting greedily with a trained Q-network (per env; evaluate.run_episodes vmaps it). A
     state_input network (a diagnostic, not a deployable tracker) also reads the simulator's state through env_state.
 
@@ -81,6 +109,7 @@ def greedy_policy(network: NetworkConfig, params, obs_shape: tuple, name: str = 
         raise ValueError(f"members must be 0 (one network) or the leading axis of every stacked parameter, got "
                          f"{members} for leading axes {sorted(leading)}")
     net = make_network(network)
+    state_of = tracking_state_of(network, camera) if network.state_input else None
 
     def forward(member_params, net_state, first, obs, standoff, true_state):  # one network, one step: q [A], state
         q, new = net.apply({"params": member_params}, obs[None, None], first[None, None], batch_state(net_state),
@@ -96,7 +125,7 @@ def greedy_policy(network: NetworkConfig, params, obs_shape: tuple, name: str = 
     def act(key, pstate: GreedyState, obs, env_state, env_params):
         signal = standoff_signal(network, env_state, env_params)
         standoff = None if signal is None else signal[None, None]  # [1, 1]
-        true_state = true_tracking_state(env_state, env_params)[None, None] if network.state_input else None
+        true_state = state_of(env_state, env_params)[None, None] if network.state_input else None
         inputs = (pstate.first, obs, standoff, true_state)
         if members:
             q, new = jax.vmap(forward, in_axes=(0, 0) + (None,) * 4)(params, pstate.net_state, *inputs)
@@ -130,6 +159,7 @@ class GreedyPolicyOf:
     network: NetworkConfig
     obs_shape: tuple
     name: str = "greedy"
+    camera: CameraConfig | None = None  # the env's (needed by a state_input_point 'visible' diagnostic)
 
     def __call__(self, params) -> Policy:
-        return greedy_policy(self.network, params, tuple(self.obs_shape), self.name)
+        return greedy_policy(self.network, params, tuple(self.obs_shape), self.name, camera=self.camera)

@@ -15,6 +15,7 @@ NORMS = ("batch", "layer", "none")
 CONV_IMPLS = ("hybrid", "im2col", "lax")
 DTYPES = {"float32": jnp.float32, "bfloat16": jnp.bfloat16}
 TRUE_STATE_SIZE = 6  # NetworkConfig.state_input: tracking error [3] and relative velocity [3]
+STATE_INPUT_POINTS = ("centre", "visible")  # NetworkConfig.state_input_point
 
 
 # Switches that only a recurrent variant has, with why ('drlavt' stacks frames into one conv input and has no LSTM).
@@ -121,6 +122,10 @@ class NetworkConfig:
     # across the image (x, y) and along the boresight (z), 3-5 the relative velocity likewise. A subset asks which
     # part of the state the images fail to give.
     state_input_entries: tuple[int, ...] = tuple(range(TRUE_STATE_SIZE))
+    # Which point the state's error is measured to (state_input only): 'centre', the target's centre of mass (the
+    # reward's point), or 'visible', the centroid of its visible surface in the newest frame
+    # (greedy.visible_tracking_state): what a perfect reading of the images' surface would give, without the centre.
+    state_input_point: str = "centre"
     # A motion cue: the change of each pixel since the previous frame (0 at an episode's first step) as one more input
     # channel per observation channel, beside the hit mask. Velocity otherwise has to be read by the LSTM from two
     # pooled feature vectors; here the first conv sees the target's edges move and its surface come nearer. The
@@ -213,6 +218,10 @@ class NetworkConfig:
         object.__setattr__(self, "state_input_entries", entries)
         if set(entries) != set(range(TRUE_STATE_SIZE)) and not self.state_input:
             _fail("state_input_entries picks entries of the true state at the input: it needs state_input=True")
+        if self.state_input_point not in STATE_INPUT_POINTS:
+            _fail(f"state_input_point={self.state_input_point!r} is not one of {STATE_INPUT_POINTS}")
+        if self.state_input_point != "centre" and not self.state_input:
+            _fail("state_input_point chooses the point of the state at the input: it needs state_input=True")
 
     # Derived switches (not fields: nothing is written back into the config).
     @property

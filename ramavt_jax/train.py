@@ -34,7 +34,7 @@ from ramavt_jax import distributed, imitation
 from ramavt_jax import env as env_lib
 from ramavt_jax import replay as replay_lib
 from ramavt_jax.augment import augment_batch
-from ramavt_jax.greedy import standoff_signal, true_tracking_state, unbatch_state
+from ramavt_jax.greedy import standoff_signal, tracking_state_of, unbatch_state
 from ramavt_jax.losses import TDBatch, masked_mean, sequence_priority, td_loss
 from ramavt_jax.network import (TRUE_STATE_SIZE, init_params, initial_state, make_network, record_action,
                                 window_start_frames)
@@ -183,8 +183,8 @@ class Trainer:
         k_eps, k_rand, k_env = jax.random.split(key, 3)
         standoff = (jax.vmap(lambda s: standoff_signal(self.config.network, s, self.env_params))(actor.env_state)
                     if self.config.network.reads_standoff else None)  # [N]
-        kept, state_of = self._privileged_size, functools.partial(true_tracking_state, env_params=self.env_params)
-        privileged = jax.vmap(state_of)(actor.env_state)[:, :kept] if kept else None  # [N, K], aux label or input
+        kept, state_of = self._privileged_size, tracking_state_of(self.config.network, self.config.env.camera)
+        privileged = jax.vmap(state_of, (0, None))(actor.env_state, self.env_params)[:, :kept] if kept else None
         q, net_state = self.q_values(params, actor.obs[:, None], actor.is_first[:, None], actor.net_state,
                                      standoff=None if standoff is None else standoff[:, None],
                                      privileged=None if privileged is None else privileged[:, None])

@@ -498,6 +498,10 @@ ARMS["res64-margin"] = lambda c: _res64(ARMS["expert-margin"](c))
 # (entries 0-2) or the relative velocity alone (3-5), one change each to 'state-input-gain10-margin'.
 ARMS["state-error-margin"] = lambda c: _net(ARMS["state-input-gain10-margin"](c), state_input_entries=(0, 1, 2))
 ARMS["state-velocity-margin"] = lambda c: _net(ARMS["state-input-gain10-margin"](c), state_input_entries=(3, 4, 5))
+# The error alone gives the ceiling. The same error measured to the centroid of the target's visible surface in the
+# newest frame instead of its centre of mass (NetworkConfig.state_input_point 'visible'), one change to
+# 'state-error-margin': what a perfect reading of the surface the images show gives, without knowing the centre.
+ARMS["state-visible-margin"] = lambda c: _net(ARMS["state-error-margin"](c), state_input_point="visible")
 
 
 def arm_config(name: str, preset: str = "quick", **overrides):
@@ -573,7 +577,7 @@ def evaluate_arm(out: Path, arm: str, episodes: int, key: jax.Array, max_steps: 
     @jax.jit
     def run_all(net_params):
         def one(p):
-            policy = greedy.greedy_policy(config.network, p, tuple(config.env.obs_shape))
+            policy = greedy.greedy_policy(config.network, p, tuple(config.env.obs_shape), camera=config.env.camera)
             return batched_rollout(tracking_env, params_b, policy, key, max_steps)
         return jax.lax.map(one, net_params)
 

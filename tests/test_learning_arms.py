@@ -117,6 +117,7 @@ def _changes(arm: str, reference: str) -> dict:
                                            "network.strides": (8, 2, 1)}),
         ("state-error-margin", "state-input-gain10-margin", {"network.state_input_entries": (0, 1, 2)}),
         ("state-velocity-margin", "state-input-gain10-margin", {"network.state_input_entries": (3, 4, 5)}),
+        ("state-visible-margin", "state-error-margin", {"network.state_input_point": "visible"}),
         ("size-margin", "size-1536k", {"learner.expert_margin_weight": 1.0}),
         ("long-margin", "avg-2304k", {"learner.expert_margin_weight": 1.0}),
         ("size-wide-starts", "size-margin", {"env_params": (("init_xy_std", 2.0), ("size_scale_max", 1.0),

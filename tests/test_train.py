@@ -468,6 +468,50 @@ def test_state_input_network_reads_the_stored_true_state_when_acting_learning_an
     assert (picks != blind).any()  # the comparison tells a policy given the true state from one given none
 
 
+def test_the_visible_state_measures_the_error_to_the_surface_the_frame_shows():
+    """visible_tracking_state: its error points at the mean of the newest frame's target pixels, each back-projected
+    at its depth (a point seen at pixel (v, u) and depth z projects back to it), lies within the target's bounding
+    radius of the centre of mass, keeps the true velocity, and is the true state on a blank frame; acting stores it."""
+    cfg = SMOKE.override(network=dataclasses.replace(SMOKE.network, state_input=True, state_input_point="visible"))
+    tr = T.Trainer(cfg)
+    cam, params = cfg.env.camera, tr.env_params
+    env_state = jax.jit(tr.init)(jax.random.PRNGKey(4)).actor.env_state
+    true = np.asarray(jax.vmap(greedy.true_tracking_state, (0, None))(env_state, params))
+    seen = np.asarray(jax.vmap(greedy.tracking_state_of(cfg.network, cam), (0, None))(env_state, params))
+    standoff, desired = float(params.desired_pos[2]), np.asarray(params.desired_pos)
+    shown = np.asarray(env_state.frames[:, -1, ..., -1]) > 0  # [N, H, W]
+    assert shown.any(axis=(1, 2)).sum() >= 2
+    for i in np.flatnonzero(shown.any(axis=(1, 2))):
+        point = (seen[i, :3] * standoff + desired) * float(env_state.scale[i])  # camera frame, m
+        centre = (true[i, :3] * standoff + desired) * float(env_state.scale[i])
+        assert 0 < np.linalg.norm(point - centre) <= float(env_state.target.bound_radius[i])
+        rows, cols = np.nonzero(shown[i])
+        depth = np.asarray(env_state.frames[i, -1, ..., -1])[rows, cols] * cam.far
+        u, v = cam.focal() * point[0] / point[2] + cam.centre(), cam.focal() * point[1] / point[2] + cam.centre()
+        # the mean point projects to the depth-weighted mean pixel (x = z (u - c) / f), at the mean depth
+        np.testing.assert_allclose([u, v, point[2]], [np.average(cols, weights=depth), np.average(rows, weights=depth),
+                                                      depth.mean()], rtol=1e-4, atol=1e-3)
+        np.testing.assert_allclose(seen[i, 3:], true[i, 3:])
+    one = jax.tree.map(lambda x: x[0], env_state)
+    pixel = one.frames.at[-1].set(0.0).at[-1, 3, 5, -1].set(6.0 / cam.far)  # one target pixel at 6 m
+    point = np.asarray(greedy.visible_tracking_state(one.replace(frames=pixel), params, cam)[:3]) * standoff + desired
+    point = point * float(one.scale)
+    np.testing.assert_allclose([cam.focal() * point[0] / point[2] + cam.centre(),
+                                cam.focal() * point[1] / point[2] + cam.centre(), point[2]], [5, 3, 6.0], atol=1e-4)
+    blank = one.replace(frames=jnp.zeros_like(one.frames))
+    np.testing.assert_array_equal(greedy.visible_tracking_state(blank, params, cam),
+                                  greedy.true_tracking_state(blank, params))
+    state = jax.jit(tr.init)(jax.random.PRNGKey(4))
+    _, chunk, _, _ = jax.jit(tr.rollout)(state.learner.params, state.actor, jnp.int32(0), jax.random.PRNGKey(5))
+    np.testing.assert_allclose(np.asarray(chunk.privileged[:, 0]), seen, atol=1e-6)  # what acting stores
+    with pytest.raises(ValueError, match="needs the env's camera"):
+        greedy.greedy_policy(cfg.network, state.learner.params, cfg.env.obs_shape)
+    with pytest.raises(ValueError, match="state_input_point chooses the point .* needs state_input=True"):
+        dataclasses.replace(SMOKE.network, state_input_point="visible")
+    with pytest.raises(ValueError, match="state_input_point='surface' is not one of"):
+        dataclasses.replace(cfg.network, state_input_point="surface")
+
+
 def test_command_cost_charges_each_transition_its_commands_size_in_the_targets_only(trainer):
     """LearnerConfig.command_cost: the prepared rewards are the stored ones less cost x |command| (0 holding still,
     1 on an axis, sqrt 2 diagonally), scaled; 0 leaves them exactly as stored; a negative cost is refused."""

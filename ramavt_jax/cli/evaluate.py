@@ -53,7 +53,7 @@ def _ensemble_entry(loaded: list[LoadedRun], search: str) -> tables_lib.Entry:
                              f"than {loaded[0].run_dir}; an ensemble's runs share one config")
     params = greedy.stack_params([lr.params for lr in loaded])
     policy = greedy.greedy_policy(first.network, params, tuple(first.env.obs_shape), "ensemble", search,
-                                  members=len(loaded))
+                                  members=len(loaded), camera=first.env.camera)
     sweeps = sorted({(path.parent if run_folder.is_seed_dir(path) else path).name
                      for path in (Path(lr.run_dir).resolve() for lr in loaded)})
     info = {"ensemble_of": [lr.run_dir for lr in loaded], "variant": first.network.variant,

@@ -125,7 +125,8 @@ def evaluate_checkpoint(run_dir: str | Path, step: int, ep: CurveEpisodes, polic
     lr = load_policy(run_dir, step=step, policy_params=policy_params, log=lambda msg: None)
     cfg = lr.config
     tracking_env = tables.suite_env(cfg.env, ep.targets, rollouts.PERTURBATION_VALUES)
-    policy = GreedyPolicyOf(cfg.network, tuple(cfg.env.obs_shape))  # one compile for every checkpoint of a network
+    # one compile for every checkpoint of a network
+    policy = GreedyPolicyOf(cfg.network, tuple(cfg.env.obs_shape), camera=cfg.env.camera)
     res = _evaluate(tracking_env, policy, rollouts.run_env_overrides(cfg.env_params), ep, lr.params)
     return {"step": lr.step, "env_steps": lr.meta.get("env_steps"), **_point(res)}
 

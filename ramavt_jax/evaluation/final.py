@@ -51,7 +51,8 @@ def final_evaluation(config: TrainConfig, params: Any, key: jax.Array, log: Call
     held-out (test) split; one compiled rollout per policy serves every split."""
     splits = {"train": tuple(config.env.targets), "val": targets_lib.VAL_TARGETS, "test": targets_lib.TEST_TARGETS}
     tracking_env, split_params = split_envs(config, splits, config.run.eval_max_steps)
-    policies = {"greedy": greedy_policy(config.network, params, tuple(config.env.obs_shape)),
+    greedy = greedy_policy(config.network, params, tuple(config.env.obs_shape), camera=config.env.camera)
+    policies = {"greedy": greedy,
                 "random": baselines.random_policy(), "mpc": baselines.mpc_policy(tracking_env.config)}
     key_index = {"greedy": 0, "random": 1, "mpc": 0}  # the ceiling flies the greedy policy's episodes
     out = {}

@@ -84,7 +84,7 @@ def load_policy(run_dir, step: int | None = None, name: str | None = None,
         store.close()
     params = jax.tree.map(jnp.asarray, params)
     policy = greedy_policy(config.network, params, tuple(config.env.obs_shape), name=name or run_dir.name,
-                           search=search)
+                           search=search, camera=config.env.camera)
     meta = {k: v for k, v in meta.items() if k not in ("_num_leaves", "_leaf_paths", "config")}
     return LoadedRun(policy=policy, config=config, params=params, run_dir=str(run_dir),
                      seed=int(saved.get("seed", -1)), step=int(step), meta=meta)
