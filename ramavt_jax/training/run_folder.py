@@ -49,7 +49,7 @@ ADDED_FIELDS = ("network.depth_centre", "network.depth_gain", "learner.polyak_ta
                 "learner.command_cost", "network.frame_difference",
                 "network.state_input_gain", "network.exposure_rate", "learner.expert_margin_weight",
                 "learner.expert_margin", "learner.blind_label", "network.policy_head", "learner.policy_weight",
-                "network.state_input_entries")
+                "network.state_input_entries", "network.state_input_point")
 _SEED_DIR = re.compile(r"seed_\d+")
 
 
