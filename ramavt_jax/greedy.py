@@ -11,11 +11,13 @@ from flax import struct
 from ramavt_jax import env as env_lib
 from ramavt_jax.baselines import Policy
 from ramavt_jax.network import NetworkConfig, RecurrentState, initial_state, make_network, record_action
+from ramavt_jax.network_config import TRUE_STATE_SIZE
 from ramavt_jax.network_inputs import hit_mask
 from ramavt_jax.render import CameraConfig, camera_rays
 
 __all__ = ["BLIND_SEARCHES", "GreedyState", "greedy_policy", "stack_params", "GreedyPolicyOf", "unbatch_state",
-           "batch_state", "standoff_signal", "true_tracking_state", "visible_tracking_state", "tracking_state_of"]
+           "batch_state", "standoff_signal", "true_tracking_state", "visible_tracking_state", "tracking_state_of",
+           "privileged_of", "privileged_size"]
 
 
 def standoff_signal(network: NetworkConfig, env_state: env_lib.EnvState, env_params: env_lib.EnvParams):
@@ -39,12 +41,13 @@ def true_tracking_state(env_state: env_lib.EnvState, env_params: env_lib.EnvPara
     return jnp.concatenate([error, velocity / env_state.scale / p.desired_pos[2]])
 
 
-def visible_tracking_state(env_state: env_lib.EnvState, env_params: env_lib.EnvParams,
-                           camera: CameraConfig) -> jax.Array:
+def visible_tracking_state(env_state: env_lib.EnvState, env_params: env_lib.EnvParams, camera: CameraConfig,
+                           image_only: bool = False) -> jax.Array:
     """[6] true_tracking_state with the error measured to the centroid of the target's visible surface instead of
     its centre of mass: the mean camera-frame point of the newest frame's target pixels (depth last in every
-    observation mode, depth / far). The true state on a frame without a target pixel. A diagnostic: what a perfect
-    reading of the visible surface gives (NetworkConfig.state_input_point 'visible')."""
+    observation mode, depth / far). On a frame without a target pixel the true state: a diagnostic, what a perfect
+    reading of the visible surface gives (NetworkConfig.state_input_point 'visible'). ``image_only``: zeros there
+    and for the velocity, so that nothing but the image and the task's stand-off is read (point 'image')."""
     depth = env_state.frames[-1][..., -1] * camera.far  # [H, W] m, 0 where no hit
     hit = depth > 0
     count = jnp.sum(hit)
@@ -53,17 +56,38 @@ def visible_tracking_state(env_state: env_lib.EnvState, env_params: env_lib.EnvP
     p = env_params
     error = (centroid / env_state.scale - p.desired_pos) / p.desired_pos[2]
     true = true_tracking_state(env_state, env_params)
+    if image_only:
+        return jnp.concatenate([jnp.where(count > 0, error, 0.0), jnp.zeros(3, error.dtype)])
     return jnp.where(count > 0, true.at[:3].set(error), true)
 
 
 def tracking_state_of(network: NetworkConfig, camera: CameraConfig | None = None):
     """The function (env_state, env_params) -> [6] a state_input network reads (NetworkConfig.state_input_point):
     true_tracking_state, or visible_tracking_state on ``camera`` (the env's; refused if missing)."""
-    if network.state_input_point == "centre":
+    point = network.state_input_point
+    if point == "centre":
         return true_tracking_state
     if camera is None:
-        raise ValueError("a state_input_point 'visible' network needs the env's camera (greedy_policy(camera=...))")
-    return lambda env_state, env_params: visible_tracking_state(env_state, env_params, camera)
+        raise ValueError(f"a state_input_point {point!r} network needs the env's camera (greedy_policy(camera=...))")
+    return lambda env_state, env_params: visible_tracking_state(env_state, env_params, camera, point == "image")
+
+
+def privileged_of(network: NetworkConfig, camera: CameraConfig | None = None):
+    """The function (env_state, env_params) -> [K] a trainer stores per obs (replay.Transition.privileged): the true
+    state [6], whose first entries are the auxiliary head's label; for a state_input_point other than 'centre' the
+    network's input follows it ([12]: the label stays the centre's, the input is the last six)."""
+    if network.state_input_point == "centre":
+        return true_tracking_state
+    read = tracking_state_of(network, camera)
+    return lambda s, p: jnp.concatenate([true_tracking_state(s, p), read(s, p)])
+
+
+def privileged_size(network: NetworkConfig, aux_weight: float) -> int:
+    """K, the entries privileged_of gives that a trainer keeps: all for a state_input network, else the auxiliary
+    head's label (its outputs; 0 without the loss: nothing kept)."""
+    if network.state_input:
+        return TRUE_STATE_SIZE * (1 if network.state_input_point == "centre" else 2)
+    return network.aux_outputs if aux_weight else 0
 
 
 def unbatch_state(s: RecurrentState) -> RecurrentState:

@@ -15,7 +15,7 @@ NORMS = ("batch", "layer", "none")
 CONV_IMPLS = ("hybrid", "im2col", "lax")
 DTYPES = {"float32": jnp.float32, "bfloat16": jnp.bfloat16}
 TRUE_STATE_SIZE = 6  # NetworkConfig.state_input: tracking error [3] and relative velocity [3]
-STATE_INPUT_POINTS = ("centre", "visible")  # NetworkConfig.state_input_point
+STATE_INPUT_POINTS = ("centre", "visible", "image")  # NetworkConfig.state_input_point
 
 
 # Switches that only a recurrent variant has, with why ('drlavt' stacks frames into one conv input and has no LSTM).
@@ -124,7 +124,9 @@ class NetworkConfig:
     state_input_entries: tuple[int, ...] = tuple(range(TRUE_STATE_SIZE))
     # Which point the state's error is measured to (state_input only): 'centre', the target's centre of mass (the
     # reward's point), or 'visible', the centroid of its visible surface in the newest frame
-    # (greedy.visible_tracking_state): what a perfect reading of the images' surface would give, without the centre.
+    # (greedy.visible_tracking_state): what a perfect reading of the images' surface would give, without the centre;
+    # or 'image', the same centroid computed from the frame alone (zeros on a blank frame), not a diagnostic: a
+    # tracker input, with state_input_entries among the error's 0-2 (the velocity reads 0).
     state_input_point: str = "centre"
     # A motion cue: the change of each pixel since the previous frame (0 at an episode's first step) as one more input
     # channel per observation channel, beside the hit mask. Velocity otherwise has to be read by the LSTM from two
@@ -222,6 +224,8 @@ class NetworkConfig:
             _fail(f"state_input_point={self.state_input_point!r} is not one of {STATE_INPUT_POINTS}")
         if self.state_input_point != "centre" and not self.state_input:
             _fail("state_input_point chooses the point of the state at the input: it needs state_input=True")
+        if self.state_input_point == "image" and not set(entries) <= {0, 1, 2}:
+            _fail(f"state_input_point 'image' reads the error only: state_input_entries among 0-2, got {entries!r}")
 
     # Derived switches (not fields: nothing is written back into the config).
     @property

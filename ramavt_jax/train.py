@@ -34,7 +34,7 @@ from ramavt_jax import distributed, imitation
 from ramavt_jax import env as env_lib
 from ramavt_jax import replay as replay_lib
 from ramavt_jax.augment import augment_batch
-from ramavt_jax.greedy import standoff_signal, tracking_state_of, unbatch_state
+from ramavt_jax.greedy import privileged_of, privileged_size, standoff_signal, unbatch_state
 from ramavt_jax.losses import TDBatch, masked_mean, sequence_priority, td_loss
 from ramavt_jax.network import (TRUE_STATE_SIZE, init_params, initial_state, make_network, record_action,
                                 window_start_frames)
@@ -147,14 +147,14 @@ class Trainer:
 
     @property
     def _privileged_size(self) -> int:
-        """K, the true-state entries kept per obs: all six for a state_input network, else the auxiliary head's
-        outputs (0: nothing kept)."""
-        network = self.config.network
-        return TRUE_STATE_SIZE if network.state_input else network.aux_outputs if self.config.learner.aux_weight else 0
+        """K, the entries kept per obs (greedy.privileged_of): six for a state_input network (twelve when its input is
+        not the centre's true state), else the auxiliary head's outputs (0: nothing kept)."""
+        return privileged_size(self.config.network, self.config.learner.aux_weight)
 
     def _true_state(self, privileged):
-        """A state_input network's input from the kept true state [B, T, K]; None for other networks."""
-        return privileged if self.config.network.state_input else None
+        """A state_input network's input [B, T, 6], the last six kept entries [B, T, K]; None for other networks."""
+        reads = self.config.network.state_input and privileged is not None
+        return privileged[..., -TRUE_STATE_SIZE:] if reads else None
 
     # ---------------------------------------------------------------- init
     def init(self, key: jax.Array) -> RunnerState:
@@ -183,7 +183,7 @@ class Trainer:
         k_eps, k_rand, k_env = jax.random.split(key, 3)
         standoff = (jax.vmap(lambda s: standoff_signal(self.config.network, s, self.env_params))(actor.env_state)
                     if self.config.network.reads_standoff else None)  # [N]
-        kept, state_of = self._privileged_size, tracking_state_of(self.config.network, self.config.env.camera)
+        kept, state_of = self._privileged_size, privileged_of(self.config.network, self.config.env.camera)
         privileged = jax.vmap(state_of, (0, None))(actor.env_state, self.env_params)[:, :kept] if kept else None
         q, net_state = self.q_values(params, actor.obs[:, None], actor.is_first[:, None], actor.net_state,
                                      standoff=None if standoff is None else standoff[:, None],

@@ -502,6 +502,12 @@ ARMS["state-velocity-margin"] = lambda c: _net(ARMS["state-input-gain10-margin"]
 # newest frame instead of its centre of mass (NetworkConfig.state_input_point 'visible'), one change to
 # 'state-error-margin': what a perfect reading of the surface the images show gives, without knowing the centre.
 ARMS["state-visible-margin"] = lambda c: _net(ARMS["state-error-margin"](c), state_input_point="visible")
+# A tracker input from that: the visible surface's centroid computed from the newest frame alone (zeros on a blank
+# frame), back-projected to the camera frame and read as the diagnostics read the error, at 10x, one change to
+# 'expert-margin' (the quick preset): the conv features carry the silhouette's place only as coarsely as their
+# patches and pooling keep it ('stats' gave it to the dense layer unscaled, before the labels).
+ARMS["centroid-input-margin"] = lambda c: _net(ARMS["expert-margin"](c), state_input=True, state_input_gain=10.0,
+                                               state_input_entries=(0, 1, 2), state_input_point="image")
 
 
 def arm_config(name: str, preset: str = "quick", **overrides):

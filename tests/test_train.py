@@ -501,15 +501,23 @@ def test_the_visible_state_measures_the_error_to_the_surface_the_frame_shows():
     blank = one.replace(frames=jnp.zeros_like(one.frames))
     np.testing.assert_array_equal(greedy.visible_tracking_state(blank, params, cam),
                                   greedy.true_tracking_state(blank, params))
+    image = greedy.visible_tracking_state(blank, params, cam, image_only=True)  # a tracker's input: the image only
+    np.testing.assert_array_equal(image, np.zeros(6))
+    np.testing.assert_allclose(jax.vmap(greedy.visible_tracking_state, (0, None, None, None))(
+        env_state, params, cam, True), np.where(shown.any(axis=(1, 2))[:, None], seen * [1, 1, 1, 0, 0, 0], 0.0))
     state = jax.jit(tr.init)(jax.random.PRNGKey(4))
     _, chunk, _, _ = jax.jit(tr.rollout)(state.learner.params, state.actor, jnp.int32(0), jax.random.PRNGKey(5))
-    np.testing.assert_allclose(np.asarray(chunk.privileged[:, 0]), seen, atol=1e-6)  # what acting stores
+    # acting stores the true state (the auxiliary label's) and then the input; the network reads the input
+    np.testing.assert_allclose(np.asarray(chunk.privileged[:, 0]), np.concatenate([true, seen], -1), atol=1e-6)
+    np.testing.assert_array_equal(tr._true_state(chunk.privileged), chunk.privileged[..., 6:])
     with pytest.raises(ValueError, match="needs the env's camera"):
         greedy.greedy_policy(cfg.network, state.learner.params, cfg.env.obs_shape)
     with pytest.raises(ValueError, match="state_input_point chooses the point .* needs state_input=True"):
         dataclasses.replace(SMOKE.network, state_input_point="visible")
     with pytest.raises(ValueError, match="state_input_point='surface' is not one of"):
         dataclasses.replace(cfg.network, state_input_point="surface")
+    with pytest.raises(ValueError, match="'image' reads the error only: state_input_entries among 0-2"):
+        dataclasses.replace(cfg.network, state_input_point="image")
 
 
 def test_command_cost_charges_each_transition_its_commands_size_in_the_targets_only(trainer):
