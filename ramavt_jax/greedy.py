@@ -115,7 +115,8 @@ class GreedyState:
 def greedy_policy(network: NetworkConfig, params, obs_shape: tuple, name: str = "greedy",
                   search: str = "learned", members: int = 0, camera: CameraConfig | None = None) -> Policy:
     """A ``baselines.Policy`` acting greedily with a trained Q-network (per env; evaluate.run_episodes vmaps it). A
-    state_input network (a diagnostic, not a deployable tracker) also reads the simulator's state through env_state.
+    state_input network also reads env_state: the simulator's state (a diagnostic, not a deployable tracker), or with
+    state_input_point 'image' the newest frame (env_state.frames) and the task's stand-off alone.
 
     ``search`` is what it commands while no frame of the episode has shown a target pixel: 'learned' (the Q-net's
     greedy action, as everywhere else) or 'retreat' (back along the camera axis, which shrinks the bearing of a

@@ -113,7 +113,8 @@ class NetworkConfig:
     # stand-off distances, greedy.true_tracking_state) beside the encoder's features at the LSTM's input, read from
     # the simulator at every step (the caller passes true_state [B, T, 6]). Trained so, the agent measures how far
     # this learner gets with perfect perception at a budget: the part of the gap to the ceiling that is not in the
-    # images. Recurrent variants only.
+    # images. Recurrent variants only. (With state_input_point 'image' the same input carries what the frame shows
+    # instead, and the network is a tracker.)
     state_input: bool = False
     # The true state times this at the LSTM's input (state_input only). In stand-off distances a 0.05 m error reads
     # 0.01 beside features of order 1: a gain asks whether the diagnostic's shortfall is the learner's or the scale's.
