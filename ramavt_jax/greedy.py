@@ -44,17 +44,23 @@ def true_tracking_state(env_state: env_lib.EnvState, env_params: env_lib.EnvPara
 def visible_tracking_state(env_state: env_lib.EnvState, env_params: env_lib.EnvParams, camera: CameraConfig,
                            image_only: bool = False) -> jax.Array:
     """[6] true_tracking_state with the error measured to the centroid of the target's visible surface instead of
-    its centre of mass: the mean camera-frame point of the newest frame's target pixels (depth last in every
-    observation mode, depth / far). On a frame without a target pixel the true state: a diagnostic, what a perfect
-    reading of the visible surface gives (NetworkConfig.state_input_point 'visible'). ``image_only``: zeros there
-    and for the velocity, so that nothing but the image and the task's stand-off is read (point 'image')."""
-    depth = env_state.frames[-1][..., -1] * camera.far  # [H, W] m, 0 where no hit
+    its centre of mass: the mean camera-frame point of the newest frame's target pixels ('depth' or 'rgbd'
+    observations: depth / far last; a target at stand-off scale k is drawn at 1 / k, so the frame is already in
+    stand-off units). On a frame without a target pixel the true state: a diagnostic, what a perfect reading of the
+    visible surface gives (NetworkConfig.state_input_point 'visible'). ``image_only``: zeros there and for the
+    velocity, so that nothing but the frame and the desired point is read (point 'image'). The newest frame is
+    read sharp: under the blur perturbation the observation averages it with earlier ones, and the Gaussian or
+    motion blur of EnvParams would move depth into background pixels; neither is applied here."""
+    if env_state.frames.shape[-1] not in (1, 4):
+        raise ValueError(f"visible_tracking_state needs a depth channel ('depth' or 'rgbd' observations), got "
+                         f"{env_state.frames.shape[-1]} channels")
+    depth = env_state.frames[-1][..., -1] * camera.far  # [H, W] m / k, 0 where no hit
     hit = depth > 0
     count = jnp.sum(hit)
     points = camera_rays(camera) * depth[..., None]  # [H, W, 3]: ray (x, y, 1) times z depth
     centroid = jnp.sum(jnp.where(hit[..., None], points, 0.0), axis=(0, 1)) / jnp.maximum(count, 1)
     p = env_params
-    error = (centroid / env_state.scale - p.desired_pos) / p.desired_pos[2]
+    error = (centroid - p.desired_pos) / p.desired_pos[2]
     true = true_tracking_state(env_state, env_params)
     if image_only:
         return jnp.concatenate([jnp.where(count > 0, error, 0.0), jnp.zeros(3, error.dtype)])
@@ -116,7 +122,7 @@ def greedy_policy(network: NetworkConfig, params, obs_shape: tuple, name: str = 
                   search: str = "learned", members: int = 0, camera: CameraConfig | None = None) -> Policy:
     """A ``baselines.Policy`` acting greedily with a trained Q-network (per env; evaluate.run_episodes vmaps it). A
     state_input network also reads env_state: the simulator's state (a diagnostic, not a deployable tracker), or with
-    state_input_point 'image' the newest frame (env_state.frames) and the task's stand-off alone.
+    state_input_point 'image' the newest frame (env_state.frames) and the desired point alone.
 
     ``search`` is what it commands while no frame of the episode has shown a target pixel: 'learned' (the Q-net's
     greedy action, as everywhere else) or 'retreat' (back along the camera axis, which shrinks the bearing of a
@@ -184,7 +190,7 @@ class GreedyPolicyOf:
     network: NetworkConfig
     obs_shape: tuple
     name: str = "greedy"
-    camera: CameraConfig | None = None  # the env's (needed by a state_input_point 'visible' diagnostic)
+    camera: CameraConfig | None = None  # the env's (needed by a state_input_point other than 'centre')
 
     def __call__(self, params) -> Policy:
         return greedy_policy(self.network, params, tuple(self.obs_shape), self.name, camera=self.camera)

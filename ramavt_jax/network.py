@@ -223,7 +223,7 @@ class QNetwork(nn.Module):
     (acting code records its pick: record_action). ``standoff`` (each step's stand-off signal,
     greedy.standoff_signal: the scale k or the command gain, 1 for catalogue targets) is needed with
     ``standoff_input`` or ``command_gain_input``, ignored without; ``true_state`` [B, T, 6]
-    (greedy.true_tracking_state per step) with ``state_input``, ignored without."""
+    (greedy.tracking_state_of per step) with ``state_input``, ignored without."""
 
     config: NetworkConfig
 
@@ -308,7 +308,7 @@ def true_state_feature(true_state: jax.Array | None, shape: tuple[int, int]) -> 
     if true_state is None or true_state.shape != want:
         got = None if true_state is None else true_state.shape
         raise ValueError(f"QNetwork: a state_input network needs true_state [B, T, {TRUE_STATE_SIZE}] = {want} "
-                         f"(greedy.true_tracking_state per step), got {got}")
+                         f"(greedy.tracking_state_of per step), got {got}")
     return true_state
 
 

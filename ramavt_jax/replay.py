@@ -86,9 +86,9 @@ class Transition:
       recurrent_state: the actor's state *before* consuming obs t, any pytree with leaves ``[layers, units]``; the
         trainer stores the network's own ``RecurrentState`` (LSTM ``h``, ``c``, and prev_action and exposure where the
         network has them; no frame history).
-      privileged: ``[K]`` float32 simulator state at obs t (greedy.true_tracking_state's first K entries): the
-        auxiliary loss's label, and all six the input of a diagnostic state_input network (those of its
-        state_input_entries read); ``None`` = not stored.
+      privileged: ``[K]`` float32 simulator state at obs t (greedy.privileged_of: true_tracking_state's first K
+        entries, the auxiliary loss's label; a state_input network's input is the last six, beside the true state
+        for a state_input_point other than 'centre', K = 12); ``None`` = not stored.
       standoff: ``[]`` float32 stand-off scale k of obs t's episode, for networks that read it
         (NetworkConfig.reads_standoff: k or the command gain); ``None`` = not stored.
       expert_action: ``[]`` int32 the true-state look-ahead's action at obs t, the large-margin loss's label

@@ -143,7 +143,7 @@ class Trainer:
         networks), standoff [B, T] (greedy.standoff_signal), privileged [B, T, K] (the stored true state; read by
         state_input networks) -> (q [B, T, A], state); with NetworkConfig.policy_head q is the logits, Q sown."""
         return self.net.apply({"params": params}, obs, reset, state, actions=actions, standoff=standoff,
-                              true_state=self._true_state(privileged))
+                              true_state=self._state_input(privileged))
 
     @property
     def _privileged_size(self) -> int:
@@ -151,7 +151,7 @@ class Trainer:
         not the centre's true state), else the auxiliary head's outputs (0: nothing kept)."""
         return privileged_size(self.config.network, self.config.learner.aux_weight)
 
-    def _true_state(self, privileged):
+    def _state_input(self, privileged):
         """A state_input network's input [B, T, 6], the last six kept entries [B, T, K]; None for other networks."""
         reads = self.config.network.state_input and privileged is not None
         return privileged[..., -TRUE_STATE_SIZE:] if reads else None
@@ -183,7 +183,7 @@ class Trainer:
         k_eps, k_rand, k_env = jax.random.split(key, 3)
         standoff = (jax.vmap(lambda s: standoff_signal(self.config.network, s, self.env_params))(actor.env_state)
                     if self.config.network.reads_standoff else None)  # [N]
-        kept, state_of = self._privileged_size, privileged_of(self.config.network, self.config.env.camera)
+        kept, state_of = self._privileged_size, privileged_of(self.config.network, self.env.config.camera)
         privileged = jax.vmap(state_of, (0, None))(actor.env_state, self.env_params)[:, :kept] if kept else None
         q, net_state = self.q_values(params, actor.obs[:, None], actor.is_first[:, None], actor.net_state,
                                      standoff=None if standoff is None else standoff[:, None],
@@ -234,7 +234,7 @@ class Trainer:
         if not (network.quantiles or network.policy_head):
             return self.q_values(params, obs, reset, state, actions, standoff, privileged)[0]
         _, sown = self.net.apply({"params": params}, obs, reset, state, actions=actions, standoff=standoff,
-                                 true_state=self._true_state(privileged), mutable=["intermediates"])
+                                 true_state=self._state_input(privileged), mutable=["intermediates"])
         return sown["intermediates"]["quantiles" if network.quantiles else "q_values"][0]
 
     def prepare(self, params, target_params, batch: replay_lib.SequenceBatch, key: jax.Array) -> PreparedBatch:
@@ -276,7 +276,7 @@ class Trainer:
         head) and with a prioritised replay each window's priority [B] (losses.sequence_priority)."""
         (q_online, _), sown = self.net.apply({"params": params}, prepared.obs, prepared.reset, prepared.state,
                                              actions=prepared.td.action, standoff=prepared.standoff,
-                                             true_state=self._true_state(prepared.privileged),
+                                             true_state=self._state_input(prepared.privileged),
                                              mutable=["intermediates"])
         mask, learner, expert = prepared.td.mask.astype(jnp.float32), self.config.learner, prepared.expert_action
         logits, policy_loss = q_online, jnp.zeros(())

@@ -82,7 +82,7 @@ class LearnerConfig:
     advantage_alpha: float = 0.0  # advantage learning: widen the action gaps (losses.TDConfig); 0 = off
     # Auxiliary loss weight (0 = off): the aux head (NetworkConfig.aux_outputs = 3) predicts the true tracking error
     # (camera frame, in stand-off distances) at each trained obs: simulator state, stored in the replay, acted on only
-    # by a diagnostic NetworkConfig.state_input network, which reads all six (of them, its state_input_entries).
+    # by a NetworkConfig.state_input network, which reads its own six (greedy.privileged_of; its state_input_entries).
     # With aux_outputs = 6 it also predicts the target's velocity relative to the chaser (stand-off distances per s).
     aux_weight: float = 0.0
     reward_scale: float = 0.1  # rewards are multiplied by this in the TD targets

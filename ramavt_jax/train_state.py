@@ -127,8 +127,8 @@ class PreparedBatch:
     net's ``RecurrentState`` after burn-in (h, c ``[layers, B, units]``); td: the :class:`TDBatch` of the ``T``
     trained transitions (``q_target [B, T+1, A]``, or None when the trained pass gives it: bootstrap_from='online';
     the rest ``[B, T]``); privileged: ``[B, T+1, K]`` the kept true state per obs (greedy.true_tracking_state:
-    the tracking error, then the relative velocity; K = 6 for a state_input network, else NetworkConfig.aux_outputs;
-    None when neither needs it); standoff: ``[B, T+1]``
+    the tracking error, then the relative velocity; K = 6 for a state_input network, 12 when its input is another
+    point's (greedy.privileged_of), else NetworkConfig.aux_outputs; None when neither needs it); standoff: ``[B, T+1]``
     the stand-off signal per obs (greedy.standoff_signal; None unless the network reads it); expert_action:
     ``[B, T]`` the look-ahead's action at each trained transition's obs (None without the large-margin loss).
     """

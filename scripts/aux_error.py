@@ -65,6 +65,9 @@ def make_rollout(run: runs.LoadedRun, targets: tuple[str, ...], episodes: int, s
     (the target is chosen by the params). ``truth`` is taken from the state that rendered the observation the network
     acts on, as the auxiliary label is in training."""
     cfg = run.config
+    if cfg.network.state_input:
+        raise SystemExit(f"{run.run_dir}: a state_input network reads its state as an input; its auxiliary head's "
+                         f"estimate is not what this script measures")
     env = env_lib.TrackingEnv(dataclasses.replace(cfg.env, targets=tuple(targets)))
     net = make_network(cfg.network)
     encoder_only = lambda module, method: isinstance(module, Encoder) and method == "__call__"  # noqa: E731

@@ -471,8 +471,10 @@ def test_state_input_network_reads_the_stored_true_state_when_acting_learning_an
 def test_the_visible_state_measures_the_error_to_the_surface_the_frame_shows():
     """visible_tracking_state: its error points at the mean of the newest frame's target pixels, each back-projected
     at its depth (a point seen at pixel (v, u) and depth z projects back to it), lies within the target's bounding
-    radius of the centre of mass, keeps the true velocity, and is the true state on a blank frame; acting stores it."""
-    cfg = SMOKE.override(network=dataclasses.replace(SMOKE.network, state_input=True, state_input_point="visible"))
+    radius of the centre of mass, keeps the true velocity, and is the true state on a blank frame; acting stores it.
+    Targets resized to stand-off scales k != 1 (drawn at 1 / k: the frame is in stand-off units) are among them."""
+    cfg = SMOKE.override(network=dataclasses.replace(SMOKE.network, state_input=True, state_input_point="visible"),
+                         env_params={"size_scale_min": 0.2, "size_scale_max": 0.4})
     tr = T.Trainer(cfg)
     cam, params = cfg.env.camera, tr.env_params
     env_state = jax.jit(tr.init)(jax.random.PRNGKey(4)).actor.env_state
@@ -480,11 +482,13 @@ def test_the_visible_state_measures_the_error_to_the_surface_the_frame_shows():
     seen = np.asarray(jax.vmap(greedy.tracking_state_of(cfg.network, cam), (0, None))(env_state, params))
     standoff, desired = float(params.desired_pos[2]), np.asarray(params.desired_pos)
     shown = np.asarray(env_state.frames[:, -1, ..., -1]) > 0  # [N, H, W]
-    assert shown.any(axis=(1, 2)).sum() >= 2
+    scales = np.asarray(env_state.scale)[shown.any(axis=(1, 2))]
+    assert len(scales) >= 2 and np.abs(scales - 1).max() > 0.2  # the check below can tell k from 1 / k
     for i in np.flatnonzero(shown.any(axis=(1, 2))):
-        point = (seen[i, :3] * standoff + desired) * float(env_state.scale[i])  # camera frame, m
-        centre = (true[i, :3] * standoff + desired) * float(env_state.scale[i])
-        assert 0 < np.linalg.norm(point - centre) <= float(env_state.target.bound_radius[i])
+        point = seen[i, :3] * standoff + desired  # camera frame, m / k: as drawn
+        centre = true[i, :3] * standoff + desired
+        radius = float(env_state.target.bound_radius[i] / env_state.scale[i])
+        assert 0 < np.linalg.norm(point - centre) <= radius
         rows, cols = np.nonzero(shown[i])
         depth = np.asarray(env_state.frames[i, -1, ..., -1])[rows, cols] * cam.far
         u, v = cam.focal() * point[0] / point[2] + cam.centre(), cam.focal() * point[1] / point[2] + cam.centre()
@@ -495,7 +499,6 @@ def test_the_visible_state_measures_the_error_to_the_surface_the_frame_shows():
     one = jax.tree.map(lambda x: x[0], env_state)
     pixel = one.frames.at[-1].set(0.0).at[-1, 3, 5, -1].set(6.0 / cam.far)  # one target pixel at 6 m
     point = np.asarray(greedy.visible_tracking_state(one.replace(frames=pixel), params, cam)[:3]) * standoff + desired
-    point = point * float(one.scale)
     np.testing.assert_allclose([cam.focal() * point[0] / point[2] + cam.centre(),
                                 cam.focal() * point[1] / point[2] + cam.centre(), point[2]], [5, 3, 6.0], atol=1e-4)
     blank = one.replace(frames=jnp.zeros_like(one.frames))
@@ -509,7 +512,7 @@ def test_the_visible_state_measures_the_error_to_the_surface_the_frame_shows():
     _, chunk, _, _ = jax.jit(tr.rollout)(state.learner.params, state.actor, jnp.int32(0), jax.random.PRNGKey(5))
     # acting stores the true state (the auxiliary label's) and then the input; the network reads the input
     np.testing.assert_allclose(np.asarray(chunk.privileged[:, 0]), np.concatenate([true, seen], -1), atol=1e-6)
-    np.testing.assert_array_equal(tr._true_state(chunk.privileged), chunk.privileged[..., 6:])
+    np.testing.assert_array_equal(tr._state_input(chunk.privileged), chunk.privileged[..., 6:])
     with pytest.raises(ValueError, match="needs the env's camera"):
         greedy.greedy_policy(cfg.network, state.learner.params, cfg.env.obs_shape)
     with pytest.raises(ValueError, match="state_input_point chooses the point .* needs state_input=True"):

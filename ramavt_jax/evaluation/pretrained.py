@@ -73,7 +73,8 @@ def load(name: str = DEFAULT_AGENT, agents_dir: Path = AGENTS_DIR, search: str =
         return jax.numpy.asarray(stored[key], like.dtype)
 
     params = jax.tree_util.tree_map_with_path(fill, template)
-    policy = greedy_policy(config.network, params, obs_shape, name=f"pretrained:{name}", search=search)
+    policy = greedy_policy(config.network, params, obs_shape, name=f"pretrained:{name}", search=search,
+                           camera=config.env.camera)
     return PretrainedAgent(name=name, policy=policy, config=config, params=params, info=saved.get("info", {}))
 
 
