@@ -485,15 +485,11 @@ ARMS["state-lateral-margin"] = lambda c: _net(ARMS["state-input-gain10-margin"](
 ARMS["aux-velocity-margin"] = lambda c: _net(ARMS["expert-margin"](c), aux_outputs=6)
 
 # The gap is perception, on the shapes the agent trains on (80 % of the ceiling there) and more on new ones (71 %).
-# Inputs and training shapes, each one change to 'expert-margin' (the quick preset) now that the labels are on:
+# An input and the training shapes, each one change to 'expert-margin' (the quick preset) now that the labels are on:
 # colour beside depth (a part's albedo tells the body from its panels, whose layout places the centre of mass),
 ARMS["rgbd-margin"] = lambda c: _obs(ARMS["expert-margin"](c), "rgbd")
-# the 48 procedural models beside the twelve (more relations between a surface and its centre to learn from),
+# and the 48 procedural models beside the twelve (more relations between a surface and its centre to learn from).
 ARMS["procedural-48-margin"] = lambda c: _procedural(ARMS["expert-margin"](c), 48)
-# the silhouette's statistics beside the conv features (its centroid and depth, sub-patch),
-ARMS["stats-margin"] = lambda c: _net(ARMS["expert-margin"](c), silhouette_stats=True)
-# and 64x64 depth with an 8x8 first patch (twice the pixels across the target, the same 4x4 tokens).
-ARMS["res64-margin"] = lambda c: _res64(ARMS["expert-margin"](c))
 # Which half of the state the images lack, split the other way than 'state-boresight-margin': the error alone
 # (entries 0-2) or the relative velocity alone (3-5), one change each to 'state-input-gain10-margin'.
 ARMS["state-error-margin"] = lambda c: _net(ARMS["state-input-gain10-margin"](c), state_input_entries=(0, 1, 2))
