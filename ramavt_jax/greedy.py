@@ -59,11 +59,10 @@ def visible_tracking_state(env_state: env_lib.EnvState, env_params: env_lib.EnvP
     count = jnp.sum(hit)
     points = camera_rays(camera) * depth[..., None]  # [H, W, 3]: ray (x, y, 1) times z depth
     centroid = jnp.sum(jnp.where(hit[..., None], points, 0.0), axis=(0, 1)) / jnp.maximum(count, 1)
-    p = env_params
-    error = (centroid - p.desired_pos) / p.desired_pos[2]
-    true = true_tracking_state(env_state, env_params)
+    error = (centroid - env_params.desired_pos) / env_params.desired_pos[2]
     if image_only:
         return jnp.concatenate([jnp.where(count > 0, error, 0.0), jnp.zeros(3, error.dtype)])
+    true = true_tracking_state(env_state, env_params)
     return jnp.where(count > 0, true.at[:3].set(error), true)
 
 
