@@ -1,0 +1,113 @@
+"""How precisely a tracker must know where the target's centre of mass is: the ceiling (the true-state look-ahead,
+`mpc`) flown with a wrong centre, on the same episodes as with the right one.
+
+    python scripts/centre_precision.py --targets val --episodes 20 --offsets 0.05 0.1 0.2 0.3 \
+        --out results/val/centre_precision.json
+
+Arms, each told a centre other than the true one (the env still scores the true one):
+
+- `offset S`: off by a fixed vector of S metres times the target's stand-off scale k (plain metres for every
+  catalogue target), in a direction drawn per episode: an estimate with a constant error of that size.
+- `visible`: the centroid of the visible surface in the newest frame (greedy.visible_tracking_state): what holding
+  the image's centre gives. `visible lateral` / `visible range` take only its offset across the image / along the
+  boresight, the true centre in the other axes.
+
+Every arm flies the episodes of `evaluate_per_target` at `--seed` (one key per target), so they compare paired.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ramavt_jax import baselines, greedy
+from ramavt_jax import env as env_lib
+from ramavt_jax.baselines import Policy
+from ramavt_jax.evaluation import rollouts
+
+VISIBLE_AXES = {"visible": (1.0, 1.0, 1.0), "visible lateral": (1.0, 1.0, 0.0), "visible range": (0.0, 0.0, 1.0)}
+
+
+def _told(state: env_lib.EnvState, offset_cam: jax.Array) -> env_lib.EnvState:
+    """The env state with the target's centre moved by ``offset_cam`` [3] m (camera frame): what the planner reads."""
+    return state.replace(target_pos=state.target_pos + env_lib.HILL_FROM_CAM @ offset_cam)
+
+
+def offset_ceiling(ceiling: Policy, size: float) -> Policy:
+    """``ceiling`` told a centre ``size`` * k metres off the true one, in a direction drawn per episode."""
+
+    def init(key):
+        direction = jax.random.normal(key, (3,))
+        return size * direction / jnp.linalg.norm(direction)
+
+    def act(key, offset, obs, state, params):
+        action, _ = ceiling.act(key, ceiling.init(key), obs, _told(state, offset * state.scale), params)
+        return action, offset
+
+    return Policy(f"offset {size}", init, act)
+
+
+def visible_ceiling(ceiling: Policy, camera: env_lib.CameraConfig, axes: tuple[float, float, float]) -> Policy:
+    """``ceiling`` told the visible surface's centroid (on the axes where ``axes`` is 1; the true centre elsewhere)."""
+    mask = jnp.asarray(axes, jnp.float32)
+
+    def act(key, pstate, obs, state, params):
+        true = greedy.true_tracking_state(state, params)[:3]
+        seen = greedy.visible_tracking_state(state, params, camera)[:3]
+        offset = (seen - true) * params.desired_pos[2] * state.scale * mask  # stand-off units -> m
+        action, _ = ceiling.act(key, ceiling.init(key), obs, _told(state, offset), params)
+        return action, pstate
+
+    return Policy("visible", lambda key: jnp.zeros(()), act)
+
+
+def precision_table(targets: tuple[str, ...], episodes: int, offsets: list[float], seed: int = 0,
+                    resolution: int = 32, visible: bool = True, overrides: dict | None = None) -> dict:
+    """{arm: {'aer': mean over targets, 'lost': share, 'per_target': {name: AER}}}; arm 'exact' is the ceiling.
+    ``overrides``: EnvParams fields over the evaluation's (a shorter max_steps in tests)."""
+    camera = env_lib.CameraConfig(resolution=resolution)
+    config = env_lib.EnvConfig(camera=camera, targets=targets)
+    ceiling = baselines.make_policy("mpc", camera)
+    arms = {"exact": ceiling} | {f"offset {s:g}": offset_ceiling(ceiling, s) for s in offsets}
+    if visible:
+        arms |= {name: visible_ceiling(ceiling, camera, axes) for name, axes in VISIBLE_AXES.items()}
+    table = {}
+    for name, policy in arms.items():
+        result = rollouts.evaluate_per_target(config, policy, jax.random.PRNGKey(seed), episodes, overrides)
+        table[name] = {"aer": float(np.mean([s.return_mean for s in result.values()])),
+                       "lost": float(np.mean([s.lost_fraction for s in result.values()])),
+                       "per_target": {t: s.return_mean for t, s in result.items()}}
+    return table
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--targets", default="val", help="a split or catalogue names, as `ramavt eval --targets` takes")
+    ap.add_argument("--episodes", type=int, default=20, help="episodes per target")
+    ap.add_argument("--offsets", type=float, nargs="*", default=[0.05, 0.1, 0.2, 0.3, 0.5],
+                    help="sizes of the fixed centre errors, metres / k")
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--resolution", type=int, default=32)
+    ap.add_argument("--out", type=Path, help="JSON file for the table")
+    args = ap.parse_args()
+    if args.episodes < 1 or any(s < 0 for s in args.offsets):
+        ap.error("--episodes must be >= 1 and every --offsets value >= 0")
+    targets = rollouts.resolve_targets(args.targets)
+    table = precision_table(targets, args.episodes, args.offsets, args.seed, args.resolution)
+    exact = table["exact"]["aer"]
+    print(f"{'centre told':16s} {'AER':>7s} {'of exact':>8s} {'lost':>5s}  " + " ".join(f"{t[:14]:>14s}" for t in targets))
+    for name, row in table.items():
+        print(f"{name:16s} {row['aer']:7.1f} {row['aer'] / exact:8.0%} {row['lost']:5.1%}  "
+              + " ".join(f"{row['per_target'][t]:14.1f}" for t in targets))
+    if args.out:
+        args.out.parent.mkdir(parents=True, exist_ok=True)
+        args.out.write_text(json.dumps({"command": vars(args) | {"out": str(args.out)}, "table": table}, indent=1))
+
+
+if __name__ == "__main__":
+    main()
