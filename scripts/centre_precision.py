@@ -100,7 +100,8 @@ def main() -> None:
     targets = rollouts.resolve_targets(args.targets)
     table = precision_table(targets, args.episodes, args.offsets, args.seed, args.resolution)
     exact = table["exact"]["aer"]
-    print(f"{'centre told':16s} {'AER':>7s} {'of exact':>8s} {'lost':>5s}  " + " ".join(f"{t[:14]:>14s}" for t in targets))
+    header = " ".join(f"{t[:14]:>14s}" for t in targets)
+    print(f"{'centre told':16s} {'AER':>7s} {'of exact':>8s} {'lost':>5s}  {header}")
     for name, row in table.items():
         print(f"{name:16s} {row['aer']:7.1f} {row['aer'] / exact:8.0%} {row['lost']:5.1%}  "
               + " ".join(f"{row['per_target'][t]:14.1f}" for t in targets))
