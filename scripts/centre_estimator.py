@@ -5,19 +5,21 @@ horizon let it use the target's tumble to find it? A supervised test, no reinfor
 
 The `quick` preset's network (its auxiliary head: the tracking error [3]) is fitted by mean squared error to the
 true error (greedy.true_tracking_state) on episodes flown by the ceiling told a centre a random 0-1 m off, with a
-random action on a fifth of the steps (so that the error to estimate ranges about the agent's own, 0.3-0.6 m), on
-the training targets. Training is
+random action on a fifth of the steps (so that the error to estimate spans the agent's own and more: 0.68 m on
+average on the validation episodes), on the training targets. Training is
 truncated back-propagation through time over whole episodes: each update takes the next `window` steps of a batch
 of episodes, starting from the recurrent state the previous window ended in (held fixed), as acting carries it.
-The window (the gradient horizon) is the one change between arms; every arm sees the same frames per update
-(`--frames-per-update`, batch = frames / window) and the same number of updates. The agent's trainer uses 20 (with
-10 steps of burn-in); a tumble turns about 0.16 rad/s (0.1 s steps), a full turn in about 400 steps.
+The window (the gradient horizon) is the change between arms; every arm sees the same frames per update
+(`--frames-per-update`) and the same number of updates, so the batch is frames / window episodes (80 at 20 steps,
+16 at 100), walked through together from their starts (all rows of a batch at the same step). The agent's trainer
+uses 20 (with 10 steps of burn-in); a tumble turns about 0.16 rad/s (0.1 s steps), a full turn in about 400 steps.
 
-Evaluation carries the state over whole validation episodes (the same behaviour, the validation targets) and
+Evaluation carries the state over whole episodes (the same behaviour, `--eval-targets`: the validation ones) and
 reports the estimate's error after the first `--skip` steps, in metres / k (plain metres for catalogue targets):
-across the image, along the boresight, and in 3-D; `visible centroid` is the error of the newest frame's visible
-surface centroid on the same frames, `desired point` the error of guessing that the centre is where it should be
-(an estimate that has learned nothing). `scripts/centre_precision.py` gives the yardstick: the ceiling told a centre
+across the image, along the boresight, and in 3-D. `visible centroid` is the error of the newest frame's visible
+surface centroid on the same frames (those with a target pixel: it has no estimate on the others); `desired point`
+the error of guessing that the centre is where it should be (an estimate that has learned nothing).
+`scripts/centre_precision.py` gives the yardstick: the ceiling told a centre
 0.1 m off keeps about 92 % of its return, 0.2 m off about 81 %, 0.3 m off about 70 %.
 """
 
@@ -40,7 +42,6 @@ from tqdm import tqdm
 from centre_precision import _told  # scripts/ is the running script's own folder, first on sys.path
 from ramavt_jax import baselines, greedy, presets
 from ramavt_jax import env as env_lib
-from ramavt_jax import targets as targets_lib
 from ramavt_jax.baselines import Policy
 from ramavt_jax.evaluation import rollouts
 from ramavt_jax.network import NetworkConfig, initial_state, make_network
@@ -135,13 +136,24 @@ def _update(net, optimiser, params, opt_state, state, obs, reset, actions, label
         return _masked_error(aux, label, alive), new_state
 
     (loss, new_state), grads = jax.value_and_grad(loss_fn, has_aux=True)(params)
-    updates, opt_state = optimiser.update(grads, opt_state, params)
-    return optax.apply_updates(params, updates), opt_state, jax.lax.stop_gradient(new_state), loss
+    updates, new_opt_state = optimiser.update(grads, opt_state, params)
+    # a window where every episode has ended carries no label: Adam's momentum must not move the params on it
+    keep = lambda new, old: jax.tree.map(lambda a, b: jnp.where(jnp.any(alive), a, b), new, old)  # noqa: E731
+    return (keep(optax.apply_updates(params, updates), params), keep(new_opt_state, opt_state),
+            jax.lax.stop_gradient(new_state), loss)
 
 
 def estimator_network(overrides: dict | None = None) -> NetworkConfig:
-    """The `quick` preset's network with ``overrides`` ({field: value}, validated by NetworkConfig)."""
-    return dataclasses.replace(presets.preset("quick").network, **(overrides or {}))
+    """The `quick` preset's network with ``overrides`` ({field: value}, validated by NetworkConfig); ValueError for
+    one this fit cannot train (it reads only the frames and actions, and fits a 3-entry auxiliary head)."""
+    config = dataclasses.replace(presets.preset("quick").network, **(overrides or {}))
+    if config.aux_outputs != LABEL or not config.recurrent:
+        raise ValueError(f"the estimator fits a recurrent network's aux head to {LABEL} entries, got aux_outputs "
+                         f"{config.aux_outputs} on variant {config.variant!r}")
+    if config.norm == "batch" or config.state_input or config.reads_standoff:
+        raise ValueError("the estimator reads frames and actions only: norm 'batch', state_input and the stand-off "
+                         "inputs are not supported")
+    return config
 
 
 def train(episodes: Episodes, window: int, frames_per_update: int, updates: int, seed: int, lr: float = 1e-3,
@@ -153,9 +165,9 @@ def train(episodes: Episodes, window: int, frames_per_update: int, updates: int,
     config = config or estimator_network()
     frame_only, window = window == 0, window or FRAME_ONLY_WINDOW
     steps = episodes.obs.shape[1]
-    if steps % window or frames_per_update % window:
-        raise ValueError(f"the window ({window}) must divide the episode length ({steps}) and the frames per update "
-                         f"({frames_per_update})")
+    if steps % window or frames_per_update % window or frames_per_update < window:
+        raise ValueError(f"the window ({window} steps{' for window 0' if frame_only else ''}) must divide the episode "
+                         f"length ({steps}) and the frames per update ({frames_per_update}), at least one window")
     batch = frames_per_update // window
     if batch > episodes.obs.shape[0]:
         raise ValueError(f"{batch} episodes per update, but only {episodes.obs.shape[0]} recorded")
@@ -166,7 +178,8 @@ def train(episodes: Episodes, window: int, frames_per_update: int, updates: int,
                       initial_state(config, 1, obs_shape))["params"]
     optimiser = optax.chain(optax.clip_by_global_norm(1.0), optax.adam(lr))
     opt_state, losses, chunks = optimiser.init(params), [], steps // window
-    for u in tqdm(range(updates), desc=f"window {window}", unit="update", mininterval=30):
+    desc = "one frame" if frame_only else f"window {window}"
+    for u in tqdm(range(updates), desc=desc, unit="update", mininterval=30):
         chunk = u % chunks
         if chunk == 0:  # a new batch of episodes, from their starts
             key, k_pick = jax.random.split(key)
@@ -232,12 +245,13 @@ def main() -> None:
     ap.add_argument("--updates", type=int, default=1500)
     ap.add_argument("--frames-per-update", type=int, default=1600)
     ap.add_argument("--train-episodes", type=int, default=16, help="per training target")
-    ap.add_argument("--val-episodes", type=int, default=4, help="per validation target")
+    ap.add_argument("--val-episodes", type=int, default=4, help="per evaluated target")
     ap.add_argument("--steps", type=int, default=1000, help="steps per recorded episode")
     ap.add_argument("--skip", type=int, default=100, help="steps left out of the error (the approach)")
     ap.add_argument("--network", nargs="*", default=[], metavar="FIELD=VALUE",
                     help="NetworkConfig fields over the quick preset's, e.g. kernels=(8,2,3) strides=(8,2,1)")
     ap.add_argument("--train-targets", default="train", help="a split or names / MJCF files, as `ramavt eval` takes")
+    ap.add_argument("--eval-targets", default="val", help="the targets of the evaluated episodes, likewise")
     ap.add_argument("--max-offset", type=float, default=1.0, help="m * k, the behaviour's largest centre error")
     ap.add_argument("--random-share", type=float, default=0.2, help="the behaviour's share of random actions")
     ap.add_argument("--resolution", type=int, default=32)
@@ -250,10 +264,10 @@ def main() -> None:
         overrides = {k: ast.literal_eval(v) for k, v in (item.split("=", 1) for item in args.network)}
         config = estimator_network(overrides)
         train_names = rollouts.resolve_targets(args.train_targets)
+        val_names = rollouts.resolve_targets(args.eval_targets)
     except (ValueError, SyntaxError, TypeError) as e:
         ap.error(f"--network / --train-targets: {e}")
     camera = env_lib.CameraConfig(resolution=args.resolution)
-    val_names = targets_lib.split("val")
     key = jax.random.PRNGKey(args.seed)
     behave = {"max_offset": args.max_offset, "random_share": args.random_share}
     train_eps = collect(train_names, args.train_episodes, args.steps, jax.random.fold_in(key, 0), camera, **behave)

@@ -8,9 +8,11 @@ Arms, each told a centre other than the true one (the env still scores the true 
 
 - `offset S`: off by a fixed vector of S metres times the target's stand-off scale k (plain metres for every
   catalogue target), in a direction drawn per episode: an estimate with a constant error of that size.
-- `visible`: the centroid of the visible surface in the newest frame (greedy.visible_tracking_state): what holding
-  the image's centre gives. `visible lateral` / `visible range` take only its offset across the image / along the
-  boresight, the true centre in the other axes.
+- `visible`: the centroid of the visible surface in the newest frame (greedy.visible_tracking_state): holding the
+  image's centre, with the centre's true velocity known (the planner's model moves the told point with the centre,
+  so it cannot foresee the centroid wandering as the target turns). On a frame without the target the true centre
+  is told (that function's fallback), which helps recovery: its lost share is a floor. `visible lateral` /
+  `visible range` take only its offset across the image / along the boresight, the true centre on the other axes.
 
 Every arm flies the episodes of `evaluate_per_target` at `--seed` (one key per target), so they compare paired.
 """
@@ -46,24 +48,33 @@ def offset_ceiling(ceiling: Policy, size: float) -> Policy:
         return size * direction / jnp.linalg.norm(direction)
 
     def act(key, offset, obs, state, params):
-        action, _ = ceiling.act(key, ceiling.init(key), obs, _told(state, offset * state.scale), params)
+        k_init, k_act = jax.random.split(key)
+        action, _ = ceiling.act(k_act, ceiling.init(k_init), obs, _told(state, offset * state.scale), params)
         return action, offset
 
     return Policy(f"offset {size}", init, act)
 
 
-def visible_ceiling(ceiling: Policy, camera: env_lib.CameraConfig, axes: tuple[float, float, float]) -> Policy:
-    """``ceiling`` told the visible surface's centroid (on the axes where ``axes`` is 1; the true centre elsewhere)."""
-    mask = jnp.asarray(axes, jnp.float32)
+def visible_offset(state: env_lib.EnvState, params: env_lib.EnvParams, camera: env_lib.CameraConfig,
+                   axes: tuple[float, float, float]) -> jax.Array:
+    """[3] m, camera frame: the visible surface's centroid minus the centre, on the axes where ``axes`` is 1 (0 on the
+    others, and on all of them when the frame shows no target: greedy.visible_tracking_state's fallback)."""
+    true = greedy.true_tracking_state(state, params)[:3]
+    seen = greedy.visible_tracking_state(state, params, camera)[:3]
+    return (seen - true) * params.desired_pos[2] * state.scale * jnp.asarray(axes, jnp.float32)  # stand-off -> m
+
+
+def visible_ceiling(ceiling: Policy, camera: env_lib.CameraConfig, axes: tuple[float, float, float],
+                    name: str = "visible") -> Policy:
+    """``ceiling`` told the visible surface's centroid (visible_offset) instead of the centre."""
 
     def act(key, pstate, obs, state, params):
-        true = greedy.true_tracking_state(state, params)[:3]
-        seen = greedy.visible_tracking_state(state, params, camera)[:3]
-        offset = (seen - true) * params.desired_pos[2] * state.scale * mask  # stand-off units -> m
-        action, _ = ceiling.act(key, ceiling.init(key), obs, _told(state, offset), params)
+        k_init, k_act = jax.random.split(key)
+        told = _told(state, visible_offset(state, params, camera, axes))
+        action, _ = ceiling.act(k_act, ceiling.init(k_init), obs, told, params)
         return action, pstate
 
-    return Policy("visible", lambda key: jnp.zeros(()), act)
+    return Policy(name, lambda key: jnp.zeros(()), act)
 
 
 def precision_table(targets: tuple[str, ...], episodes: int, offsets: list[float], seed: int = 0,
@@ -75,7 +86,7 @@ def precision_table(targets: tuple[str, ...], episodes: int, offsets: list[float
     ceiling = baselines.make_policy("mpc", camera)
     arms = {"exact": ceiling} | {f"offset {s:g}": offset_ceiling(ceiling, s) for s in offsets}
     if visible:
-        arms |= {name: visible_ceiling(ceiling, camera, axes) for name, axes in VISIBLE_AXES.items()}
+        arms |= {name: visible_ceiling(ceiling, camera, axes, name) for name, axes in VISIBLE_AXES.items()}
     table = {}
     for name, policy in arms.items():
         result = rollouts.evaluate_per_target(config, policy, jax.random.PRNGKey(seed), episodes, overrides)

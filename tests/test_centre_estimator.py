@@ -1,5 +1,6 @@
-"""scripts/centre_estimator.py: recorded episodes line up with the env, the visible centroid is greedy's, the
-desired point scores the error itself, and a few updates fit the labels better than guessing the desired point."""
+"""scripts/centre_estimator.py: recorded episodes pair each frame with the state it was drawn from, the visible
+centroid is greedy's, the desired point scores the error itself, a few updates fit the labels better than guessing
+the desired point, and networks the fit cannot train are refused."""
 
 import sys
 from pathlib import Path
@@ -15,35 +16,58 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts"))
 import centre_estimator  # noqa: E402
 
 CAMERA = env_lib.CameraConfig(resolution=16)
+TARGETS = ("Asteroid-v0", "Capsule-v0")
+KEY = jax.random.PRNGKey(0)
 
 
 @pytest.fixture(scope="module")
 def episodes():
-    return centre_estimator.collect(("Asteroid-v0", "Capsule-v0"), 2, 40, jax.random.PRNGKey(0), CAMERA)
+    return centre_estimator.collect(TARGETS, 2, 40, KEY, CAMERA)
 
 
-def test_recorded_episodes_have_their_shapes_and_the_centroid_is_greedys(episodes):
+def _first_states():
+    """The reset states of the first target's episodes, drawn with collect's keys: (obs [2, H, W, C], states)."""
+    tracking_env = env_lib.TrackingEnv(env_lib.EnvConfig(camera=CAMERA, targets=TARGETS))
+    params = tracking_env.pinned(tracking_env.eval_params(max_steps=40), 0)
+    k_reset = jax.random.split(jax.random.fold_in(KEY, 0), 3)[0]
+    obs, states = jax.vmap(tracking_env.reset, in_axes=(0, None))(jax.random.split(k_reset, 2), params)
+    return obs, states, params
+
+
+def test_each_recorded_frame_comes_with_the_state_it_was_drawn_from(episodes):
     eps = episodes
     assert eps.obs.shape == (4, 40, 16, 16, 1) and eps.label.shape == (4, 40, 3) and eps.action.shape == (4, 40)
     assert np.array_equal(np.asarray(eps.target), [0, 0, 1, 1])
-    tracking_env = env_lib.TrackingEnv(env_lib.EnvConfig(camera=CAMERA, targets=("Asteroid-v0",)))
-    params = tracking_env.eval_params()
-    obs, state = tracking_env.reset(jax.random.PRNGKey(3), params)
-    one = centre_estimator.Episodes(obs=obs[None, None], action=np.zeros((1, 1), int), label=np.zeros((1, 1, 3)),
-                                    alive=np.ones((1, 1), bool), target=np.zeros(1, int))
-    seen = centre_estimator.visible_centroid(one, CAMERA)[0, 0]
-    np.testing.assert_allclose(seen, greedy.visible_tracking_state(state, params, CAMERA)[:3], atol=2e-3)
+    obs, states, params = _first_states()
+    np.testing.assert_allclose(np.asarray(eps.obs[:2, 0], np.float32), obs, atol=1e-3)
+    true = jax.vmap(greedy.true_tracking_state, in_axes=(0, None))(states, params)[:, :3]
+    np.testing.assert_allclose(eps.label[:2, 0], true, atol=1e-6)
+    assert not np.allclose(eps.label[:2, 1], true, atol=1e-4)  # the label moves with the frame
+    seen = centre_estimator.visible_centroid(eps, CAMERA)[:2, 0]  # from the stored float16 frames
+    expected = jax.vmap(lambda s: greedy.visible_tracking_state(s, params, CAMERA))(states)[:, :3]
+    np.testing.assert_allclose(seen, expected, atol=2e-3)
 
 
 def test_guessing_the_desired_point_misses_by_the_error_and_training_does_better(episodes):
     eps = episodes
-    names = ("Asteroid-v0", "Capsule-v0")
-    zero = centre_estimator.errors_by_target(np.zeros(eps.label.shape), eps, names, skip=5)
-    exact = centre_estimator.errors_by_target(np.asarray(eps.label), eps, names, skip=5)
-    norms = np.linalg.norm(np.asarray(eps.label)[:2, 5:], axis=-1)[np.asarray(eps.alive)[:2, 5:]] * 5.0
+    standoff = float(env_lib.TrackingEnv().eval_params().desired_pos[2])  # m per stand-off distance
+    zero = centre_estimator.errors_by_target(np.zeros(eps.label.shape), eps, TARGETS, skip=5)
+    exact = centre_estimator.errors_by_target(np.asarray(eps.label), eps, TARGETS, skip=5)
+    norms = np.linalg.norm(np.asarray(eps.label)[:2, 5:], axis=-1)[np.asarray(eps.alive)[:2, 5:]] * standoff
     assert abs(zero["Asteroid-v0"]["3d"] - norms.mean()) < 1e-4 and zero["Asteroid-v0"]["3d"] > 0.5
     assert all(row["3d"] == 0.0 for row in exact.values())
     params, losses = centre_estimator.train(eps, window=20, frames_per_update=80, updates=60, seed=0)
     assert np.mean(losses[-10:]) < 0.5 * np.mean(losses[:4]), losses
-    fitted = centre_estimator.errors_by_target(centre_estimator.estimate(params, eps, chunk=20), eps, names, skip=5)
+    fitted = centre_estimator.errors_by_target(centre_estimator.estimate(params, eps, chunk=20), eps, TARGETS, skip=5)
     assert fitted["Asteroid-v0"]["3d"] < zero["Asteroid-v0"]["3d"]
+
+
+@pytest.mark.parametrize("overrides", [{"aux_outputs": 6}, {"norm": "batch"}, {"state_input": True}])
+def test_a_network_the_fit_cannot_train_is_refused(overrides):
+    with pytest.raises(ValueError, match="estimator"):
+        centre_estimator.estimator_network(overrides)
+
+
+def test_fewer_frames_per_update_than_a_window_are_refused(episodes):
+    with pytest.raises(ValueError, match="at least one window"):
+        centre_estimator.train(episodes, window=20, frames_per_update=0, updates=1, seed=0)

@@ -1,11 +1,46 @@
-"""scripts/centre_precision.py: the ceiling told its own centre flies as the ceiling; told a wrong one, it scores less
+"""scripts/centre_precision.py: the centre told moves where the planner thinks the target is, by the offset asked
+for and in the camera frame; the ceiling told its own centre flies as the ceiling; told a wrong one, it scores less
 by about the error per step once it holds station."""
 
 import sys
 from pathlib import Path
 
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ramavt_jax import env as env_lib
+from ramavt_jax import greedy
+
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts"))
 import centre_precision  # noqa: E402
+
+CAMERA = env_lib.CameraConfig(resolution=16)
+
+
+def _state():
+    tracking_env = env_lib.TrackingEnv(env_lib.EnvConfig(camera=CAMERA, targets=("Capsule-v0",)))
+    params = tracking_env.eval_params()
+    _, state = tracking_env.reset(jax.random.PRNGKey(4), params)
+    return state, params
+
+
+def test_the_told_centre_moves_by_the_offset_in_the_camera_frame():
+    state, _ = _state()
+    offset = jnp.array([0.3, -0.2, 0.5])
+    moved = env_lib.relative_position(centre_precision._told(state, offset)) - env_lib.relative_position(state)
+    np.testing.assert_allclose(moved, offset, atol=1e-5)
+
+
+def test_the_visible_arms_tell_the_surface_centroid_on_their_axes_only():
+    state, params = _state()
+    desired, true = np.asarray(params.desired_pos), np.asarray(env_lib.relative_position(state))
+    seen = np.asarray(greedy.visible_tracking_state(state, params, CAMERA)[:3]) * desired[2] + desired  # m, k = 1
+    assert np.linalg.norm(seen - true) > 0.1  # the capsule's seen surface lies in front of its centre
+    for axes in centre_precision.VISIBLE_AXES.values():
+        told = env_lib.relative_position(
+            centre_precision._told(state, centre_precision.visible_offset(state, params, CAMERA, axes)))
+        np.testing.assert_allclose(told, np.where(np.asarray(axes) > 0, seen, true), atol=1e-4)
 
 
 def test_a_wrong_centre_costs_the_ceiling_about_its_size_per_step():
@@ -15,4 +50,3 @@ def test_a_wrong_centre_costs_the_ceiling_about_its_size_per_step():
     assert none == exact  # the same episodes, the same plans
     # the reward's distance term is 1 per metre: held 0.5 m off for most of 200 steps costs on the order of 50
     assert 30.0 < exact - half < 100.0, (exact, half)
-    assert table["offset 0.5"]["per_target"]["Asteroid-v0"] == half
