@@ -43,7 +43,7 @@ from centre_precision import _told  # scripts/ is the running script's own folde
 from ramavt_jax import baselines, greedy, presets
 from ramavt_jax import env as env_lib
 from ramavt_jax.baselines import Policy
-from ramavt_jax.evaluation import rollouts
+from ramavt_jax.evaluation import rollouts, runs
 from ramavt_jax.network import NetworkConfig, initial_state, make_network
 from ramavt_jax.render import camera_rays
 
@@ -238,10 +238,25 @@ def errors_by_target(guess: np.ndarray, episodes: Episodes, names: tuple[str, ..
     return table
 
 
+def agent_rows(run_dirs: list[str], episodes: Episodes, names: tuple[str, ...], skip: int) -> dict:
+    """{'agent RUN': errors_by_target} of each trained run's own auxiliary head (its policy params, fitted in
+    training to the same label) on ``episodes``, fed their frames and actions as the estimators are."""
+    rows = {}
+    for run_dir in run_dirs:
+        loaded = runs.load_policy(run_dir, log=lambda *_: None)
+        network, obs_shape = loaded.config.network, tuple(loaded.config.env.obs_shape)
+        if obs_shape != tuple(episodes.obs.shape[2:]) or network.aux_outputs != LABEL or network.state_input:
+            raise ValueError(f"{run_dir}: its network must read {tuple(episodes.obs.shape[2:])} frames alone and "
+                             f"have a {LABEL}-entry aux head (got {obs_shape}, aux_outputs {network.aux_outputs})")
+        guess = estimate(loaded.params, episodes, config=network)
+        rows[f"agent {runs.row_name(run_dir)}"] = errors_by_target(guess, episodes, names, skip)
+    return rows
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--windows", type=int, nargs="+", default=[20, 100],
-                    help="gradient horizons, one arm each; 0: one frame, no memory")
+    ap.add_argument("--windows", type=int, nargs="*", default=[20, 100],
+                    help="gradient horizons, one arm each; 0: one frame, no memory; none: only the other rows")
     ap.add_argument("--updates", type=int, default=1500)
     ap.add_argument("--frames-per-update", type=int, default=1600)
     ap.add_argument("--train-episodes", type=int, default=16, help="per training target")
@@ -252,13 +267,16 @@ def main() -> None:
                     help="NetworkConfig fields over the quick preset's, e.g. kernels=(8,2,3) strides=(8,2,1)")
     ap.add_argument("--train-targets", default="train", help="a split or names / MJCF files, as `ramavt eval` takes")
     ap.add_argument("--eval-targets", default="val", help="the targets of the evaluated episodes, likewise")
+    ap.add_argument("--agents", nargs="*", default=[], metavar="RUN",
+                    help="training run folders whose own auxiliary heads are scored on the same episodes")
     ap.add_argument("--max-offset", type=float, default=1.0, help="m * k, the behaviour's largest centre error")
     ap.add_argument("--random-share", type=float, default=0.2, help="the behaviour's share of random actions")
     ap.add_argument("--resolution", type=int, default=32)
-    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--seed", type=int, default=0, help="the recorded episodes' draw (and the fit's, by default)")
+    ap.add_argument("--fit-seed", type=int, help="the fit's initialisation and batches alone: other fits, same data")
     ap.add_argument("--out", type=Path)
     args = ap.parse_args()
-    if min(args.windows) < 0 or args.updates < 1 or args.skip >= args.steps:
+    if min(args.windows, default=0) < 0 or args.updates < 1 or args.skip >= args.steps:
         ap.error("--windows must be >= 0, --updates >= 1 and --skip < --steps")
     try:
         overrides = {k: ast.literal_eval(v) for k, v in (item.split("=", 1) for item in args.network)}
@@ -270,21 +288,24 @@ def main() -> None:
     camera = env_lib.CameraConfig(resolution=args.resolution)
     key = jax.random.PRNGKey(args.seed)
     behave = {"max_offset": args.max_offset, "random_share": args.random_share}
-    train_eps = collect(train_names, args.train_episodes, args.steps, jax.random.fold_in(key, 0), camera, **behave)
+    if args.windows:
+        train_eps = collect(train_names, args.train_episodes, args.steps, jax.random.fold_in(key, 0), camera, **behave)
     val_eps = collect(val_names, args.val_episodes, args.steps, jax.random.fold_in(key, 1), camera, **behave)
     rows = {"desired point": errors_by_target(np.zeros(val_eps.label.shape), val_eps, val_names, args.skip),
             "visible centroid": errors_by_target(visible_centroid(val_eps, camera), val_eps, val_names, args.skip)}
+    rows |= agent_rows(args.agents, val_eps, val_names, args.skip)
     curves = {}
     for window in args.windows:
-        params, losses = train(train_eps, window, args.frames_per_update, args.updates, args.seed, config=config)
+        fit_seed = args.seed if args.fit_seed is None else args.fit_seed
+        params, losses = train(train_eps, window, args.frames_per_update, args.updates, fit_seed, config=config)
         name = f"window {window}" if window else "one frame"
         guess = estimate(params, val_eps, frame_only=window == 0, config=config)
         rows[name] = errors_by_target(guess, val_eps, val_names, args.skip)
         curves[name] = losses
-    print(f"{'estimate':18s} {'3-D':>5s} {'lat':>5s} {'range':>5s}   3-D per target (m / k)")
+    print(f"{'estimate':28s} {'3-D':>5s} {'lat':>5s} {'range':>5s}   3-D per target (m / k)")
     for name, table in rows.items():
         mean = {k: np.mean([t[k] for t in table.values()]) for k in ("3d", "lateral", "range")}
-        print(f"{name:18s} {mean['3d']:5.2f} {mean['lateral']:5.2f} {mean['range']:5.2f}   "
+        print(f"{name:28s} {mean['3d']:5.2f} {mean['lateral']:5.2f} {mean['range']:5.2f}   "
               + " ".join(f"{t}:{v['3d']:.2f}" for t, v in table.items()))
     if args.out:
         args.out.parent.mkdir(parents=True, exist_ok=True)

@@ -71,3 +71,8 @@ def test_a_network_the_fit_cannot_train_is_refused(overrides):
 def test_fewer_frames_per_update_than_a_window_are_refused(episodes):
     with pytest.raises(ValueError, match="at least one window"):
         centre_estimator.train(episodes, window=20, frames_per_update=0, updates=1, seed=0)
+
+
+def test_a_run_without_a_three_entry_aux_head_is_refused(every_chunk_run, episodes):
+    with pytest.raises(ValueError, match="aux head"):  # the smoke preset's network has none
+        centre_estimator.agent_rows([str(every_chunk_run)], episodes, TARGETS, skip=5)
