@@ -96,6 +96,48 @@ def precision_table(targets: tuple[str, ...], episodes: int, offsets: list[float
     return table
 
 
+def plot_precision(table: dict, marks: dict[str, float], path: Path) -> None:
+    """The share of the exact ceiling's AER kept against the size of a fixed centre error (the 'offset S' rows of
+    ``table``), with vertical ``marks`` {label: metres} (mean errors of estimates, which wander rather than stay
+    fixed) and the 90 % line, written to ``path`` (PNG)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    exact = table["exact"]["aer"]
+    sizes = sorted([0.0] + [float(name.split()[1]) for name in table if name.startswith("offset ")])
+    kept = [1.0 if s == 0 else table[f"offset {s:g}"]["aer"] / exact for s in sizes]
+    fig, ax = plt.subplots(figsize=(6.0, 3.6))
+    ax.plot(sizes, kept, "o-", color="k", label="ceiling told a centre off by a fixed vector")
+    ax.axhline(0.9, color="tab:red", lw=0.8, ls="--", label="90 % of the ceiling")
+    for (label, metres), colour in zip(marks.items(), ("tab:blue", "tab:orange", "tab:green", "tab:purple")):
+        ax.axvline(metres, color=colour, lw=1.0, label=f"{label}: {metres:.2f} m")
+    ax.set_xlabel("centre error (m)")
+    ax.set_ylabel("share of the ceiling's AER")
+    ax.set_xlim(left=0.0)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7, loc="lower left")
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def _marks(items: list[str]) -> dict[str, float]:
+    """'LABEL=METRES' strings -> {label: metres}; ValueError naming a bad one."""
+    marks = {}
+    for item in items:
+        label, _, value = item.rpartition("=")
+        try:
+            marks[label] = float(value)
+        except ValueError:
+            raise ValueError(f"--mark {item!r}: expected LABEL=METRES") from None
+        if not label:
+            raise ValueError(f"--mark {item!r}: expected LABEL=METRES")
+    return marks
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--targets", default="val", help="a split or catalogue names, as `ramavt eval --targets` takes")
@@ -105,11 +147,22 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--resolution", type=int, default=32)
     ap.add_argument("--out", type=Path, help="JSON file for the table")
+    ap.add_argument("--table", type=Path, help="a JSON file written by --out: print (and plot) it, fly nothing")
+    ap.add_argument("--plot", type=Path, help="PNG of the share kept against the centre error")
+    ap.add_argument("--mark", nargs="*", default=[], metavar="LABEL=METRES", help="vertical lines on the plot")
     args = ap.parse_args()
     if args.episodes < 1 or any(s < 0 for s in args.offsets):
         ap.error("--episodes must be >= 1 and every --offsets value >= 0")
-    targets = rollouts.resolve_targets(args.targets)
-    table = precision_table(targets, args.episodes, args.offsets, args.seed, args.resolution)
+    try:
+        marks = _marks(args.mark)
+    except ValueError as e:
+        ap.error(str(e))
+    if args.table:
+        table = json.loads(args.table.read_text())["table"]
+        targets = tuple(table["exact"]["per_target"])
+    else:
+        targets = rollouts.resolve_targets(args.targets)
+        table = precision_table(targets, args.episodes, args.offsets, args.seed, args.resolution)
     exact = table["exact"]["aer"]
     header = " ".join(f"{t[:14]:>14s}" for t in targets)
     print(f"{'centre told':16s} {'AER':>7s} {'of exact':>8s} {'lost':>5s}  {header}")
@@ -118,7 +171,10 @@ def main() -> None:
               + " ".join(f"{row['per_target'][t]:14.1f}" for t in targets))
     if args.out:
         args.out.parent.mkdir(parents=True, exist_ok=True)
-        args.out.write_text(json.dumps({"command": vars(args) | {"out": str(args.out)}, "table": table}, indent=1))
+        command = {k: str(v) if isinstance(v, Path) else v for k, v in vars(args).items()}
+        args.out.write_text(json.dumps({"command": command, "table": table}, indent=1))
+    if args.plot:
+        plot_precision(table, marks, args.plot)
 
 
 if __name__ == "__main__":

@@ -8,6 +8,7 @@ from pathlib import Path
 import jax
 import jax.numpy as jnp
 import numpy as np
+import pytest
 
 from ramavt_jax import env as env_lib
 from ramavt_jax import greedy
@@ -50,3 +51,14 @@ def test_a_wrong_centre_costs_the_ceiling_about_its_size_per_step():
     assert none == exact  # the same episodes, the same plans
     # the reward's distance term is 1 per metre: held 0.5 m off for most of 200 steps costs on the order of 50
     assert 30.0 < exact - half < 100.0, (exact, half)
+
+
+def test_the_precision_plot_is_written_and_bad_marks_are_refused(tmp_path):
+    table = {"exact": {"aer": 800.0}, "offset 0.1": {"aer": 720.0}, "offset 0.3": {"aer": 560.0}}
+    marks = centre_precision._marks(["agent=0.3", "a=b=0.5"])
+    assert marks == {"agent": 0.3, "a=b": 0.5}
+    centre_precision.plot_precision(table, marks, tmp_path / "precision.png")
+    assert (tmp_path / "precision.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    for bad in ("0.3", "agent=far"):
+        with pytest.raises(ValueError, match="LABEL=METRES"):
+            centre_precision._marks([bad])
