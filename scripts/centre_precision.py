@@ -14,7 +14,8 @@ Arms, each told a centre other than the true one (the env still scores the true 
   is told (that function's fallback), which helps recovery: its lost share is a floor. `visible lateral` /
   `visible range` take only its offset across the image / along the boresight, the true centre on the other axes.
 
-Every arm flies the episodes of `evaluate_per_target` at `--seed` (one key per target), so they compare paired.
+Every arm flies the episodes of `ramavt eval --targets T --episodes N --seed S` without perturbation (those of the
+learning arms and the recorded ceiling), so they compare paired.
 """
 
 from __future__ import annotations
@@ -25,12 +26,11 @@ from pathlib import Path
 
 import jax
 import jax.numpy as jnp
-import numpy as np
 
 from ramavt_jax import baselines, greedy
 from ramavt_jax import env as env_lib
 from ramavt_jax.baselines import Policy
-from ramavt_jax.evaluation import rollouts
+from ramavt_jax.evaluation import rollouts, tables
 
 VISIBLE_AXES = {"visible": (1.0, 1.0, 1.0), "visible lateral": (1.0, 1.0, 0.0), "visible range": (0.0, 0.0, 1.0)}
 
@@ -87,12 +87,16 @@ def precision_table(targets: tuple[str, ...], episodes: int, offsets: list[float
     arms = {"exact": ceiling} | {f"offset {s:g}": offset_ceiling(ceiling, s) for s in offsets}
     if visible:
         arms |= {name: visible_ceiling(ceiling, camera, axes, name) for name, axes in VISIBLE_AXES.items()}
+    overrides = dict(overrides or {})
+    max_steps = int(overrides.pop("max_steps", 1000))
+    tracking_env = tables.suite_env(config, targets, rollouts.PERTURBATION_VALUES)
     table = {}
     for name, policy in arms.items():
-        result = rollouts.evaluate_per_target(config, policy, jax.random.PRNGKey(seed), episodes, overrides)
-        table[name] = {"aer": float(np.mean([s.return_mean for s in result.values()])),
-                       "lost": float(np.mean([s.lost_fraction for s in result.values()])),
-                       "per_target": {t: s.return_mean for t, s in result.items()}}
+        result = tables.evaluate_setting(tracking_env, policy, overrides, episodes, max_steps, jax.random.PRNGKey(seed),
+                                         "none", rollouts.PERTURBATION_VALUES)
+        table[name] = {"aer": float(result["overall"]["return_mean"]),
+                       "lost": float(result["overall"]["lost_fraction"]),
+                       "per_target": {t: float(s["return_mean"]) for t, s in result["per_target"].items()}}
     return table
 
 
