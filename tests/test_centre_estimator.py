@@ -30,7 +30,7 @@ def _first_states():
     tracking_env = env_lib.TrackingEnv(env_lib.EnvConfig(camera=CAMERA, targets=TARGETS))
     params = tracking_env.pinned(tracking_env.eval_params(max_steps=40), 0)
     k_reset = jax.random.split(jax.random.fold_in(KEY, 0), 3)[0]
-    obs, states = jax.vmap(tracking_env.reset, in_axes=(0, None))(jax.random.split(k_reset, 2), params)
+    obs, states = jax.jit(jax.vmap(tracking_env.reset, in_axes=(0, None)))(jax.random.split(k_reset, 2), params)
     return obs, states, params
 
 
@@ -44,7 +44,7 @@ def test_each_recorded_frame_comes_with_the_state_it_was_drawn_from(episodes):
     np.testing.assert_allclose(eps.label[:2, 0], true, atol=1e-6)
     assert not np.allclose(eps.label[:2, 1], true, atol=1e-4)  # the label moves with the frame
     seen = centre_estimator.visible_centroid(eps, CAMERA)[:2, 0]  # from the stored float16 frames
-    expected = jax.vmap(lambda s: greedy.visible_tracking_state(s, params, CAMERA))(states)[:, :3]
+    expected = jax.jit(jax.vmap(lambda s: greedy.visible_tracking_state(s, params, CAMERA)))(states)[:, :3]
     np.testing.assert_allclose(seen, expected, atol=2e-3)
 
 

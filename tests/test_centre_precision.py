@@ -19,22 +19,24 @@ import centre_precision  # noqa: E402
 CAMERA = env_lib.CameraConfig(resolution=16)
 
 
-def _state():
+@pytest.fixture(scope="module")
+def capsule():
+    """(env state, params) of one Capsule-v0 episode's start."""
     tracking_env = env_lib.TrackingEnv(env_lib.EnvConfig(camera=CAMERA, targets=("Capsule-v0",)))
     params = tracking_env.eval_params()
-    _, state = tracking_env.reset(jax.random.PRNGKey(4), params)
+    _, state = jax.jit(tracking_env.reset)(jax.random.PRNGKey(4), params)
     return state, params
 
 
-def test_the_told_centre_moves_by_the_offset_in_the_camera_frame():
-    state, _ = _state()
+def test_the_told_centre_moves_by_the_offset_in_the_camera_frame(capsule):
+    state, _ = capsule
     offset = jnp.array([0.3, -0.2, 0.5])
     moved = env_lib.relative_position(centre_precision._told(state, offset)) - env_lib.relative_position(state)
     np.testing.assert_allclose(moved, offset, atol=1e-5)
 
 
-def test_the_visible_arms_tell_the_surface_centroid_on_their_axes_only():
-    state, params = _state()
+def test_the_visible_arms_tell_the_surface_centroid_on_their_axes_only(capsule):
+    state, params = capsule
     desired, true = np.asarray(params.desired_pos), np.asarray(env_lib.relative_position(state))
     seen = np.asarray(greedy.visible_tracking_state(state, params, CAMERA)[:3]) * desired[2] + desired  # m, k = 1
     assert np.linalg.norm(seen - true) > 0.1  # the capsule's seen surface lies in front of its centre
