@@ -19,6 +19,8 @@ reports the estimate's error after the first `--skip` steps, in metres / k (plai
 across the image, along the boresight, and in 3-D. `visible centroid` is the error of the newest frame's visible
 surface centroid on the same frames (those with a target pixel: it has no estimate on the others); `desired point`
 the error of guessing that the centre is where it should be (an estimate that has learned nothing).
+`--spin-input` (a diagnostic) gives the network the target's true angular velocity in the camera frame beside its
+image features: whether, knowing how the target turns, it finds the centre the surface turns about.
 `scripts/centre_precision.py` gives the yardstick: the ceiling told a centre
 0.1 m off keeps about 92 % of its return, 0.2 m off about 81 %, 0.3 m off about 70 %.
 """
@@ -54,13 +56,15 @@ FRAME_ONLY_WINDOW = 20  # steps per training row of the one-frame estimator (win
 @struct.dataclass
 class Episodes:
     """Recorded episodes: obs [E, T, H, W, C] float16 (the env's), action [E, T] int32 taken after each obs,
-    label [E, T, 3] the true error when the obs was taken, alive [E, T] bool, target [E] the catalogue index."""
+    label [E, T, 3] the true error when the obs was taken, alive [E, T] bool, target [E] the catalogue index,
+    spin [E, T, 3] the target's angular velocity then (rad/s, camera frame; read only with --spin-input)."""
 
     obs: jax.Array
     action: jax.Array
     label: jax.Array
     alive: jax.Array
     target: jax.Array
+    spin: jax.Array
 
 
 def behaviour(camera: env_lib.CameraConfig, max_offset: float, random_share: float) -> Policy:
@@ -100,7 +104,8 @@ def collect(targets: tuple[str, ...], per_target: int, steps: int, key: jax.Arra
             action, pstate = jax.vmap(policy.act, in_axes=(0, 0, 0, 0, None))(
                 jax.random.split(k_act, per_target), pstate, obs, state, params)
             label = jax.vmap(greedy.true_tracking_state, in_axes=(0, None))(state, params)[:, :LABEL]
-            record = (obs.astype(jnp.float16), action, label, alive)
+            spin = jax.vmap(lambda s: env_lib.state_rotation(s, params.mean_motion) @ s.target_omega)(state)
+            record = (obs.astype(jnp.float16), action, label, alive, spin)
             obs, state, _, terminated, truncated, _ = jax.vmap(tracking_env.step_env, in_axes=(0, 0, 0, None))(
                 jax.random.split(k_env, per_target), state, action, params)
             return (obs, state, pstate, alive & ~(terminated | truncated)), record
@@ -111,15 +116,17 @@ def collect(targets: tuple[str, ...], per_target: int, steps: int, key: jax.Arra
 
     base = tracking_env.eval_params(max_steps=steps)
     parts = [run(tracking_env.pinned(base, i), jax.random.fold_in(key, i)) for i in range(len(targets))]
-    obs, action, label, alive = (jnp.concatenate(x) for x in zip(*parts))
+    obs, action, label, alive, spin = (jnp.concatenate(x) for x in zip(*parts))
     target = jnp.repeat(jnp.arange(len(targets)), per_target)
-    return Episodes(obs=obs, action=action, label=label, alive=alive, target=target)
+    return Episodes(obs=obs, action=action, label=label, alive=alive, target=target, spin=spin)
 
 
-def _aux_pass(net, params, obs, reset, state, actions):
-    """The network over a window: (aux [B, W, 3] float32, the state after it)."""
+def _aux_pass(net, params, obs, reset, state, actions, spin):
+    """The network over a window: (aux [B, W, 3] float32, the state after it); ``spin`` [B, W, 3] is its state
+    input's first three entries when it has one (--spin-input)."""
+    spin_input = jnp.concatenate([spin, jnp.zeros_like(spin)], axis=-1) if net.config.state_input else None
     (_, new_state), variables = net.apply({"params": params}, obs.astype(jnp.float32), reset, state, actions=actions,
-                                          mutable=["intermediates"])
+                                          true_state=spin_input, mutable=["intermediates"])
     return variables["intermediates"]["aux"][0].astype(jnp.float32), new_state
 
 
@@ -129,10 +136,10 @@ def _masked_error(aux: jax.Array, label: jax.Array, alive: jax.Array) -> jax.Arr
 
 
 @functools.partial(jax.jit, static_argnums=(0, 1))
-def _update(net, optimiser, params, opt_state, state, obs, reset, actions, label, alive):
+def _update(net, optimiser, params, opt_state, state, obs, reset, actions, label, alive, spin):
     """One gradient step on one window of each episode of the batch; the state flows on with no gradient."""
     def loss_fn(p):
-        aux, new_state = _aux_pass(net, p, obs, reset, state, actions)
+        aux, new_state = _aux_pass(net, p, obs, reset, state, actions, spin)
         return _masked_error(aux, label, alive), new_state
 
     (loss, new_state), grads = jax.value_and_grad(loss_fn, has_aux=True)(params)
@@ -143,9 +150,11 @@ def _update(net, optimiser, params, opt_state, state, obs, reset, actions, label
             jax.lax.stop_gradient(new_state), loss)
 
 
-def estimator_network(overrides: dict | None = None) -> NetworkConfig:
+def estimator_network(overrides: dict | None = None, spin_input: bool = False) -> NetworkConfig:
     """The `quick` preset's network with ``overrides`` ({field: value}, validated by NetworkConfig); ValueError for
-    one this fit cannot train (it reads only the frames and actions, and fits a 3-entry auxiliary head)."""
+    one this fit cannot train (it reads only the frames and actions, and fits a 3-entry auxiliary head).
+    ``spin_input``: a diagnostic, the target's true angular velocity at the LSTM's input too (10x, as the state
+    diagnostics read the error; Episodes.spin)."""
     config = dataclasses.replace(presets.preset("quick").network, **(overrides or {}))
     if config.aux_outputs != LABEL or not config.recurrent:
         raise ValueError(f"the estimator fits a recurrent network's aux head to {LABEL} entries, got aux_outputs "
@@ -153,6 +162,8 @@ def estimator_network(overrides: dict | None = None) -> NetworkConfig:
     if config.norm == "batch" or config.state_input or config.reads_standoff:
         raise ValueError("the estimator reads frames and actions only: norm 'batch', state_input and the stand-off "
                          "inputs are not supported")
+    if spin_input:
+        config = dataclasses.replace(config, state_input=True, state_input_entries=(0, 1, 2), state_input_gain=10.0)
     return config
 
 
@@ -175,7 +186,7 @@ def train(episodes: Episodes, window: int, frames_per_update: int, updates: int,
     key, k_init = jax.random.split(key)
     obs_shape = episodes.obs.shape[2:]
     params = net.init(k_init, jnp.zeros((1, 1, *obs_shape)), jnp.ones((1, 1), bool),
-                      initial_state(config, 1, obs_shape))["params"]
+                      initial_state(config, 1, obs_shape), true_state=jnp.zeros((1, 1, 6)))["params"]
     optimiser = optax.chain(optax.clip_by_global_norm(1.0), optax.adam(lr))
     opt_state, losses, chunks = optimiser.init(params), [], steps // window
     desc = "one frame" if frame_only else f"window {window}"
@@ -189,7 +200,7 @@ def train(episodes: Episodes, window: int, frames_per_update: int, updates: int,
         reset = jnp.zeros((batch, window), bool).at[:, 0].set(chunk == 0) | frame_only
         params, opt_state, state, loss = _update(net, optimiser, params, opt_state, state, episodes.obs[rows, span],
                                                  reset, episodes.action[rows, span], episodes.label[rows, span],
-                                                 episodes.alive[rows, span])
+                                                 episodes.alive[rows, span], episodes.spin[rows, span])
         losses.append(float(loss))
     return params, losses
 
@@ -206,7 +217,8 @@ def estimate(params, episodes: Episodes, chunk: int = 100, frame_only: bool = Fa
     for start in range(0, steps, chunk):
         span = slice(start, start + chunk)
         reset = jnp.zeros((count, min(chunk, steps - start)), bool).at[:, 0].set(start == 0) | frame_only
-        aux, state = run(params, episodes.obs[:, span], reset, state, episodes.action[:, span])
+        aux, state = run(params, episodes.obs[:, span], reset, state, episodes.action[:, span],
+                         episodes.spin[:, span])
         out.append(np.asarray(aux))
     return np.concatenate(out, axis=1)
 
@@ -265,6 +277,8 @@ def main() -> None:
     ap.add_argument("--skip", type=int, default=100, help="steps left out of the error (the approach)")
     ap.add_argument("--network", nargs="*", default=[], metavar="FIELD=VALUE",
                     help="NetworkConfig fields over the quick preset's, e.g. kernels=(8,2,3) strides=(8,2,1)")
+    ap.add_argument("--spin-input", action="store_true",
+                    help="a diagnostic: the target's true angular velocity at the LSTM's input too")
     ap.add_argument("--train-targets", default="train", help="a split or names / MJCF files, as `ramavt eval` takes")
     ap.add_argument("--eval-targets", default="val", help="the targets of the evaluated episodes, likewise")
     ap.add_argument("--agents", nargs="*", default=[], metavar="RUN",
@@ -280,7 +294,7 @@ def main() -> None:
         ap.error("--windows must be >= 0, --updates >= 1 and --skip < --steps")
     try:
         overrides = {k: ast.literal_eval(v) for k, v in (item.split("=", 1) for item in args.network)}
-        config = estimator_network(overrides)
+        config = estimator_network(overrides, args.spin_input)
         train_names = rollouts.resolve_targets(args.train_targets)
         val_names = rollouts.resolve_targets(args.eval_targets)
     except (ValueError, SyntaxError, TypeError) as e:

@@ -43,6 +43,9 @@ def test_each_recorded_frame_comes_with_the_state_it_was_drawn_from(episodes):
     true = jax.vmap(greedy.true_tracking_state, in_axes=(0, None))(states, params)[:, :3]
     np.testing.assert_allclose(eps.label[:2, 0], true, atol=1e-6)
     assert not np.allclose(eps.label[:2, 1], true, atol=1e-4)  # the label moves with the frame
+    spin = jax.vmap(lambda s: env_lib.state_rotation(s, params.mean_motion) @ s.target_omega)(states)
+    np.testing.assert_allclose(eps.spin[:2, 0], spin, atol=1e-6)
+    assert np.all(np.linalg.norm(np.asarray(spin), axis=-1) > 0.0)
     seen = centre_estimator.visible_centroid(eps, CAMERA)[:2, 0]  # from the stored float16 frames
     expected = jax.jit(jax.vmap(lambda s: greedy.visible_tracking_state(s, params, CAMERA)))(states)[:, :3]
     np.testing.assert_allclose(seen, expected, atol=2e-3)
@@ -76,3 +79,16 @@ def test_fewer_frames_per_update_than_a_window_are_refused(episodes):
 def test_a_run_without_a_three_entry_aux_head_is_refused(every_chunk_run, episodes):
     with pytest.raises(ValueError, match="aux head"):  # the smoke preset's network has none
         centre_estimator.agent_rows([str(every_chunk_run)], episodes, TARGETS, skip=5)
+
+
+def test_the_spin_input_reaches_the_estimate(episodes):
+    config = centre_estimator.estimator_network(spin_input=True)
+    assert config.state_input and config.state_input_entries == (0, 1, 2)
+    net = centre_estimator.make_network(config)
+    obs, reset, actions = episodes.obs[:1, :3], np.zeros((1, 3), bool), episodes.action[:1, :3]
+    state = centre_estimator.initial_state(config, 1, obs.shape[2:])
+    params = net.init(jax.random.PRNGKey(0), obs.astype(np.float32), reset, state, actions=actions,
+                      true_state=np.zeros((1, 3, 6), np.float32))["params"]
+    still, _ = centre_estimator._aux_pass(net, params, obs, reset, state, actions, np.zeros((1, 3, 3), np.float32))
+    turning, _ = centre_estimator._aux_pass(net, params, obs, reset, state, actions, episodes.spin[:1, :3] * 10)
+    assert not np.allclose(still, turning)
