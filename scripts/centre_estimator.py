@@ -19,7 +19,7 @@ reports the estimate's error after the first `--skip` steps, in metres / k (plai
 across the image, along the boresight, and in 3-D. `visible centroid` is the error of the newest frame's visible
 surface centroid on the same frames (those with a target pixel: it has no estimate on the others); `desired point`
 the error of guessing that the centre is where it should be (an estimate that has learned nothing).
-`--spin-input` (a diagnostic) gives the network the target's true angular velocity in the camera frame beside its
+`--spin-input` (a diagnostic) gives the network the target's true (inertial) angular velocity in camera axes beside its
 image features: whether, knowing how the target turns, it finds the centre the surface turns about.
 `scripts/centre_precision.py` gives the yardstick: the ceiling told a centre
 0.1 m off keeps about 92 % of its return, 0.2 m off about 81 %, 0.3 m off about 70 %.
@@ -46,7 +46,7 @@ from ramavt_jax import baselines, greedy, presets
 from ramavt_jax import env as env_lib
 from ramavt_jax.baselines import Policy
 from ramavt_jax.evaluation import rollouts, runs
-from ramavt_jax.network import NetworkConfig, initial_state, make_network
+from ramavt_jax.network import TRUE_STATE_SIZE, NetworkConfig, initial_state, make_network
 from ramavt_jax.render import camera_rays
 
 LABEL = 3  # the tracking error's entries (stand-off distances), the auxiliary head's outputs
@@ -57,7 +57,8 @@ FRAME_ONLY_WINDOW = 20  # steps per training row of the one-frame estimator (win
 class Episodes:
     """Recorded episodes: obs [E, T, H, W, C] float16 (the env's), action [E, T] int32 taken after each obs,
     label [E, T, 3] the true error when the obs was taken, alive [E, T] bool, target [E] the catalogue index,
-    spin [E, T, 3] the target's angular velocity then (rad/s, camera frame; read only with --spin-input)."""
+    spin [E, T, 3] the target's inertial angular velocity then, in camera axes (rad/s; the camera's own turn with
+    the Hill frame, about 0.001 rad/s, not removed; read only with --spin-input)."""
 
     obs: jax.Array
     action: jax.Array
@@ -186,7 +187,7 @@ def train(episodes: Episodes, window: int, frames_per_update: int, updates: int,
     key, k_init = jax.random.split(key)
     obs_shape = episodes.obs.shape[2:]
     params = net.init(k_init, jnp.zeros((1, 1, *obs_shape)), jnp.ones((1, 1), bool),
-                      initial_state(config, 1, obs_shape), true_state=jnp.zeros((1, 1, 6)))["params"]
+                      initial_state(config, 1, obs_shape), true_state=jnp.zeros((1, 1, TRUE_STATE_SIZE)))["params"]
     optimiser = optax.chain(optax.clip_by_global_norm(1.0), optax.adam(lr))
     opt_state, losses, chunks = optimiser.init(params), [], steps // window
     desc = "one frame" if frame_only else f"window {window}"

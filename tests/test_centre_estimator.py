@@ -90,5 +90,9 @@ def test_the_spin_input_reaches_the_estimate(episodes):
     params = net.init(jax.random.PRNGKey(0), obs.astype(np.float32), reset, state, actions=actions,
                       true_state=np.zeros((1, 3, 6), np.float32))["params"]
     still, _ = centre_estimator._aux_pass(net, params, obs, reset, state, actions, np.zeros((1, 3, 3), np.float32))
-    turning, _ = centre_estimator._aux_pass(net, params, obs, reset, state, actions, episodes.spin[:1, :3] * 10)
+    turning, _ = centre_estimator._aux_pass(net, params, obs, reset, state, actions, episodes.spin[:1, :3])
     assert not np.allclose(still, turning)
+    short = jax.tree.map(lambda x: x[:1, :20] if x.ndim > 1 else x[:1], episodes)  # estimate() hands the spin on
+    spun = centre_estimator.estimate(params, short, chunk=20, config=config)
+    unspun = centre_estimator.estimate(params, short.replace(spin=np.zeros_like(short.spin)), chunk=20, config=config)
+    assert not np.allclose(spun, unspun)
