@@ -20,7 +20,9 @@ across the image, along the boresight, and in 3-D. `visible centroid` is the err
 surface centroid on the same frames (those with a target pixel: it has no estimate on the others); `desired point`
 the error of guessing that the centre is where it should be (an estimate that has learned nothing).
 `--spin-input` (a diagnostic) gives the network the target's true (inertial) angular velocity in camera axes beside its
-image features: whether, knowing how the target turns, it finds the centre the surface turns about.
+image features: whether, knowing how the target turns, it finds the centre the surface turns about;
+`--velocity-input` the target's true velocity relative to the chaser (greedy.true_tracking_state's last three
+entries), which with the spin fixes how every surface point moves.
 `scripts/centre_precision.py` gives the yardstick: the ceiling told a centre
 0.1 m off keeps about 92 % of its return, 0.2 m off about 81 %, 0.3 m off about 70 %.
 """
@@ -57,15 +59,16 @@ FRAME_ONLY_WINDOW = 20  # steps per training row of the one-frame estimator (win
 class Episodes:
     """Recorded episodes: obs [E, T, H, W, C] float16 (the env's), action [E, T] int32 taken after each obs,
     label [E, T, 3] the true error when the obs was taken, alive [E, T] bool, target [E] the catalogue index,
-    spin [E, T, 3] the target's inertial angular velocity then, in camera axes (rad/s; the camera's own turn with
-    the Hill frame, about 0.001 rad/s, not removed; read only with --spin-input)."""
+    motion [E, T, 6] then: the target's inertial angular velocity in camera axes (rad/s; the camera's own turn with
+    the Hill frame, about 0.001 rad/s, not removed), then its velocity relative to the chaser (stand-off distances
+    per second, greedy.true_tracking_state); read only with --spin-input / --velocity-input."""
 
     obs: jax.Array
     action: jax.Array
     label: jax.Array
     alive: jax.Array
     target: jax.Array
-    spin: jax.Array
+    motion: jax.Array
 
 
 def behaviour(camera: env_lib.CameraConfig, max_offset: float, random_share: float) -> Policy:
@@ -104,9 +107,10 @@ def collect(targets: tuple[str, ...], per_target: int, steps: int, key: jax.Arra
             k_act, k_env = jax.random.split(step_key)
             action, pstate = jax.vmap(policy.act, in_axes=(0, 0, 0, 0, None))(
                 jax.random.split(k_act, per_target), pstate, obs, state, params)
-            label = jax.vmap(greedy.true_tracking_state, in_axes=(0, None))(state, params)[:, :LABEL]
+            true = jax.vmap(greedy.true_tracking_state, in_axes=(0, None))(state, params)
             spin = jax.vmap(lambda s: env_lib.state_rotation(s, params.mean_motion) @ s.target_omega)(state)
-            record = (obs.astype(jnp.float16), action, label, alive, spin)
+            motion = jnp.concatenate([spin, true[:, LABEL:]], axis=-1)
+            record = (obs.astype(jnp.float16), action, true[:, :LABEL], alive, motion)
             obs, state, _, terminated, truncated, _ = jax.vmap(tracking_env.step_env, in_axes=(0, 0, 0, None))(
                 jax.random.split(k_env, per_target), state, action, params)
             return (obs, state, pstate, alive & ~(terminated | truncated)), record
@@ -117,17 +121,17 @@ def collect(targets: tuple[str, ...], per_target: int, steps: int, key: jax.Arra
 
     base = tracking_env.eval_params(max_steps=steps)
     parts = [run(tracking_env.pinned(base, i), jax.random.fold_in(key, i)) for i in range(len(targets))]
-    obs, action, label, alive, spin = (jnp.concatenate(x) for x in zip(*parts))
+    obs, action, label, alive, motion = (jnp.concatenate(x) for x in zip(*parts))
     target = jnp.repeat(jnp.arange(len(targets)), per_target)
-    return Episodes(obs=obs, action=action, label=label, alive=alive, target=target, spin=spin)
+    return Episodes(obs=obs, action=action, label=label, alive=alive, target=target, motion=motion)
 
 
-def _aux_pass(net, params, obs, reset, state, actions, spin):
-    """The network over a window: (aux [B, W, 3] float32, the state after it); ``spin`` [B, W, 3] is its state
-    input's first three entries when it has one (--spin-input)."""
-    spin_input = jnp.concatenate([spin, jnp.zeros_like(spin)], axis=-1) if net.config.state_input else None
+def _aux_pass(net, params, obs, reset, state, actions, motion):
+    """The network over a window: (aux [B, W, 3] float32, the state after it); ``motion`` [B, W, 6] (Episodes) is
+    its state input when it has one, the entries its config picks (--spin-input, --velocity-input)."""
     (_, new_state), variables = net.apply({"params": params}, obs.astype(jnp.float32), reset, state, actions=actions,
-                                          true_state=spin_input, mutable=["intermediates"])
+                                          true_state=motion if net.config.state_input else None,
+                                          mutable=["intermediates"])
     return variables["intermediates"]["aux"][0].astype(jnp.float32), new_state
 
 
@@ -137,10 +141,10 @@ def _masked_error(aux: jax.Array, label: jax.Array, alive: jax.Array) -> jax.Arr
 
 
 @functools.partial(jax.jit, static_argnums=(0, 1))
-def _update(net, optimiser, params, opt_state, state, obs, reset, actions, label, alive, spin):
+def _update(net, optimiser, params, opt_state, state, obs, reset, actions, label, alive, motion):
     """One gradient step on one window of each episode of the batch; the state flows on with no gradient."""
     def loss_fn(p):
-        aux, new_state = _aux_pass(net, p, obs, reset, state, actions, spin)
+        aux, new_state = _aux_pass(net, p, obs, reset, state, actions, motion)
         return _masked_error(aux, label, alive), new_state
 
     (loss, new_state), grads = jax.value_and_grad(loss_fn, has_aux=True)(params)
@@ -151,11 +155,12 @@ def _update(net, optimiser, params, opt_state, state, obs, reset, actions, label
             jax.lax.stop_gradient(new_state), loss)
 
 
-def estimator_network(overrides: dict | None = None, spin_input: bool = False) -> NetworkConfig:
+def estimator_network(overrides: dict | None = None, spin_input: bool = False,
+                      velocity_input: bool = False) -> NetworkConfig:
     """The `quick` preset's network with ``overrides`` ({field: value}, validated by NetworkConfig); ValueError for
     one this fit cannot train (it reads only the frames and actions, and fits a 3-entry auxiliary head).
-    ``spin_input``: a diagnostic, the target's true angular velocity at the LSTM's input too (10x, as the state
-    diagnostics read the error; Episodes.spin)."""
+    ``spin_input`` / ``velocity_input``: diagnostics, the target's true angular velocity / relative velocity at the
+    LSTM's input too (10x, as the state diagnostics read the error; Episodes.motion)."""
     config = dataclasses.replace(presets.preset("quick").network, **(overrides or {}))
     if config.aux_outputs != LABEL or not config.recurrent:
         raise ValueError(f"the estimator fits a recurrent network's aux head to {LABEL} entries, got aux_outputs "
@@ -163,8 +168,9 @@ def estimator_network(overrides: dict | None = None, spin_input: bool = False) -
     if config.norm == "batch" or config.state_input or config.reads_standoff:
         raise ValueError("the estimator reads frames and actions only: norm 'batch', state_input and the stand-off "
                          "inputs are not supported")
-    if spin_input:
-        config = dataclasses.replace(config, state_input=True, state_input_entries=(0, 1, 2), state_input_gain=10.0)
+    entries = (0, 1, 2) * spin_input + (3, 4, 5) * velocity_input
+    if entries:
+        config = dataclasses.replace(config, state_input=True, state_input_entries=entries, state_input_gain=10.0)
     return config
 
 
@@ -201,7 +207,7 @@ def train(episodes: Episodes, window: int, frames_per_update: int, updates: int,
         reset = jnp.zeros((batch, window), bool).at[:, 0].set(chunk == 0) | frame_only
         params, opt_state, state, loss = _update(net, optimiser, params, opt_state, state, episodes.obs[rows, span],
                                                  reset, episodes.action[rows, span], episodes.label[rows, span],
-                                                 episodes.alive[rows, span], episodes.spin[rows, span])
+                                                 episodes.alive[rows, span], episodes.motion[rows, span])
         losses.append(float(loss))
     return params, losses
 
@@ -219,7 +225,7 @@ def estimate(params, episodes: Episodes, chunk: int = 100, frame_only: bool = Fa
         span = slice(start, start + chunk)
         reset = jnp.zeros((count, min(chunk, steps - start)), bool).at[:, 0].set(start == 0) | frame_only
         aux, state = run(params, episodes.obs[:, span], reset, state, episodes.action[:, span],
-                         episodes.spin[:, span])
+                         episodes.motion[:, span])
         out.append(np.asarray(aux))
     return np.concatenate(out, axis=1)
 
@@ -280,6 +286,8 @@ def main() -> None:
                     help="NetworkConfig fields over the quick preset's, e.g. kernels=(8,2,3) strides=(8,2,1)")
     ap.add_argument("--spin-input", action="store_true",
                     help="a diagnostic: the target's true angular velocity at the LSTM's input too")
+    ap.add_argument("--velocity-input", action="store_true",
+                    help="a diagnostic: the target's true velocity relative to the chaser at the LSTM's input too")
     ap.add_argument("--train-targets", default="train", help="a split or names / MJCF files, as `ramavt eval` takes")
     ap.add_argument("--eval-targets", default="val", help="the targets of the evaluated episodes, likewise")
     ap.add_argument("--agents", nargs="*", default=[], metavar="RUN",
@@ -295,7 +303,7 @@ def main() -> None:
         ap.error("--windows must be >= 0, --updates >= 1 and --skip < --steps")
     try:
         overrides = {k: ast.literal_eval(v) for k, v in (item.split("=", 1) for item in args.network)}
-        config = estimator_network(overrides, args.spin_input)
+        config = estimator_network(overrides, args.spin_input, args.velocity_input)
         train_names = rollouts.resolve_targets(args.train_targets)
         val_names = rollouts.resolve_targets(args.eval_targets)
     except (ValueError, SyntaxError, TypeError) as e:
