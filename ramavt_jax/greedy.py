@@ -17,7 +17,7 @@ from ramavt_jax.render import CameraConfig, camera_rays
 
 __all__ = ["BLIND_SEARCHES", "GreedyState", "greedy_policy", "stack_params", "GreedyPolicyOf", "unbatch_state",
            "batch_state", "standoff_signal", "true_tracking_state", "visible_tracking_state", "tracking_state_of",
-           "privileged_of", "privileged_size"]
+           "privileged_of", "privileged_size", "surface_centroid"]
 
 
 def standoff_signal(network: NetworkConfig, env_state: env_lib.EnvState, env_params: env_lib.EnvParams):
@@ -41,6 +41,15 @@ def true_tracking_state(env_state: env_lib.EnvState, env_params: env_lib.EnvPara
     return jnp.concatenate([error, velocity / env_state.scale / p.desired_pos[2]])
 
 
+def surface_centroid(depth: jax.Array, camera: CameraConfig) -> tuple[jax.Array, jax.Array]:
+    """Of a z-depth image [H, W] (0 where nothing is hit): ([3] the mean camera-frame point of its hit pixels, each
+    back-projected along its ray at its depth, in the depth's units; [] how many there are)."""
+    hit = depth > 0
+    count = jnp.sum(hit)
+    points = camera_rays(camera) * depth[..., None]  # [H, W, 3]: ray (x, y, 1) times z depth
+    return jnp.sum(jnp.where(hit[..., None], points, 0.0), axis=(0, 1)) / jnp.maximum(count, 1), count
+
+
 def visible_tracking_state(env_state: env_lib.EnvState, env_params: env_lib.EnvParams, camera: CameraConfig,
                            image_only: bool = False) -> jax.Array:
     """[6] true_tracking_state with the error measured to the centroid of the target's visible surface instead of
@@ -54,11 +63,7 @@ def visible_tracking_state(env_state: env_lib.EnvState, env_params: env_lib.EnvP
     if env_state.frames.shape[-1] not in (1, 4):
         raise ValueError(f"visible_tracking_state needs a depth channel ('depth' or 'rgbd' observations), got "
                          f"{env_state.frames.shape[-1]} channels")
-    depth = env_state.frames[-1][..., -1] * camera.far  # [H, W] m / k, 0 where no hit
-    hit = depth > 0
-    count = jnp.sum(hit)
-    points = camera_rays(camera) * depth[..., None]  # [H, W, 3]: ray (x, y, 1) times z depth
-    centroid = jnp.sum(jnp.where(hit[..., None], points, 0.0), axis=(0, 1)) / jnp.maximum(count, 1)
+    centroid, count = surface_centroid(env_state.frames[-1][..., -1] * camera.far, camera)  # m / k
     error = (centroid - env_params.desired_pos) / env_params.desired_pos[2]
     if image_only:
         return jnp.concatenate([jnp.where(count > 0, error, 0.0), jnp.zeros(3, error.dtype)])

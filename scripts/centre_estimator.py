@@ -43,13 +43,12 @@ import optax
 from flax import struct
 from tqdm import tqdm
 
-from centre_precision import _told  # scripts/ is the running script's own folder, first on sys.path
+from centre_precision import offset_ceiling  # scripts/ is the running script's own folder, first on sys.path
 from ramavt_jax import baselines, greedy, presets
 from ramavt_jax import env as env_lib
 from ramavt_jax.baselines import Policy
 from ramavt_jax.evaluation import rollouts, runs
 from ramavt_jax.network import TRUE_STATE_SIZE, NetworkConfig, initial_state, make_network
-from ramavt_jax.render import camera_rays
 
 LABEL = 3  # the tracking error's entries (stand-off distances), the auxiliary head's outputs
 FRAME_ONLY_WINDOW = 20  # steps per training row of the one-frame estimator (window 0): a batch shape, no memory
@@ -74,20 +73,7 @@ class Episodes:
 def behaviour(camera: env_lib.CameraConfig, max_offset: float, random_share: float) -> Policy:
     """The ceiling told a centre off by a fixed vector per episode, of size uniform in [0, max_offset] m * k, with
     a uniformly random action instead of its own on a share ``random_share`` of the steps."""
-    ceiling = baselines.make_policy("mpc", camera)
-
-    def init(key):
-        k_dir, k_size = jax.random.split(key)
-        direction = jax.random.normal(k_dir, (3,))
-        return jax.random.uniform(k_size, (), maxval=max_offset) * direction / jnp.linalg.norm(direction)
-
-    def act(key, offset, obs, state, params):
-        k_plan, k_coin, k_random = jax.random.split(key, 3)
-        action, _ = ceiling.act(k_plan, ceiling.init(k_plan), obs, _told(state, offset * state.scale), params)
-        random_action = jax.random.randint(k_random, (), 0, env_lib.NUM_ACTIONS)
-        return jnp.where(jax.random.uniform(k_coin) < random_share, random_action, action), offset
-
-    return Policy("offset ceiling", init, act)
+    return offset_ceiling(baselines.make_policy("mpc", camera), max_offset, True, random_share)
 
 
 def collect(targets: tuple[str, ...], per_target: int, steps: int, key: jax.Array, camera: env_lib.CameraConfig,
@@ -208,8 +194,8 @@ def train(episodes: Episodes, window: int, frames_per_update: int, updates: int,
         params, opt_state, state, loss = _update(net, optimiser, params, opt_state, state, episodes.obs[rows, span],
                                                  reset, episodes.action[rows, span], episodes.label[rows, span],
                                                  episodes.alive[rows, span], episodes.motion[rows, span])
-        losses.append(float(loss))
-    return params, losses
+        losses.append(loss)  # kept on the device: no host sync per update
+    return params, [float(x) for x in np.asarray(jnp.stack(losses))]
 
 
 def estimate(params, episodes: Episodes, chunk: int = 100, frame_only: bool = False,
@@ -234,11 +220,9 @@ def visible_centroid(episodes: Episodes, camera: env_lib.CameraConfig,
                      desired: np.ndarray = np.array([0.0, 0.0, 5.0])) -> np.ndarray:
     """[E, T, 3] the error to the newest frame's visible-surface centroid (greedy.visible_tracking_state's, from the
     recorded depth; NaN on a frame without the target)."""
-    depth = np.asarray(episodes.obs[..., -1], np.float32) * camera.far  # [E, T, H, W] m / k
-    hit = depth > 0
-    points = np.asarray(camera_rays(camera)) * depth[..., None]
-    count = hit.sum((2, 3))
-    centroid = points.sum((2, 3)) / np.maximum(count, 1)[..., None]
+    depth = jnp.asarray(episodes.obs[..., -1], jnp.float32) * camera.far  # [E, T, H, W] m / k
+    centroid, count = jax.vmap(jax.vmap(lambda d: greedy.surface_centroid(d, camera)))(depth)
+    centroid, count = np.asarray(centroid), np.asarray(count)
     return np.where(count[..., None] > 0, (centroid - desired) / desired[2], np.nan)
 
 

@@ -35,21 +35,30 @@ from ramavt_jax.evaluation import rollouts, tables
 VISIBLE_AXES = {"visible": (1.0, 1.0, 1.0), "visible lateral": (1.0, 1.0, 0.0), "visible range": (0.0, 0.0, 1.0)}
 
 
-def _told(state: env_lib.EnvState, offset_cam: jax.Array) -> env_lib.EnvState:
+def told_centre(state: env_lib.EnvState, offset_cam: jax.Array) -> env_lib.EnvState:
     """The env state with the target's centre moved by ``offset_cam`` [3] m (camera frame): what the planner reads."""
     return state.replace(target_pos=state.target_pos + env_lib.HILL_FROM_CAM @ offset_cam)
 
 
-def offset_ceiling(ceiling: Policy, size: float) -> Policy:
-    """``ceiling`` told a centre ``size`` * k metres off the true one, in a direction drawn per episode."""
+def offset_ceiling(ceiling: Policy, size: float, random_size: bool = False, random_share: float = 0.0) -> Policy:
+    """``ceiling`` told a centre ``size`` * k metres off the true one (``random_size``: a size uniform in [0, size]),
+    in a direction drawn per episode; with a uniformly random action instead of its own on a share ``random_share``
+    of the steps (scripts/centre_estimator.py's behaviour)."""
 
     def init(key):
+        if random_size:
+            key, k_size = jax.random.split(key)
         direction = jax.random.normal(key, (3,))
-        return size * direction / jnp.linalg.norm(direction)
+        scale = jax.random.uniform(k_size, (), maxval=size) if random_size else size
+        return scale * direction / jnp.linalg.norm(direction)
 
     def act(key, offset, obs, state, params):
         k_init, k_act = jax.random.split(key)
-        action, _ = ceiling.act(k_act, ceiling.init(k_init), obs, _told(state, offset * state.scale), params)
+        action, _ = ceiling.act(k_act, ceiling.init(k_init), obs, told_centre(state, offset * state.scale), params)
+        if random_share:
+            k_coin, k_random = jax.random.split(key, 3)[1:]
+            random_action = jax.random.randint(k_random, (), 0, env_lib.NUM_ACTIONS)
+            action = jnp.where(jax.random.uniform(k_coin) < random_share, random_action, action)
         return action, offset
 
     return Policy(f"offset {size}", init, act)
@@ -70,7 +79,7 @@ def visible_ceiling(ceiling: Policy, camera: env_lib.CameraConfig, axes: tuple[f
 
     def act(key, pstate, obs, state, params):
         k_init, k_act = jax.random.split(key)
-        told = _told(state, visible_offset(state, params, camera, axes))
+        told = told_centre(state, visible_offset(state, params, camera, axes))
         action, _ = ceiling.act(k_act, ceiling.init(k_init), obs, told, params)
         return action, pstate
 

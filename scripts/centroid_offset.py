@@ -18,10 +18,9 @@ import jax.numpy as jnp
 import numpy as np
 
 from ramavt_jax import env as env_lib
-from ramavt_jax import render, rotations
+from ramavt_jax import greedy, render, rotations
 from ramavt_jax import targets as targets_lib
 from ramavt_jax.evaluation import rollouts
-from ramavt_jax.render.camera import camera_rays
 
 STANDOFF = 5.0  # m, the nominal desired distance
 
@@ -31,16 +30,11 @@ def centroid_offsets(target: targets_lib.TargetModel, rotations_b: jax.Array, ca
     {'sideways': [B'] m, 'distance': [B'] m} over the B' <= B attitudes in which the target is seen."""
     frames = jax.jit(jax.vmap(lambda r: render.render(target, jnp.array([0.0, 0.0, STANDOFF]), r, cam,
                                                       render.default_lighting(), False)))(rotations_b)
-    depth, hit = np.asarray(frames.depth), np.asarray(frames.hit)
-    points = np.asarray(camera_rays(cam))[None] * depth[..., None]  # [B, H, W, 3] camera frame
-    sideways, distance = [], []
-    for b in range(depth.shape[0]):
-        if not hit[b].any():
-            continue
-        centre = points[b][hit[b]].mean(axis=0)
-        sideways.append(np.linalg.norm(centre[:2] / centre[2] * STANDOFF))
-        distance.append(np.linalg.norm(centre - np.array([0.0, 0.0, STANDOFF])))
-    return {"sideways": np.asarray(sideways), "distance": np.asarray(distance)}
+    depth = jnp.where(frames.hit, frames.depth, 0.0)  # [B, H, W] m, 0 where the target is not hit
+    centres, counts = jax.vmap(lambda d: greedy.surface_centroid(d, cam))(depth)
+    centres = np.asarray(centres)[np.asarray(counts) > 0]  # camera frame, the attitudes in which it is seen
+    return {"sideways": np.linalg.norm(centres[:, :2] / centres[:, 2:] * STANDOFF, axis=1),
+            "distance": np.linalg.norm(centres - np.array([0.0, 0.0, STANDOFF]), axis=1)}
 
 
 def main() -> None:

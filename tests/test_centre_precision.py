@@ -31,7 +31,7 @@ def capsule():
 def test_the_told_centre_moves_by_the_offset_in_the_camera_frame(capsule):
     state, _ = capsule
     offset = jnp.array([0.3, -0.2, 0.5])
-    moved = env_lib.relative_position(centre_precision._told(state, offset)) - env_lib.relative_position(state)
+    moved = env_lib.relative_position(centre_precision.told_centre(state, offset)) - env_lib.relative_position(state)
     np.testing.assert_allclose(moved, offset, atol=1e-5)
 
 
@@ -42,7 +42,7 @@ def test_the_visible_arms_tell_the_surface_centroid_on_their_axes_only(capsule):
     assert np.linalg.norm(seen - true) > 0.1  # the capsule's seen surface lies in front of its centre
     for axes in centre_precision.VISIBLE_AXES.values():
         told = env_lib.relative_position(
-            centre_precision._told(state, centre_precision.visible_offset(state, params, CAMERA, axes)))
+            centre_precision.told_centre(state, centre_precision.visible_offset(state, params, CAMERA, axes)))
         np.testing.assert_allclose(told, np.where(np.asarray(axes) > 0, seen, true), atol=1e-4)
 
 
