@@ -1,0 +1,207 @@
+"""Can the centre of mass be found from the frames' motion, without learning? Two geometric estimates, no network,
+on the episodes scripts/centre_estimator.py scores its fits on (the validation targets, 4 episodes each, the same
+behaviour and seed):
+
+    python scripts/centre_from_motion.py --out results/val/centre_from_motion.json
+
+1. The rigid motion between two depth frames (range flow). A surface point X of a rigid body moves at
+   V(X) = a + w x X (camera frame, w the spin, a the velocity of the body point at the camera's origin). Where the
+   surface is smooth, the z depth d of a fixed pixel with ray r (z component 1) and unit surface normal n changes
+   at d' (n . r) = n . V(X) = n . a + (X x n) . w: one linear equation per pixel in the six unknowns (a, w),
+   solved by least squares over the target's pixels (those whose four neighbours are hit too, with no depth jump
+   over `--jump` m), in one frame pair or summed over `--spin-windows` pairs (the chaser's own velocity, known from
+   its commands, taken out of a, which is then held fixed over the window). The spin is what tells where the centre
+   is (a = v - w x c, v the centre's velocity): an estimate of the centre from the frames' motion can be no better
+   than the spin it is built on. Reported: the spin's error relative to its size, against the true spin.
+2. The visible surface's centroid averaged over time (a polynomial of `--degree` fitted to the last `--windows`
+   steps, evaluated at the newest). The chaser's own displacement, dead-reckoned from its commands (exact here: no
+   actuator noise, no lag), is added before the fit and taken out after, so that what is averaged moves like the
+   target alone. If the target turned through a large angle within the window, the centroid's offset from the
+   centre, fixed in the body, would turn with it and average out; reported as errors in m / k as the fits'.
+   `bound: episode mean` is what no causal average can beat: each episode's offset averaged over all its steps
+   (after `--skip`), with the true track.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import jax
+import numpy as np
+
+from centre_estimator import collect, errors_by_target, visible_centroid  # scripts/ is first on sys.path
+from ramavt_jax import env as env_lib
+from ramavt_jax.evaluation import rollouts
+from ramavt_jax.render.camera import camera_rays
+
+DESIRED = np.array([0.0, 0.0, 5.0])  # m, the catalogue targets' desired point (k = 1)
+
+
+def flow_rows(depth0: np.ndarray, depth1: np.ndarray, rays: np.ndarray, dt: float, jump: float):
+    """The rigid-motion equation of each inner pixel between z-depth frames depth0, depth1 [N, H, W] (m, 0 where
+    nothing is hit), rays [H, W, 3] (camera_rays). Returns rows [N, H-2, W-2, 6] (n, X x n), rhs [N, H-2, W-2]
+    (d' (n . r)) and valid [N, H-2, W-2] bool (hit in both frames with its four neighbours, no jump over ``jump``)."""
+    hit = (depth0 > 0) & (depth1 > 0)
+    mid = 0.5 * (depth0 + depth1)
+    points = mid[..., None] * rays  # [N, H, W, 3]: the surface between the two frames
+    inner = (slice(None), slice(1, -1), slice(1, -1))
+    right, left, down, up = ((slice(None), slice(1, -1), slice(2, None)), (slice(None), slice(1, -1), slice(None, -2)),
+                             (slice(None), slice(2, None), slice(1, -1)), (slice(None), slice(None, -2), slice(1, -1)))
+    normal = np.cross(points[right] - points[left], points[down] - points[up])
+    normal /= np.maximum(np.linalg.norm(normal, axis=-1, keepdims=True), 1e-12)
+    valid = hit[inner] & hit[right] & hit[left] & hit[down] & hit[up]
+    valid &= (np.abs(mid[right] - mid[left]) < jump) & (np.abs(mid[down] - mid[up]) < jump)
+    valid &= np.abs(depth1 - depth0)[inner] < jump  # a silhouette edge passing the pixel is not a smooth motion
+    rows = np.concatenate([normal, np.cross(points[inner], normal)], axis=-1)
+    rhs = (depth1 - depth0)[inner] / dt * np.sum(normal * rays[1:-1, 1:-1], axis=-1)
+    return rows, rhs, valid
+
+
+def rigid_motion(rows, rhs, valid, chaser_velocity: np.ndarray, window: int = 1, min_pixels: int = 30) -> np.ndarray:
+    """[N, 6] (a + chaser velocity, w) of each frame pair by least squares over its last ``window`` pairs (the
+    target's own motion, held fixed over them), from flow_rows' [N, ...] of consecutive pairs; chaser_velocity
+    [N, 3] the chaser's mean velocity over each pair (camera frame; the body's points seen to move against it).
+    NaN where fewer than ``min_pixels`` valid rows (summed over the window) or a singular system."""
+    weight = valid[..., None].astype(np.float64)
+    rhs = rhs + np.einsum("nhwi,ni->nhw", rows[..., :3], chaser_velocity)  # n . (a + v_chaser): the target's part
+    normal = np.einsum("nhwi,nhwj->nij", rows * weight, rows)
+    right = np.einsum("nhwi,nhw->ni", rows * weight, rhs)
+    count = valid.sum(axis=(1, 2))
+    kernel = np.ones(window)
+    def trailing(x):  # causal sums over the last ``window`` pairs along axis 0
+        return np.apply_along_axis(lambda s: np.convolve(s, kernel)[: len(s)], 0, x)
+    normal, right, count = trailing(normal), trailing(right), trailing(count)
+    out = np.full(right.shape, np.nan)
+    for i in np.nonzero(count >= min_pixels)[0]:
+        if np.linalg.cond(normal[i]) < 1e8:
+            out[i] = np.linalg.solve(normal[i], right[i])
+    return out
+
+
+def chaser_track(action: np.ndarray, speed: float = 1.0, dt: float = 0.1):
+    """Dead reckoning from the commands (no lag, no actuator noise), action [E, T] taken after each obs. Returns
+    (velocity [E, T, 3] the chaser's mean over the step after each obs, position [E, T, 3] at each obs relative to
+    the first), camera frame, m/s and m: the env's trapezoidal update of a velocity that jumps to each command."""
+    command = env_lib.ACTIONS[action] * speed
+    before = np.concatenate([np.zeros_like(command[:, :1]), command[:, :-1]], axis=1)
+    velocity = 0.5 * (before + command)
+    position = np.concatenate([np.zeros_like(velocity[:, :1]), np.cumsum(velocity * dt, axis=1)[:, :-1]], axis=1)
+    return velocity, position
+
+
+def fitted_track(points: np.ndarray, window: int, degree: int, dt: float = 0.1) -> np.ndarray:
+    """[T, 3] at each step the value at that step of a polynomial of ``degree`` fitted by least squares to the last
+    ``window`` points [T, 3] (NaN rows skipped); NaN where fewer than degree + 2 points."""
+    out = np.full(points.shape, np.nan)
+    for t in range(len(points)):
+        span = np.arange(max(0, t - window + 1), t + 1)
+        ok = ~np.isnan(points[span, 0])
+        if ok.sum() >= degree + 2:
+            design = np.vander((span[ok] - t) * dt, degree + 1)
+            out[t] = np.linalg.lstsq(design, points[span[ok]], rcond=None)[0][-1]
+    return out
+
+
+def spin_errors(episodes, names, camera, windows, skip: int, jump: float, dt: float = 0.1) -> dict:
+    """{'pairs W': {target: {'spin', 'error', 'relative', 'solved'}}}: medians over the live pairs after ``skip``
+    of the true spin (rad/s), the estimate's error (rad/s) and that error over the spin, and the share of pairs
+    with an estimate, for each window of ``windows``."""
+    rays = np.asarray(camera_rays(camera), np.float64)
+    velocity, _ = chaser_track(np.asarray(episodes.action), dt=dt)
+    motion, alive = np.asarray(episodes.motion, np.float64), np.asarray(episodes.alive)
+    target = np.asarray(episodes.target)
+    table = {}
+    for window in windows:
+        errors, spins, solved = [], [], []
+        for e in range(len(target)):
+            depth = np.asarray(episodes.obs[e, ..., -1], np.float64) * camera.far
+            rows, rhs, valid = flow_rows(depth[:-1], depth[1:], rays, dt, jump)
+            estimate = rigid_motion(rows, rhs, valid, velocity[e, :-1], window)[:, 3:]
+            true = 0.5 * (motion[e, :-1, :3] + motion[e, 1:, :3])  # the spin midway through each pair
+            live = alive[e, 1:].copy()
+            live[:skip] = False
+            errors.append(np.linalg.norm(estimate - true, axis=-1)[live])
+            spins.append(np.linalg.norm(true, axis=-1)[live])
+        for i, name in enumerate(names):
+            pick = np.nonzero(target == i)[0]
+            error, spin = np.concatenate([errors[e] for e in pick]), np.concatenate([spins[e] for e in pick])
+            ok = ~np.isnan(error)
+            table.setdefault(f"pairs {window}", {})[name] = {
+                "spin": float(np.median(spin)), "error": float(np.median(error[ok])) if ok.any() else None,
+                "relative": float(np.median(error[ok] / spin[ok])) if ok.any() else None, "solved": float(ok.mean())}
+    return table
+
+
+def averaged_centroid(episodes, camera, window: int, degree: int, dt: float = 0.1) -> np.ndarray:
+    """[E, T, 3] the time-averaged visible centroid's error estimate (stand-off distances, as Episodes.label):
+    the chaser's dead-reckoned position added to each frame's centroid, fitted_track, the position taken out."""
+    centroid = visible_centroid(episodes, camera) * DESIRED[2] + DESIRED  # m, NaN on blank frames
+    _, position = chaser_track(np.asarray(episodes.action), dt=dt)
+    track = np.stack([fitted_track(c, window, degree, dt) for c in centroid + position])
+    return (track - position - DESIRED) / DESIRED[2]
+
+
+def episode_mean_offset(episodes, camera, skip: int) -> np.ndarray:
+    """[E, T, 3] a bound on any average of the centroid, not an estimate: the true error plus the centroid's offset
+    from the centre averaged over the whole episode after ``skip`` (non-causal, and with the true track)."""
+    offset = visible_centroid(episodes, camera) - np.asarray(episodes.label)
+    live = np.asarray(episodes.alive).copy()
+    live[:, :skip] = False
+    offset = np.where(live[..., None], offset, np.nan)
+    return np.asarray(episodes.label) + np.nanmean(offset, axis=1, keepdims=True)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--spin-windows", type=int, nargs="*", default=[1, 10], help="frame pairs per spin estimate")
+    ap.add_argument("--windows", type=int, nargs="*", default=[50, 200], help="steps of each centroid average")
+    ap.add_argument("--degree", type=int, default=2, help="of the polynomial fitted to the centroid's track")
+    ap.add_argument("--jump", type=float, default=0.6, help="m: a larger depth step is an edge, not a surface")
+    ap.add_argument("--val-episodes", type=int, default=4, help="per evaluated target")
+    ap.add_argument("--steps", type=int, default=1000)
+    ap.add_argument("--skip", type=int, default=100, help="steps left out (the approach)")
+    ap.add_argument("--eval-targets", default="val", help="a split or names / MJCF files, as `ramavt eval` takes")
+    ap.add_argument("--resolution", type=int, default=32)
+    ap.add_argument("--seed", type=int, default=0, help="the recorded episodes' draw (centre_estimator's)")
+    ap.add_argument("--out", type=Path)
+    args = ap.parse_args()
+    if min(args.spin_windows + args.windows, default=1) < 1 or args.degree < 0 or args.skip >= args.steps:
+        ap.error("windows must be >= 1, --degree >= 0 and --skip < --steps")
+    try:
+        names = rollouts.resolve_targets(args.eval_targets)
+    except ValueError as e:
+        ap.error(f"--eval-targets: {e}")
+    camera = env_lib.CameraConfig(resolution=args.resolution)
+    # the key centre_estimator records its validation episodes with: the same episodes as its fits
+    episodes = collect(names, args.val_episodes, args.steps, jax.random.fold_in(jax.random.PRNGKey(args.seed), 1),
+                       camera)
+    spin = spin_errors(episodes, names, camera, args.spin_windows, args.skip, args.jump)
+    print(f"{'spin from range flow':24s} {'error / spin':>12s} {'solved':>7s}   per target: error / spin (spin rad/s)")
+    for name, table in spin.items():
+        rel = [t["relative"] for t in table.values() if t["relative"] is not None]
+        print(f"{name:24s} {np.mean(rel):12.2f} {np.mean([t['solved'] for t in table.values()]):7.2f}   "
+              + " ".join(f"{k}:{v['relative'] if v['relative'] is None else round(v['relative'], 2)}"
+                         f"({v['spin']:.3f})" for k, v in table.items()))
+    zero = np.zeros(episodes.label.shape)
+    rows = {"desired point": errors_by_target(zero, episodes, names, args.skip),
+            "visible centroid": errors_by_target(visible_centroid(episodes, camera), episodes, names, args.skip)}
+    for window in args.windows:
+        guess = averaged_centroid(episodes, camera, window, args.degree)
+        rows[f"centroid averaged {window}"] = errors_by_target(guess, episodes, names, args.skip)
+    rows["bound: episode mean"] = errors_by_target(episode_mean_offset(episodes, camera, args.skip), episodes, names,
+                                                   args.skip)
+    print(f"{'estimate':24s} {'3-D':>5s} {'lat':>5s} {'range':>5s}   lateral per target (m / k)")
+    for name, table in rows.items():
+        mean = {k: np.mean([t[k] for t in table.values()]) for k in ("3d", "lateral", "range")}
+        print(f"{name:24s} {mean['3d']:5.2f} {mean['lateral']:5.2f} {mean['range']:5.2f}   "
+              + " ".join(f"{t}:{v['lateral']:.2f}" for t, v in table.items()))
+    if args.out:
+        args.out.parent.mkdir(parents=True, exist_ok=True)
+        args.out.write_text(json.dumps({"command": vars(args) | {"out": str(args.out)}, "spin": spin,
+                                        "errors": rows}, indent=1))
+
+
+if __name__ == "__main__":
+    main()
