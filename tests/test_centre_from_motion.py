@@ -39,7 +39,8 @@ def test_range_flow_recovers_a_smooth_bodys_spin_and_velocity():
     estimate = cfm.rigid_motion(rows, rhs, valid, still)[0]
     assert valid.sum() > 500
     np.testing.assert_allclose(estimate[3:], spin, atol=0.1 * np.linalg.norm(spin))
-    np.testing.assert_allclose(estimate[:3], velocity - np.cross(spin, centre), atol=0.05 * np.linalg.norm(velocity - np.cross(spin, centre)))
+    point_velocity = velocity - np.cross(spin, centre)  # a: the velocity of the body point at the camera
+    np.testing.assert_allclose(estimate[:3], point_velocity, atol=0.05 * np.linalg.norm(point_velocity))
     moving = cfm.rigid_motion(rows, rhs, valid, np.array([[0.2, 0.0, -0.1]]))[0]  # a chaser moving at this
     np.testing.assert_allclose(moving[:3] - estimate[:3], [0.2, 0.0, -0.1], atol=1e-9)  # velocity: the same flow
 
