@@ -20,6 +20,10 @@ behaviour and seed):
    centre, fixed in the body, would turn with it and average out; reported as errors in m / k as the fits'.
    `bound: episode mean` is what no causal average can beat: each episode's offset averaged over all its steps
    (after `--skip`), with the true track.
+3. The centre from the flow's motions (`centre from flow`): with a + v_chaser = v - w x c at each of the last
+   `--centre-window` pairs (each motion from `--centre-pairs` pairs), least squares in the centre and the target's
+   velocity, the centre moving at that velocity less the chaser's dead-reckoned displacement, and pulled toward the
+   visible centroid with weight `--pull` (the centre's component along an unchanging spin is not seen otherwise).
 """
 
 from __future__ import annotations
@@ -104,6 +108,35 @@ def fitted_track(points: np.ndarray, window: int, degree: int, dt: float = 0.1) 
     return out
 
 
+def _cross_matrix(w: np.ndarray) -> np.ndarray:
+    """[3, 3] the matrix of w x (.)."""
+    return np.array([[0.0, -w[2], w[1]], [w[2], 0.0, -w[0]], [-w[1], w[0], 0.0]])
+
+
+def centre_from_flow(motion: np.ndarray, chaser_position: np.ndarray, centroid: np.ndarray, window: int,
+                     pull: float, dt: float = 0.1, skip: int = 0) -> np.ndarray:
+    """[T, 3] the centre (camera frame, m) at each step t >= ``skip`` from rigid_motion's [T-1, 6] (a + chaser
+    velocity, w) of the last ``window`` pairs: least squares in the centre c_t and the target's velocity v, with
+    the centre at pair s at c_t + v (s - t) dt minus the chaser's displacement since (chaser_position [T, 3]), and
+    a + v_chaser = v - w x c there. The component of c along an unchanging spin is not observable this way, so
+    each estimate is also pulled toward that step's visible centroid [T, 3] (NaN: none) with weight ``pull``."""
+    out = np.full(centroid.shape, np.nan)
+    for t in range(skip, len(motion)):
+        pairs = [s for s in range(max(0, t - window + 1), t + 1) if not np.isnan(motion[s, 0])]
+        if len(pairs) < 5:
+            continue
+        design, target = [], []
+        for s in pairs:
+            spin = _cross_matrix(motion[s, 3:])
+            design.append(np.hstack([-spin, np.eye(3) - (s - t) * dt * spin]))
+            target.append(motion[s, :3] - np.cross(motion[s, 3:], chaser_position[s] - chaser_position[t]))
+        if pull > 0 and not np.isnan(centroid[t, 0]):
+            design.append(np.hstack([pull * np.eye(3), np.zeros((3, 3))]))
+            target.append(pull * centroid[t])
+        out[t] = np.linalg.lstsq(np.vstack(design), np.concatenate(target), rcond=None)[0][:3]
+    return out
+
+
 def spin_errors(episodes, names, camera, windows, skip: int, jump: float, dt: float = 0.1) -> dict:
     """{'pairs W': {target: {'spin', 'error', 'relative', 'solved'}}}: medians over the live pairs after ``skip``
     of the true spin (rad/s), the estimate's error (rad/s) and that error over the spin, and the share of pairs
@@ -134,6 +167,21 @@ def spin_errors(episodes, names, camera, windows, skip: int, jump: float, dt: fl
     return table
 
 
+def flow_centre(episodes, camera, pairs: int, window: int, pull: float, skip: int, jump: float,
+                dt: float = 0.1) -> np.ndarray:
+    """[E, T, 3] centre_from_flow's error estimate (stand-off distances, as Episodes.label), on rigid_motion over
+    ``pairs`` frame pairs."""
+    rays = np.asarray(camera_rays(camera), np.float64)
+    velocity, position = chaser_track(np.asarray(episodes.action), dt=dt)
+    centroid = visible_centroid(episodes, camera) * DESIRED[2] + DESIRED
+    out = np.full(centroid.shape, np.nan)
+    for e in range(centroid.shape[0]):
+        depth = np.asarray(episodes.obs[e, ..., -1], np.float64) * camera.far
+        motion = rigid_motion(*flow_rows(depth[:-1], depth[1:], rays, dt, jump), velocity[e, :-1], pairs)
+        out[e] = centre_from_flow(motion, position[e], centroid[e], window, pull, dt, skip)
+    return (out - DESIRED) / DESIRED[2]
+
+
 def averaged_centroid(episodes, camera, window: int, degree: int, dt: float = 0.1) -> np.ndarray:
     """[E, T, 3] the time-averaged visible centroid's error estimate (stand-off distances, as Episodes.label):
     the chaser's dead-reckoned position added to each frame's centroid, fitted_track, the position taken out."""
@@ -158,6 +206,9 @@ def main() -> None:
     ap.add_argument("--spin-windows", type=int, nargs="*", default=[1, 10], help="frame pairs per spin estimate")
     ap.add_argument("--windows", type=int, nargs="*", default=[50, 200], help="steps of each centroid average")
     ap.add_argument("--degree", type=int, default=2, help="of the polynomial fitted to the centroid's track")
+    ap.add_argument("--centre-pairs", type=int, default=10, help="frame pairs per motion of the centre from flow")
+    ap.add_argument("--centre-window", type=int, default=50, help="steps of motions per centre from flow; 0: none")
+    ap.add_argument("--pull", type=float, default=0.1, help="weight of the visible centroid in the centre from flow")
     ap.add_argument("--jump", type=float, default=0.6, help="m: a larger depth step is an edge, not a surface")
     ap.add_argument("--val-episodes", type=int, default=4, help="per evaluated target")
     ap.add_argument("--steps", type=int, default=1000)
@@ -167,8 +218,9 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=0, help="the recorded episodes' draw (centre_estimator's)")
     ap.add_argument("--out", type=Path)
     args = ap.parse_args()
-    if min(args.spin_windows + args.windows, default=1) < 1 or args.degree < 0 or args.skip >= args.steps:
-        ap.error("windows must be >= 1, --degree >= 0 and --skip < --steps")
+    if (min(args.spin_windows + args.windows + [args.centre_pairs], default=1) < 1 or args.centre_window < 0
+            or args.degree < 0 or args.pull < 0 or args.skip >= args.steps):
+        ap.error("windows and --centre-pairs must be >= 1, --centre-window, --degree and --pull >= 0, --skip < --steps")
     try:
         names = rollouts.resolve_targets(args.eval_targets)
     except ValueError as e:
@@ -190,6 +242,9 @@ def main() -> None:
     for window in args.windows:
         guess = averaged_centroid(episodes, camera, window, args.degree)
         rows[f"centroid averaged {window}"] = errors_by_target(guess, episodes, names, args.skip)
+    if args.centre_window:
+        guess = flow_centre(episodes, camera, args.centre_pairs, args.centre_window, args.pull, args.skip, args.jump)
+        rows[f"centre from flow {args.centre_window}"] = errors_by_target(guess, episodes, names, args.skip)
     rows["bound: episode mean"] = errors_by_target(episode_mean_offset(episodes, camera, args.skip), episodes, names,
                                                    args.skip)
     print(f"{'estimate':24s} {'3-D':>5s} {'lat':>5s} {'range':>5s}   lateral per target (m / k)")

@@ -61,6 +61,22 @@ def test_dead_reckoning_is_the_envs_chaser():
     np.testing.assert_allclose(reckoned[0], positions, atol=1e-5)
 
 
+def test_centre_from_flow_solves_exact_motions():
+    steps, dt = 60, 0.1
+    rng = np.random.default_rng(0)
+    centre0, velocity = np.array([0.4, -0.3, 5.2]), np.array([0.05, 0.02, -0.03])
+    chaser = np.cumsum(rng.normal(0.0, 0.02, (steps, 3)), axis=0)  # a dead-reckoned track [T, 3]
+    turn = np.arange(steps - 1) * dt
+    spin = 0.15 * np.stack([np.cos(0.3 * turn), np.sin(0.3 * turn), 0.5 + 0 * turn], -1)  # its axis wanders
+    centre = centre0 + velocity * np.arange(steps)[:, None] * dt - chaser  # [T, 3] in the camera frame
+    motion = np.concatenate([velocity - np.cross(spin, centre[:-1]), spin], -1)  # [T-1, 6] as rigid_motion's
+    blank = np.full((steps, 3), np.nan)  # no centroid: no pull
+    estimate = cfm.centre_from_flow(motion, chaser, blank, window=50, pull=0.0, dt=dt, skip=20)
+    np.testing.assert_allclose(estimate[20:-1], centre[20:-1], atol=1e-6)
+    pulled = cfm.centre_from_flow(motion, chaser, centre + 1.0, window=50, pull=10.0, dt=dt, skip=20)
+    assert np.all(np.abs(pulled[20:-1] - centre[20:-1]).max(-1) > 0.01)  # the centroid moves it when weighted
+
+
 def test_fitted_track_follows_a_drift_and_averages_a_turning_offset():
     t = np.arange(400) * 0.1
     drift = np.stack([0.2 * t, -0.1 * t + 0.002 * t ** 2, 5.0 + 0 * t], -1)
