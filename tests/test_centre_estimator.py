@@ -52,6 +52,7 @@ def test_each_recorded_frame_comes_with_the_state_it_was_drawn_from(episodes):
     np.testing.assert_allclose(seen, expected, atol=2e-3)
 
 
+@pytest.mark.slow  # a fit of a diagnostic script (about 11 s)
 def test_guessing_the_desired_point_misses_by_the_error_and_training_does_better(episodes):
     eps = episodes
     standoff = float(env_lib.TrackingEnv().eval_params().desired_pos[2])  # m per stand-off distance

@@ -101,6 +101,7 @@ def test_network_acts_on_the_mean_of_its_quantiles():
     assert float(z.std(-1).mean()) > 0  # distinct quantiles from the start
 
 
+@pytest.mark.slow  # a trainer of its own to compile (about 11 s); the quantile network and loss are tested above
 def test_trainer_trains_a_quantile_network():
     """One iteration with updates: the target net's quantiles feed the loss, which is finite and moves the head."""
     cfg = QCFG.override(learning_starts=0)
