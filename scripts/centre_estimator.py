@@ -256,6 +256,23 @@ def agent_rows(run_dirs: list[str], episodes: Episodes, names: tuple[str, ...], 
     return rows
 
 
+def print_errors(rows: dict, per_target: str, width: int = 28) -> None:
+    """Print {row: errors_by_target} as the mean 3-D, lateral and range errors, then ``per_target``'s per target."""
+    label = {"3d": "3-D"}.get(per_target, per_target)
+    print(f"{'estimate':{width}s} {'3-D':>5s} {'lat':>5s} {'range':>5s}   {label} per target (m / k)")
+    for name, table in rows.items():
+        mean = {k: np.mean([t[k] for t in table.values()]) for k in ("3d", "lateral", "range")}
+        print(f"{name:{width}s} {mean['3d']:5.2f} {mean['lateral']:5.2f} {mean['range']:5.2f}   "
+              + " ".join(f"{t}:{v[per_target]:.2f}" for t, v in table.items()))
+
+
+def write_results(args: argparse.Namespace, **parts) -> None:
+    """Write {'command': the arguments, **parts} as JSON to args.out (nothing if it is None)."""
+    if args.out:
+        args.out.parent.mkdir(parents=True, exist_ok=True)
+        args.out.write_text(json.dumps({"command": vars(args) | {"out": str(args.out)}, **parts}, indent=1))
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--windows", type=int, nargs="*", default=[20, 100],
@@ -309,15 +326,8 @@ def main() -> None:
         guess = estimate(params, val_eps, frame_only=window == 0, config=config)
         rows[name] = errors_by_target(guess, val_eps, val_names, args.skip)
         curves[name] = losses
-    print(f"{'estimate':28s} {'3-D':>5s} {'lat':>5s} {'range':>5s}   3-D per target (m / k)")
-    for name, table in rows.items():
-        mean = {k: np.mean([t[k] for t in table.values()]) for k in ("3d", "lateral", "range")}
-        print(f"{name:28s} {mean['3d']:5.2f} {mean['lateral']:5.2f} {mean['range']:5.2f}   "
-              + " ".join(f"{t}:{v['3d']:.2f}" for t, v in table.items()))
-    if args.out:
-        args.out.parent.mkdir(parents=True, exist_ok=True)
-        args.out.write_text(json.dumps({"command": vars(args) | {"out": str(args.out)}, "errors": rows,
-                                        "losses": curves}, indent=1))
+    print_errors(rows, "3d")
+    write_results(args, errors=rows, losses=curves)
 
 
 if __name__ == "__main__":

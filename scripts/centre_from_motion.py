@@ -29,13 +29,14 @@ behaviour and seed):
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
 import jax
 import numpy as np
 
-from centre_estimator import collect, errors_by_target, visible_centroid  # scripts/ is first on sys.path
+from centre_estimator import (  # scripts/ is the running script's own folder, first on sys.path
+    collect, errors_by_target, print_errors, visible_centroid, write_results,
+)
 from ramavt_jax import env as env_lib
 from ramavt_jax.evaluation import rollouts
 from ramavt_jax.render.camera import camera_rays
@@ -247,15 +248,8 @@ def main() -> None:
         rows[f"centre from flow {args.centre_window}"] = errors_by_target(guess, episodes, names, args.skip)
     rows["bound: episode mean"] = errors_by_target(episode_mean_offset(episodes, camera, args.skip), episodes, names,
                                                    args.skip)
-    print(f"{'estimate':24s} {'3-D':>5s} {'lat':>5s} {'range':>5s}   lateral per target (m / k)")
-    for name, table in rows.items():
-        mean = {k: np.mean([t[k] for t in table.values()]) for k in ("3d", "lateral", "range")}
-        print(f"{name:24s} {mean['3d']:5.2f} {mean['lateral']:5.2f} {mean['range']:5.2f}   "
-              + " ".join(f"{t}:{v['lateral']:.2f}" for t, v in table.items()))
-    if args.out:
-        args.out.parent.mkdir(parents=True, exist_ok=True)
-        args.out.write_text(json.dumps({"command": vars(args) | {"out": str(args.out)}, "spin": spin,
-                                        "errors": rows}, indent=1))
+    print_errors(rows, "lateral", width=24)
+    write_results(args, spin=spin, errors=rows)
 
 
 if __name__ == "__main__":
