@@ -1,8 +1,10 @@
 """scripts/centre_from_motion.py: the range-flow equation recovers a smooth body's rigid motion, the dead reckoning
-is the env's chaser, and the time-averaged centroid follows a drifting track."""
+is the env's chaser, the centre from the flow's motions solves exact motions from the past alone, and the
+time-averaged centroid follows a drifting track, with the chaser's own motion taken out."""
 
 import sys
 from pathlib import Path
+from types import SimpleNamespace
 
 import jax
 import numpy as np
@@ -73,6 +75,11 @@ def test_centre_from_flow_solves_exact_motions():
     blank = np.full((steps, 3), np.nan)  # no centroid: no pull
     estimate = cfm.centre_from_flow(motion, chaser, blank, window=50, pull=0.0, dt=dt, skip=20)
     np.testing.assert_allclose(estimate[20:-1], centre[20:-1], atol=1e-6)
+    changed = motion.copy()
+    changed[40] += 1.0  # the pair of obs 40 and 41: not yet seen at obs 40
+    causal = cfm.centre_from_flow(changed, chaser, blank, window=50, pull=0.0, dt=dt, skip=20)
+    np.testing.assert_array_equal(causal[:41], estimate[:41])
+    assert np.abs(causal[41] - estimate[41]).max() > 1e-3
     pulled = cfm.centre_from_flow(motion, chaser, centre + 1.0, window=50, pull=10.0, dt=dt, skip=20)
     assert np.all(np.abs(pulled[20:-1] - centre[20:-1]).max(-1) > 0.01)  # the centroid moves it when weighted
 
@@ -89,3 +96,16 @@ def test_fitted_track_follows_a_drift_and_averages_a_turning_offset():
     fitted = cfm.fitted_track(seen, window=252, degree=1)
     # the newest end of a fit leaks part of the turn: about half of the offset is averaged away, not all of it
     assert np.nanmean(np.linalg.norm(fitted - line, axis=-1)[260:]) < 0.6 * 0.4
+
+
+def test_averaged_centroid_takes_the_chasers_own_motion_out(monkeypatch):
+    steps, dt = 300, 0.1
+    action = np.random.default_rng(1).integers(0, len(env_lib.ACTIONS), (1, steps))
+    _, chaser = cfm.chaser_track(action, dt=dt)
+    drift = np.array([0.3, -0.2, 5.5]) + np.array([0.02, 0.01, -0.03]) * np.arange(steps)[:, None] * dt
+    centre = (drift - chaser[0])[None]  # [1, T, 3] camera frame: the target drifts, the chaser flies its commands
+    label = (centre - cfm.DESIRED) / cfm.DESIRED[2]
+    monkeypatch.setattr(cfm, "visible_centroid", lambda episodes, camera: label)  # a centroid on the centre
+    episodes = SimpleNamespace(action=action)
+    guess = cfm.averaged_centroid(episodes, CameraConfig(resolution=8), window=50, degree=1, dt=dt)
+    np.testing.assert_allclose(guess[0, 2:], label[0, 2:], atol=1e-6)  # exact once a line can be fitted
