@@ -423,7 +423,6 @@ def test_six_aux_outputs_add_the_relative_velocity_whose_integral_is_the_errors_
     np.testing.assert_allclose(moved[same], mean_velocity[same] * float(tr.env_params.dt), atol=2e-4)
 
 
-@pytest.mark.slow  # a diagnostic's trainer of its own to compile (about 16 s); the input's network side: test_network
 def test_state_input_network_reads_the_stored_true_state_when_acting_learning_and_flying_greedily():
     """state_input: the rollout keeps greedy.true_tracking_state [6] per obs (whatever the aux head takes), the
     network's values depend on it, the learner's loss reads the stored one, and the greedy policy acts as the
