@@ -1,4 +1,4 @@
-"""Can the centre of mass be found from the frames' motion, without learning? Two geometric estimates, no network,
+"""Can the centre of mass be found from the frames' motion, without learning? Geometric estimates, no network,
 on the episodes scripts/centre_estimator.py scores its fits on (the validation targets, 4 episodes each, the same
 behaviour and seed):
 
@@ -18,12 +18,14 @@ behaviour and seed):
    actuator noise, no lag), is added before the fit and taken out after, so that what is averaged moves like the
    target alone. If the target turned through a large angle within the window, the centroid's offset from the
    centre, fixed in the body, would turn with it and average out; reported as errors in m / k as the fits'.
-   `reference: episode mean` is what no causal average can beat: each episode's offset averaged over all its steps
-   (after `--skip`), with the true track.
+   `reference: episode mean` is what an even average over a whole episode would leave: each episode's offset
+   averaged over all its steps (after `--skip`), with the true track (non-causal; a fit that weights steps
+   unequally may fall below it).
 3. The centre from the flow's motions (`centre from flow`): with a + v_chaser = v - w x c at each of the last
    `--centre-window` pairs (each motion from `--centre-pairs` pairs), least squares in the centre and the target's
    velocity, the centre moving at that velocity less the chaser's dead-reckoned displacement, and pulled toward the
    visible centroid with weight `--pull` (the centre's component along an unchanging spin is not seen otherwise).
+   The estimate at a step uses the frames up to it only.
 """
 
 from __future__ import annotations
@@ -118,12 +120,13 @@ def centre_from_flow(motion: np.ndarray, chaser_position: np.ndarray, centroid: 
                      pull: float, dt: float = 0.1, skip: int = 0) -> np.ndarray:
     """[T, 3] the centre (camera frame, m) at each step t >= ``skip`` from rigid_motion's [T-1, 6] (a + chaser
     velocity, w) of the ``window`` pairs that end by obs t (pairs t - window .. t - 1; a motion summed over several
-    pairs is placed at its last pair, a lag of a few steps that the slowly turning spin hardly notices): least squares in the centre c_t and the target's velocity v, with
-    the centre at pair s at c_t + v (s - t) dt minus the chaser's displacement since (chaser_position [T, 3]), and
-    a + v_chaser = v - w x c there. The component of c along an unchanging spin is not observable this way, so
-    each estimate is also pulled toward that step's visible centroid [T, 3] (NaN: none) with weight ``pull``."""
+    pairs is placed at its last pair, a lag of a few steps that the slowly turning spin hardly notices): least
+    squares in the centre c_t and the target's velocity v, with the centre at pair s at c_t + v (s - t) dt minus the
+    chaser's displacement since (chaser_position [T, 3]), and a + v_chaser = v - w x c there. The component of c
+    along an unchanging spin is not observable this way, so each estimate is also pulled toward that step's visible
+    centroid [T, 3] (NaN: none) with weight ``pull``."""
     out = np.full(centroid.shape, np.nan)
-    for t in range(skip, len(motion)):
+    for t in range(skip, len(centroid)):
         pairs = [s for s in range(max(0, t - window), t) if not np.isnan(motion[s, 0])]  # seen by obs t
         if len(pairs) < 5:
             continue
@@ -252,8 +255,8 @@ def main() -> None:
     if args.centre_window:
         guess = flow_centre(episodes, camera, args.centre_pairs, args.centre_window, args.pull, args.skip, args.jump)
         rows[f"centre from flow {args.centre_window}"] = errors_by_target(guess, episodes, names, args.skip)
-    rows["reference: episode mean"] = errors_by_target(episode_mean_offset(episodes, camera, args.skip), episodes, names,
-                                                   args.skip)
+    reference = episode_mean_offset(episodes, camera, args.skip)
+    rows["reference: episode mean"] = errors_by_target(reference, episodes, names, args.skip)
     print_errors(rows, "lateral", width=24)
     write_results(args, spin=spin, errors=rows)
 
