@@ -1,6 +1,7 @@
 """Checkpoints: exact round trip, bit-identical resume, NaN stop keeps the last good checkpoint, Ctrl-C saves,
 clear errors for missing checkpoints and mismatched configs."""
 
+import gc
 import json
 import subprocess
 import sys
@@ -254,6 +255,7 @@ def test_other_config_is_refused_before_writing_and_a_run_can_be_extended(tmp_pa
     assert json.dumps(rows[:SMOKE.num_chunks]) == json.dumps(ref)  # the first half is the reference run
 
 
+@pytest.mark.filterwarnings("ignore::pytest.PytestUnraisableExceptionWarning")
 def test_damaged_newest_checkpoint_falls_back_to_the_older_one(tmp_path, full_run, capsys):
     out = tmp_path / "run"
     cfg = SMOKE.override(keep_checkpoints=2)
@@ -265,6 +267,9 @@ def test_damaged_newest_checkpoint_falls_back_to_the_older_one(tmp_path, full_ru
     assert "did not load" in err and "resuming from step 2" in err
     assert len([line for line in err.splitlines() if "did not load" in line]) == 1
     _assert_trees_equal(rest.state, full_run.state)
+    # orbax leaves the failed read's coroutines to the garbage collector, which reports each as an unraisable
+    # exception; collected here, they are reported (and ignored, by the mark above) with the test that caused them
+    gc.collect()
 
 
 def test_a_torn_last_metrics_line_does_not_block_the_resume(tmp_path, full_run, capsys):
