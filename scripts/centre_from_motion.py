@@ -75,16 +75,18 @@ def rigid_motion(rows, rhs, valid, chaser_velocity: np.ndarray, window: int = 1,
     rhs = rhs + np.einsum("nhwi,ni->nhw", rows[..., :3], chaser_velocity)  # n . (a + v_chaser): the target's part
     normal = np.einsum("nhwi,nhwj->nij", rows * weight, rows)
     right = np.einsum("nhwi,nhw->ni", rows * weight, rhs)
-    count = valid.sum(axis=(1, 2))
-    kernel = np.ones(window)
-    def trailing(x):  # causal sums over the last ``window`` pairs along axis 0
-        return np.apply_along_axis(lambda s: np.convolve(s, kernel)[: len(s)], 0, x)
-    normal, right, count = trailing(normal), trailing(right), trailing(count)
+    normal, right, count = (_trailing_sum(x, window) for x in (normal, right, valid.sum(axis=(1, 2))))
+    solvable = (count >= min_pixels) & (np.linalg.cond(normal) < 1e8)
     out = np.full(right.shape, np.nan)
-    for i in np.nonzero(count >= min_pixels)[0]:
-        if np.linalg.cond(normal[i]) < 1e8:
-            out[i] = np.linalg.solve(normal[i], right[i])
+    out[solvable] = np.linalg.solve(normal[solvable], right[solvable][..., None])[..., 0]
     return out
+
+
+def _trailing_sum(x: np.ndarray, window: int) -> np.ndarray:
+    """Sums over the last ``window`` entries along axis 0 (fewer at the start): causal."""
+    total = np.cumsum(x, axis=0)
+    total[window:] = total[window:] - total[:-window]
+    return total
 
 
 def chaser_track(action: np.ndarray, speed: float = 1.0, dt: float = 0.1):
@@ -151,22 +153,24 @@ def spin_errors(episodes, names, camera, windows, skip: int, jump: float, dt: fl
     velocity, _ = chaser_track(np.asarray(episodes.action), dt=dt)
     motion, alive = np.asarray(episodes.motion, np.float64), np.asarray(episodes.alive)
     target = np.asarray(episodes.target)
+    errors, spins, pixels = {window: [] for window in windows}, [], []
+    for e in range(len(target)):
+        depth = np.asarray(episodes.obs[e, ..., -1], np.float64) * camera.far
+        flow = flow_rows(depth[:-1], depth[1:], rays, dt, jump)  # once per episode, for every window
+        true = 0.5 * (motion[e, :-1, :3] + motion[e, 1:, :3])  # the spin midway through each pair
+        live = alive[e, 1:].copy()
+        live[:skip] = False
+        for window in windows:
+            estimate = rigid_motion(*flow, velocity[e, :-1], window)[:, 3:]
+            errors[window].append(np.linalg.norm(estimate - true, axis=-1)[live])
+        spins.append(np.linalg.norm(true, axis=-1)[live])
+        pixels.append((depth[1:] > 0).sum(axis=(1, 2))[live])
     table = {}
     for window in windows:
-        errors, spins, pixels = [], [], []
-        for e in range(len(target)):
-            depth = np.asarray(episodes.obs[e, ..., -1], np.float64) * camera.far
-            rows, rhs, valid = flow_rows(depth[:-1], depth[1:], rays, dt, jump)
-            estimate = rigid_motion(rows, rhs, valid, velocity[e, :-1], window)[:, 3:]
-            true = 0.5 * (motion[e, :-1, :3] + motion[e, 1:, :3])  # the spin midway through each pair
-            live = alive[e, 1:].copy()
-            live[:skip] = False
-            errors.append(np.linalg.norm(estimate - true, axis=-1)[live])
-            spins.append(np.linalg.norm(true, axis=-1)[live])
-            pixels.append((depth[1:] > 0).sum(axis=(1, 2))[live])
         for i, name in enumerate(names):
             pick = np.nonzero(target == i)[0]
-            error, spin = np.concatenate([errors[e] for e in pick]), np.concatenate([spins[e] for e in pick])
+            error = np.concatenate([errors[window][e] for e in pick])
+            spin = np.concatenate([spins[e] for e in pick])
             ok = ~np.isnan(error)
             table.setdefault(f"pairs {window}", {})[name] = {
                 "spin": float(np.median(spin)), "error": float(np.median(error[ok])) if ok.any() else None,

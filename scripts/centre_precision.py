@@ -53,10 +53,11 @@ def offset_ceiling(ceiling: Policy, size: float, random_size: bool = False, rand
         return scale * direction / jnp.linalg.norm(direction)
 
     def act(key, offset, obs, state, params):
-        k_init, k_act = jax.random.split(key)
+        # four keys, none used twice; the coin and the random action keep the draws the recorded results were made
+        # with (split(key, 4)[:3] is split(key, 3)), and the ceiling's own keys are inert in its noise-free model
+        k_init, k_coin, k_random, k_act = jax.random.split(key, 4)
         action, _ = ceiling.act(k_act, ceiling.init(k_init), obs, told_centre(state, offset * state.scale), params)
         if random_share:
-            k_coin, k_random = jax.random.split(key, 3)[1:]
             random_action = jax.random.randint(k_random, (), 0, env_lib.NUM_ACTIONS)
             action = jnp.where(jax.random.uniform(k_coin) < random_share, random_action, action)
         return action, offset
