@@ -51,6 +51,7 @@ from ramavt_jax.evaluation import rollouts, runs
 from ramavt_jax.network import TRUE_STATE_SIZE, NetworkConfig, initial_state, make_network
 
 LABEL = 3  # the tracking error's entries (stand-off distances), the auxiliary head's outputs
+DESIRED = np.array([0.0, 0.0, 5.0])  # m, the desired point of every catalogue target (stand-off scale k = 1)
 FRAME_ONLY_WINDOW = 20  # steps per training row of the one-frame estimator (window 0): a batch shape, no memory
 
 
@@ -217,7 +218,7 @@ def estimate(params, episodes: Episodes, chunk: int = 100, frame_only: bool = Fa
 
 
 def visible_centroid(episodes: Episodes, camera: env_lib.CameraConfig,
-                     desired: np.ndarray = np.array([0.0, 0.0, 5.0])) -> np.ndarray:
+                     desired: np.ndarray = DESIRED) -> np.ndarray:
     """[E, T, 3] the error to the newest frame's visible-surface centroid (greedy.visible_tracking_state's, from the
     recorded depth; NaN on a frame without the target)."""
     depth = jnp.asarray(episodes.obs[..., -1], jnp.float32) * camera.far  # [E, T, H, W] m / k
@@ -228,7 +229,7 @@ def visible_centroid(episodes: Episodes, camera: env_lib.CameraConfig,
 
 def errors_by_target(guess: np.ndarray, episodes: Episodes, names: tuple[str, ...], skip: int) -> dict:
     """{target: {'lateral', 'range', '3d'}}: mean errors in metres / k over live steps after ``skip``."""
-    miss = (guess - np.asarray(episodes.label)) * 5.0  # stand-off distances -> m / k
+    miss = (guess - np.asarray(episodes.label)) * DESIRED[2]  # stand-off distances -> m / k
     live = np.asarray(episodes.alive).copy()
     live[:, :skip] = False
     live &= ~np.isnan(miss).any(-1)

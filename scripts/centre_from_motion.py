@@ -37,13 +37,11 @@ import jax
 import numpy as np
 
 from centre_estimator import (  # scripts/ is the running script's own folder, first on sys.path
-    collect, errors_by_target, print_errors, visible_centroid, write_results,
+    DESIRED, collect, errors_by_target, print_errors, visible_centroid, write_results,
 )
 from ramavt_jax import env as env_lib
 from ramavt_jax.evaluation import rollouts
 from ramavt_jax.render.camera import camera_rays
-
-DESIRED = np.array([0.0, 0.0, 5.0])  # m, the catalogue targets' desired point (k = 1)
 
 
 def flow_rows(depth0: np.ndarray, depth1: np.ndarray, rays: np.ndarray, dt: float, jump: float):
