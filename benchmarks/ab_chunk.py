@@ -34,8 +34,8 @@ import jax.numpy as jnp
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_train import export_package, merge_json  # noqa: E402
 
-from ramavt_jax import train as T  # noqa: E402
 from ramavt_jax import presets, train_config  # noqa: E402
+from ramavt_jax import train as T  # noqa: E402
 from ramavt_jax.training.checkpoint import CheckpointStore  # noqa: E402
 
 BASELINE_MODULE = "ramavt_baseline"
@@ -129,14 +129,23 @@ def main(argv=None) -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("run", type=Path, help="a run folder of --preset with checkpoints")
     p.add_argument("--baseline", default=None, help="git revision to compare with (e.g. a commit or a tag)")
-    p.add_argument("--baseline-run", type=Path, default=None,
-                   help="a run of the baseline's preset whose state the baseline starts from (default: RUN)")
+    p.add_argument(
+        "--baseline-run",
+        type=Path,
+        default=None,
+        help="a run of the baseline's preset whose state the baseline starts from (default: RUN)",
+    )
     p.add_argument("--preset", default="quick", choices=sorted(presets.PRESETS))
     p.add_argument("--seeds", type=int, default=1)
     p.add_argument("--rounds", type=int, default=3)
     p.add_argument("--act-only", action="store_true")
-    p.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE",
-                   help="also time this checkout with these preset fields changed (repeatable: one program)")
+    p.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="FIELD=VALUE",
+        help="also time this checkout with these preset fields changed (repeatable: one program)",
+    )
     p.add_argument("--out", default=str(Path(__file__).resolve().parent / "results_ab_chunk.json"))
     a = p.parse_args(argv)
     if a.seeds < 1 or a.rounds < 1:
@@ -159,13 +168,16 @@ def main(argv=None) -> None:
         if a.baseline is not None:
             base_train = import_baseline(a.baseline, Path(tmp))
             trainers[a.baseline] = base_train.Trainer(_baseline_preset(a.preset))
-            states[a.baseline] = _recast(_baseline_state(a.baseline_run, state, key),
-                                         jax.eval_shape(trainers[a.baseline].init, key))
+            states[a.baseline] = _recast(
+                _baseline_state(a.baseline_run, state, key), jax.eval_shape(trainers[a.baseline].init, key)
+            )
         if a.act_only:  # learning_starts above the restored step count: the chunk only collects
-            trainers["this, acting only"] = T.Trainer(presets.preset(a.preset, learning_starts=presets.preset(
-                a.preset).replay.capacity_steps))
-            states["this, acting only"] = _for_trainer(state.replace(env_steps=jnp.zeros_like(state.env_steps)),
-                                                       trainers["this, acting only"])
+            trainers["this, acting only"] = T.Trainer(
+                presets.preset(a.preset, learning_starts=presets.preset(a.preset).replay.capacity_steps)
+            )
+            states["this, acting only"] = _for_trainer(
+                state.replace(env_steps=jnp.zeros_like(state.env_steps)), trainers["this, acting only"]
+            )
         if a.seeds > 1:
             states = {k: jax.tree.map(lambda x: jnp.stack([x] * a.seeds), s) for k, s in states.items()}
         chunk = {k: jax.jit(jax.vmap(tr.chunk) if a.seeds > 1 else tr.chunk) for k, tr in trainers.items()}
@@ -179,14 +191,29 @@ def main(argv=None) -> None:
                 t = time.perf_counter()
                 jax.block_until_ready(chunk[k](states[k]))
                 times[k].append(time.perf_counter() - t)
-            print(f"round {r + 1}: " + ", ".join(f"{k} {v[-1]:.2f} s" for k, v in times.items()) +
-                  f" (load {os.getloadavg()[0]:.2f})", flush=True)
+            print(
+                f"round {r + 1}: "
+                + ", ".join(f"{k} {v[-1]:.2f} s" for k, v in times.items())
+                + f" (load {os.getloadavg()[0]:.2f})",
+                flush=True,
+            )
     med = {k: statistics.median(v) for k, v in times.items()}
     for k, v in med.items():
         print(f"{k}: median chunk {v:.2f} s, {med[reference] / v:.2f}x {reference}")
-    merge_json(a.out, f"{a.preset}_seeds{a.seeds}_vs_{reference}" + "".join(f"_{t}" for t in a.set), dict(
-        run=str(a.run), baseline_run=str(a.baseline_run or a.run), env_steps=int(state.env_steps), chunk_s=times, median_s=med,
-        loadavg_start=load0, loadavg_end=os.getloadavg(), jax=jax.__version__))
+    merge_json(
+        a.out,
+        f"{a.preset}_seeds{a.seeds}_vs_{reference}" + "".join(f"_{t}" for t in a.set),
+        dict(
+            run=str(a.run),
+            baseline_run=str(a.baseline_run or a.run),
+            env_steps=int(state.env_steps),
+            chunk_s=times,
+            median_s=med,
+            loadavg_start=load0,
+            loadavg_end=os.getloadavg(),
+            jax=jax.__version__,
+        ),
+    )
 
 
 if __name__ == "__main__":

@@ -61,12 +61,23 @@ def main(argv=None) -> None:
     load.append(os.getloadavg()[0])
     medians = {n: statistics.median(v) for n, v in chunk_s.items()}
     low = f"level{a.level}"
-    print(f"median chunk: default {medians['default']:.2f} s, {low} {medians[low]:.2f} s "
-          f"({medians[low] / medians['default']:.3f}x); compile {compile_s['default']:.1f} s against "
-          f"{compile_s[low]:.1f} s; load {load[0]:.1f} -> {load[1]:.1f}")
-    merge_json(a.out, f"{a.preset}_level{a.level}", dict(
-        compile_s=compile_s, chunk_s=chunk_s, median_chunk_s=medians, load=load, date=time.strftime("%Y-%m-%d"),
-        commit=code_version()))
+    print(
+        f"median chunk: default {medians['default']:.2f} s, {low} {medians[low]:.2f} s "
+        f"({medians[low] / medians['default']:.3f}x); compile {compile_s['default']:.1f} s against "
+        f"{compile_s[low]:.1f} s; load {load[0]:.1f} -> {load[1]:.1f}"
+    )
+    merge_json(
+        a.out,
+        f"{a.preset}_level{a.level}",
+        dict(
+            compile_s=compile_s,
+            chunk_s=chunk_s,
+            median_chunk_s=medians,
+            load=load,
+            date=time.strftime("%Y-%m-%d"),
+            commit=code_version(),
+        ),
+    )
 
 
 if __name__ == "__main__":

@@ -41,6 +41,7 @@ def _split_programs(trainer: Trainer):
     """(acting, learning) jitted: acting(params, actor, replay, env_steps, key) -> (actor, replay, stats,
     env_steps after the rollout, the next iteration's key, the learning key) and learning(learner, replay, env_steps,
     key) -> (learner, replay, learned): Trainer.iteration in two programs, the key split and step count inside."""
+
     def acting(params, actor, replay, env_steps, key):
         key, k_act, k_learn = jax.random.split(key, 3)
         actor, chunk, stats, _ = trainer.rollout(params, actor, env_steps, k_act)
@@ -55,9 +56,11 @@ def _lowered(trainer: Trainer):
     runner = jax.eval_shape(trainer.init, jax.random.PRNGKey(0))
     key = runner.key  # the programs take the runner's key and keys split from it
     acting, learning = _split_programs(trainer)
-    return (jax.jit(trainer.chunk, donate_argnums=0).lower(runner),
-            acting.lower(runner.learner.params, runner.actor, runner.replay, runner.env_steps, key),
-            learning.lower(runner.learner, runner.replay, runner.env_steps, key))
+    return (
+        jax.jit(trainer.chunk, donate_argnums=0).lower(runner),
+        acting.lower(runner.learner.params, runner.actor, runner.replay, runner.env_steps, key),
+        learning.lower(runner.learner, runner.replay, runner.env_steps, key),
+    )
 
 
 def compile_once(preset: str, variant: str) -> float:
@@ -87,8 +90,9 @@ def run_both(preset: str, chunks: int) -> dict:
 
     def split_chunk(runner):  # two dispatches an iteration (the chunk's policy average, once a chunk, left out)
         for _ in range(trainer.config.run.iterations_per_chunk):
-            actor, replay, _, env_steps, key, k_learn = acting(runner.learner.params, runner.actor, runner.replay,
-                                                               runner.env_steps, runner.key)
+            actor, replay, _, env_steps, key, k_learn = acting(
+                runner.learner.params, runner.actor, runner.replay, runner.env_steps, runner.key
+            )
             learner, replay, learned = learning(runner.learner, replay, env_steps, k_learn)
             runner = runner.replace(actor=actor, replay=replay, learner=learner, key=key, env_steps=env_steps)
         return runner, learned
@@ -138,11 +142,22 @@ def main(argv=None) -> None:
     load.append(os.getloadavg()[0])
     medians = {name: statistics.median(v) for name, v in chunk_s.items()}
     print("compile s: " + ", ".join(f"{v} {statistics.median(s):.1f} (median of {s})" for v, s in compile_s.items()))
-    print("median chunk s: " + ", ".join(f"{n} {m:.2f}" for n, m in medians.items()) + f"; load {load[0]:.2f} -> "
-          f"{load[1]:.2f}")
-    merge_json(a.out, f"{a.preset}_compile_split", dict(
-        compile_s=compile_s, chunk_s=chunk_s, median_chunk_s=medians, load=load, date=time.strftime("%Y-%m-%d"),
-        commit=code_version()))
+    print(
+        "median chunk s: " + ", ".join(f"{n} {m:.2f}" for n, m in medians.items()) + f"; load {load[0]:.2f} -> "
+        f"{load[1]:.2f}"
+    )
+    merge_json(
+        a.out,
+        f"{a.preset}_compile_split",
+        dict(
+            compile_s=compile_s,
+            chunk_s=chunk_s,
+            median_chunk_s=medians,
+            load=load,
+            date=time.strftime("%Y-%m-%d"),
+            commit=code_version(),
+        ),
+    )
 
 
 if __name__ == "__main__":

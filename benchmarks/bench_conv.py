@@ -30,8 +30,8 @@ import jax.numpy as jnp
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_train import _filled_replay, machine_info, merge_json  # noqa: E402
 
-from ramavt_jax import train as T  # noqa: E402
 from ramavt_jax import presets, train_config  # noqa: E402
+from ramavt_jax import train as T  # noqa: E402
 from ramavt_jax.layers import CONV_FUNCTIONS, conv_out_size  # noqa: E402
 
 IMPLS = ("im2col", "lax", "hybrid")  # the first is the baseline
@@ -97,29 +97,44 @@ def bench_layers(cfg: train_config.TrainConfig, seeds: int, rounds: int) -> list
             calls[f"{impl} forward"] = lambda fwd=fwd: fwd(x_fwd, kernel)
             calls[f"{impl} kernel gradient"] = lambda grad=grad: grad(kernel, x_grad)
         med = _interleaved(calls, rounds)
-        row = dict(layer=f"conv{i}", frame=layer["frame"], kernel=layer["kernel"], stride=layer["stride"],
-                   forward_frames=no_grad_frames, gradient_frames=grad_frames,
-                   ms={name: 1e3 * t for name, t in med.items()})
+        row = dict(
+            layer=f"conv{i}",
+            frame=layer["frame"],
+            kernel=layer["kernel"],
+            stride=layer["stride"],
+            forward_frames=no_grad_frames,
+            gradient_frames=grad_frames,
+            ms={name: 1e3 * t for name, t in med.items()},
+        )
         rows.append(row)
-        print(f"  conv{i} {layer['frame']} -> {layer['kernel'][-1]} stride {layer['stride']}: " + ", ".join(
-            f"{name} {1e3 * t:.1f} ms" for name, t in med.items()), flush=True)
+        print(
+            f"  conv{i} {layer['frame']} -> {layer['kernel'][-1]} stride {layer['stride']}: "
+            + ", ".join(f"{name} {1e3 * t:.1f} ms" for name, t in med.items()),
+            flush=True,
+        )
     return rows
 
 
 def bench_update(cfg: train_config.TrainConfig, rounds: int) -> dict:
     key = jax.random.PRNGKey(0)
-    trainers = {impl: T.Trainer(cfg.override(network=dataclasses.replace(cfg.network, conv_impl=impl)))
-                for impl in IMPLS}
+    trainers = {
+        impl: T.Trainer(cfg.override(network=dataclasses.replace(cfg.network, conv_impl=impl))) for impl in IMPLS
+    }
     base = trainers[IMPLS[0]]
     learner, replay_state = jax.jit(base.init)(key).learner, _filled_replay(base, key)
     updates = {impl: jax.jit(tr.update) for impl, tr in trainers.items()}
     med = _interleaved({impl: lambda u=u: u(learner, replay_state, key) for impl, u in updates.items()}, rounds)
     trained = cfg.replay.batch_size * cfg.replay.train_len
-    out = {impl: dict(update_ms=1e3 * t, trained_frames_per_s=trained / t, vs_im2col=med[IMPLS[0]] / t)
-           for impl, t in med.items()}
+    out = {
+        impl: dict(update_ms=1e3 * t, trained_frames_per_s=trained / t, vs_im2col=med[IMPLS[0]] / t)
+        for impl, t in med.items()
+    }
     for impl, row in out.items():
-        print(f"  update, conv_impl={impl}: {row['update_ms']:.1f} ms, {row['trained_frames_per_s']:.0f} trained "
-              f"frames/s, {row['vs_im2col']:.2f}x im2col", flush=True)
+        print(
+            f"  update, conv_impl={impl}: {row['update_ms']:.1f} ms, {row['trained_frames_per_s']:.0f} trained "
+            f"frames/s, {row['vs_im2col']:.2f}x im2col",
+            flush=True,
+        )
     return out
 
 

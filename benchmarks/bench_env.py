@@ -69,6 +69,7 @@ def build(num_envs: int, res: int, mode: str, which: str = "new", seed: int = 0)
             actions = jax.random.randint(k_act, (num_envs,), 0, env_lib.NUM_ACTIONS)
             obs, state, reward, *_ = v_step(jax.random.split(k_env, num_envs), state, actions, params)
             return state, reward.mean() + obs[:, 0, 0, 0].mean()
+
         return jax.lax.scan(body, state, jax.random.split(key, STEPS_PER_CALL))
 
     key = jax.random.key(seed)
@@ -118,9 +119,18 @@ def bench_point(num_envs: int, res: int, mode: str, budget_s: float, baselines=R
     load0 = os.getloadavg()[0]
     med = time_interleaved(runners, budget_s)
     load1 = os.getloadavg()[0]
-    rows = [dict(renderer=w, num_envs=num_envs, resolution=res, mode=mode,
-                 env_steps_per_s=num_envs * STEPS_PER_CALL / med[w], compile_s=built[w][4],
-                 load_avg_1min=[load0, load1]) for w in baselines]
+    rows = [
+        dict(
+            renderer=w,
+            num_envs=num_envs,
+            resolution=res,
+            mode=mode,
+            env_steps_per_s=num_envs * STEPS_PER_CALL / med[w],
+            compile_s=built[w][4],
+            load_avg_1min=[load0, load1],
+        )
+        for w in baselines
+    ]
     if mj_frames:
         for r in rows:
             r["mj_multiRay_fps_interleaved"] = mj_frames / med["mj_multiRay"]
@@ -147,13 +157,27 @@ def env_poses(tenv, params, state):
 
 
 def machine() -> dict:
-    return dict(platform=platform.platform(), processor=platform.processor(), cpu_count=os.cpu_count(),
-                jax=jax.__version__, backend=jax.default_backend(), devices=[str(d) for d in jax.devices()],
-                device_kind=jax.devices()[0].device_kind, glibc_tunables=os.environ.get("GLIBC_TUNABLES", ""))
+    return dict(
+        platform=platform.platform(),
+        processor=platform.processor(),
+        cpu_count=os.cpu_count(),
+        jax=jax.__version__,
+        backend=jax.default_backend(),
+        devices=[str(d) for d in jax.devices()],
+        device_kind=jax.devices()[0].device_kind,
+        glibc_tunables=os.environ.get("GLIBC_TUNABLES", ""),
+    )
 
 
-def run(out=str(DEFAULT_OUT), quick=False, gpu=False, budget_s=3.0, mj_check=False,
-        baseline: str | None = None, pixel_check: bool = False) -> dict:
+def run(
+    out=str(DEFAULT_OUT),
+    quick=False,
+    gpu=False,
+    budget_s=3.0,
+    mj_check=False,
+    baseline: str | None = None,
+    pixel_check: bool = False,
+) -> dict:
     """Every plan's points; ``baseline`` (a git revision) adds that revision's env step to every point's arms."""
     extra = (BASELINE,) if baseline else ()
     if baseline:
@@ -166,24 +190,39 @@ def run(out=str(DEFAULT_OUT), quick=False, gpu=False, budget_s=3.0, mj_check=Fal
     name = "gpu" if gpu else "mj_check" if mj_check else "pixel_check" if pixel_check else "quick" if quick else "sweep"
     key = f"{name}_vs_{baseline}" if baseline else name
     if gpu:  # (mode, res, envs, arms); the baseline revision only where it still fits a short run
-        plan = ([("depth", 64, n, ("new",) + (extra if n <= 4096 else ())) for n in (1024, 4096, 16384, 65536)]
-                + [("rgbd", 64, n, ("new",)) for n in (4096, 16384)] + [("depth", 128, 16384, ("new",))])
+        plan = (
+            [("depth", 64, n, ("new",) + (extra if n <= 4096 else ())) for n in (1024, 4096, 16384, 65536)]
+            + [("rgbd", 64, n, ("new",)) for n in (4096, 16384)]
+            + [("depth", 128, 16384, ("new",))]
+        )
     elif mj_check:  # the per-core comparison with MuJoCo at the issue's three points
-        plan = [("depth", 64, 64, ("new",) + extra), ("depth", 64, 256, ("new",) + extra),
-                ("rgbd", 64, 64, ("new",) + extra)]
+        plan = [
+            ("depth", 64, 64, ("new",) + extra),
+            ("depth", 64, 256, ("new",) + extra),
+            ("rgbd", 64, 64, ("new",) + extra),
+        ]
     elif pixel_check:  # the cost per pixel: 64x64 against 128x128 depth at the same envs
         plan = [("depth", res, n, ("new",) + extra) for n in (64, 256) for res in (64, 128)]
     elif quick:
         arms = RENDERERS + extra
-        plan = ([("depth", 64, n, arms) for n in (64, 256, 1024)] + [("depth", 128, 256, arms)]
-                + [("rgbd", 64, n, arms) for n in (64, 256)])
+        plan = (
+            [("depth", 64, n, arms) for n in (64, 256, 1024)]
+            + [("depth", 128, 256, arms)]
+            + [("rgbd", 64, n, arms) for n in (64, 256)]
+        )
     else:
         arms = RENDERERS + extra
-        plan = ([("depth", 64, n, arms) for n in (1, 16, 64, 256, 1024, 4096)]
-                + [("depth", r, 256, arms) for r in (84, 128, 256)]
-                + [("rgbd", 64, n, arms) for n in (1, 64, 256, 1024)] + [("rgbd", 128, 256, arms)])
-    print(f"backend {jax.default_backend()} ({jax.devices()[0].device_kind}), {os.cpu_count()} CPUs, "
-          f"GLIBC_TUNABLES={os.environ.get('GLIBC_TUNABLES', '')!r}", flush=True)
+        plan = (
+            [("depth", 64, n, arms) for n in (1, 16, 64, 256, 1024, 4096)]
+            + [("depth", r, 256, arms) for r in (84, 128, 256)]
+            + [("rgbd", 64, n, arms) for n in (1, 64, 256, 1024)]
+            + [("rgbd", 128, 256, arms)]
+        )
+    print(
+        f"backend {jax.default_backend()} ({jax.devices()[0].device_kind}), {os.cpu_count()} CPUs, "
+        f"GLIBC_TUNABLES={os.environ.get('GLIBC_TUNABLES', '')!r}",
+        flush=True,
+    )
     points, poses = [], {}
     for mode, res, n, baselines in plan:
         rows, (_, state, tenv, params, _) = bench_point(n, res, mode, budget_s, baselines)
@@ -194,21 +233,31 @@ def run(out=str(DEFAULT_OUT), quick=False, gpu=False, budget_s=3.0, mj_check=Fal
         for r in rows:
             vs = f"  new is {new['env_steps_per_s'] / r['env_steps_per_s']:5.2f}x this" if r is not new else ""
             if "per_core_vs_mj_multiRay" in r:
-                vs += (f"  | per core {r['per_core_vs_mj_multiRay']:.2f}x mj_multiRay "
-                       f"({r['mj_multiRay_fps_interleaved']:,.0f} frames/s interleaved)")
+                vs += (
+                    f"  | per core {r['per_core_vs_mj_multiRay']:.2f}x mj_multiRay "
+                    f"({r['mj_multiRay_fps_interleaved']:,.0f} frames/s interleaved)"
+                )
             print(_row(r) + vs, flush=True)
         _write(out, key, dict(partial=True, env=points))
     mujoco = []
     for res, (names, pos, rot) in sorted(poses.items()):
         load0 = os.getloadavg()[0]
         m = mujoco_on_poses(names, pos, rot, res, budget_s)
-        mujoco.append(dict(resolution=res, frames=min(len(names), 64), fps=m["fps"],
-                           load_avg_1min=[load0, os.getloadavg()[0]]))
-        print(f"mj_multiRay, 1 thread, env poses, res {res:>3}: {m['fps']:>9.0f} frames/s   (load {load0:.2f})",
-              flush=True)
-    result = dict(machine=machine(), steps_per_call=STEPS_PER_CALL, baseline_revision=baseline, env=points,
-                  mujoco_mj_multiRay=mujoco,
-                  summary=_summary(points, mujoco))
+        mujoco.append(
+            dict(resolution=res, frames=min(len(names), 64), fps=m["fps"], load_avg_1min=[load0, os.getloadavg()[0]])
+        )
+        print(
+            f"mj_multiRay, 1 thread, env poses, res {res:>3}: {m['fps']:>9.0f} frames/s   (load {load0:.2f})",
+            flush=True,
+        )
+    result = dict(
+        machine=machine(),
+        steps_per_call=STEPS_PER_CALL,
+        baseline_revision=baseline,
+        env=points,
+        mujoco_mj_multiRay=mujoco,
+        summary=_summary(points, mujoco),
+    )
     _write(out, key, result)
     print(f"wrote {out} [{key}]")
     return result
@@ -221,9 +270,11 @@ def _write(out, key, obj):
 
 
 def _row(p: dict) -> str:
-    return (f"{p['renderer']:<11} {p['mode']:<5} res {p['resolution']:>3} envs {p['num_envs']:>6}: "
-            f"{p['env_steps_per_s']:>10,.0f} env steps/s  compile {p['compile_s']:5.1f} s  "
-            f"load {p['load_avg_1min'][0]:.2f}-{p['load_avg_1min'][1]:.2f}")
+    return (
+        f"{p['renderer']:<11} {p['mode']:<5} res {p['resolution']:>3} envs {p['num_envs']:>6}: "
+        f"{p['env_steps_per_s']:>10,.0f} env steps/s  compile {p['compile_s']:5.1f} s  "
+        f"load {p['load_avg_1min'][0]:.2f}-{p['load_avg_1min'][1]:.2f}"
+    )
 
 
 def _summary(points, mujoco) -> list:
@@ -235,20 +286,37 @@ def _summary(points, mujoco) -> list:
         if p["resolution"] in mj or "per_core_vs_mj_multiRay" in p:
             # prefer the MuJoCo figure timed interleaved with this point (same load) over the separate one
             ratio = p.get("per_core_vs_mj_multiRay") or p["env_steps_per_s"] / cores / mj[p["resolution"]]
-            lines.append(dict(mode=p["mode"], resolution=p["resolution"], num_envs=p["num_envs"],
-                              renderer=p["renderer"], per_core_vs_mj_multiRay=ratio))
+            lines.append(
+                dict(
+                    mode=p["mode"],
+                    resolution=p["resolution"],
+                    num_envs=p["num_envs"],
+                    renderer=p["renderer"],
+                    per_core_vs_mj_multiRay=ratio,
+                )
+            )
     new = {(p["mode"], p["resolution"], p["num_envs"]): p["env_steps_per_s"] for p in points if p["renderer"] == "new"}
     for (mode, res, n), v in new.items():
         if res != 64 and (mode, 64, n) in new:
-            lines.append(dict(mode=mode, num_envs=n, resolution=res,
-                              pixel_rate_vs_64=v * res * res / (new[(mode, 64, n)] * 64 * 64)))
-    print(f"\nper core (env steps/s / {cores} cores) over one mj_multiRay thread on the same poses (timed interleaved "
-          f"with the point where it was); pixel rate "
-          f"(env steps/s x pixels) relative to 64x64 at the same envs (1.0 = cost per pixel flat)")
+            lines.append(
+                dict(
+                    mode=mode,
+                    num_envs=n,
+                    resolution=res,
+                    pixel_rate_vs_64=v * res * res / (new[(mode, 64, n)] * 64 * 64),
+                )
+            )
+    print(
+        f"\nper core (env steps/s / {cores} cores) over one mj_multiRay thread on the same poses (timed interleaved "
+        f"with the point where it was); pixel rate "
+        f"(env steps/s x pixels) relative to 64x64 at the same envs (1.0 = cost per pixel flat)"
+    )
     for line in lines:
         key = "per_core_vs_mj_multiRay" if "per_core_vs_mj_multiRay" in line else "pixel_rate_vs_64"
-        print(f"  {line.get('renderer', 'new'):<11} {line['mode']:<5} res {line['resolution']:>3} "
-              f"envs {line['num_envs']:>6}: {key} {line[key]:.2f}")
+        print(
+            f"  {line.get('renderer', 'new'):<11} {line['mode']:<5} res {line['resolution']:>3} "
+            f"envs {line['num_envs']:>6}: {key} {line[key]:.2f}"
+        )
     return lines
 
 

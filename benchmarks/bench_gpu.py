@@ -32,11 +32,10 @@ import time
 from pathlib import Path
 
 import jax
+from bench_env import bench_point, machine  # noqa: E402 (the script's directory)
 
 from ramavt_jax import presets
 from ramavt_jax.training import program
-
-from bench_env import bench_point, machine  # noqa: E402 (the script's directory)
 
 ENV_FIRST = [("depth", 64, n) for n in (1024, 4096, 16384, 65536)]
 ENV_LATER = [("rgbd", 64, 16384), ("depth", 128, 16384)]
@@ -48,7 +47,7 @@ def plan(smoke: bool = False) -> list[tuple]:
     """The items in the order they run: ("env", mode, resolution, envs) and ("chunk", preset)."""
     if smoke:
         return [("env", *p) for p in SMOKE_ENV] + [("chunk", p) for p in SMOKE_PRESETS]
-    return ([("env", *p) for p in ENV_FIRST] + [("chunk", p) for p in PRESETS] + [("env", *p) for p in ENV_LATER])
+    return [("env", *p) for p in ENV_FIRST] + [("chunk", p) for p in PRESETS] + [("env", *p) for p in ENV_LATER]
 
 
 def device_info() -> dict:
@@ -75,13 +74,22 @@ def chunk_throughput(preset: str, chunks: int) -> dict:
         updates += int(metrics.updates.sum())
     seconds = sum(times)
     rate = chunks * cfg.env_steps_per_chunk / seconds
-    return {"preset": preset, "num_envs": cfg.acting.num_envs, "resolution": cfg.env.camera.resolution,
-            "batch_size": cfg.replay.batch_size, "compile_s": prog.compile_s, "chunk_s": times,
-            "first_chunk_s": first_s, "env_steps_per_chunk": cfg.env_steps_per_chunk, "env_steps_per_s": rate,
-            "updates_per_s": updates / seconds,
-            "trained_frames_per_s": updates * cfg.replay.batch_size * cfg.replay.train_len / seconds,
-            "memory_bytes": prog.memory, "total_env_steps": base.run.total_env_steps,
-            "projected_train_wall_s": prog.compile_s + base.run.total_env_steps / rate}
+    return {
+        "preset": preset,
+        "num_envs": cfg.acting.num_envs,
+        "resolution": cfg.env.camera.resolution,
+        "batch_size": cfg.replay.batch_size,
+        "compile_s": prog.compile_s,
+        "chunk_s": times,
+        "first_chunk_s": first_s,
+        "env_steps_per_chunk": cfg.env_steps_per_chunk,
+        "env_steps_per_s": rate,
+        "updates_per_s": updates / seconds,
+        "trained_frames_per_s": updates * cfg.replay.batch_size * cfg.replay.train_len / seconds,
+        "memory_bytes": prog.memory,
+        "total_env_steps": base.run.total_env_steps,
+        "projected_train_wall_s": prog.compile_s + base.run.total_env_steps / rate,
+    }
 
 
 def _measure(item: tuple, budget_s: float, chunks: int) -> dict:
@@ -92,8 +100,15 @@ def _measure(item: tuple, budget_s: float, chunks: int) -> dict:
     return chunk_throughput(item[1], chunks)
 
 
-def run(out_dir: str, deadline_s: float = 480.0, min_left_s: float = 45.0, budget_s: float = 2.0, chunks: int = 2,
-        smoke: bool = False, clock=time.monotonic) -> dict:
+def run(
+    out_dir: str,
+    deadline_s: float = 480.0,
+    min_left_s: float = 45.0,
+    budget_s: float = 2.0,
+    chunks: int = 2,
+    smoke: bool = False,
+    clock=time.monotonic,
+) -> dict:
     """Run the plan, writing ``out_dir``/results_gpu.json after every item. Returns the results."""
     start = clock()
     path = Path(out_dir) / "results_gpu.json"
@@ -124,30 +139,42 @@ def _line(row: dict) -> str:
         return f"{what}: {row.get('skipped') or row['error']}"
     if row["item"][0] == "env":
         return f"{what}: {row['env_steps_per_s']:,.0f} env steps/s (compile {row['compile_s']:.1f} s)"
-    return (f"{what}: {row['env_steps_per_s']:,.0f} env steps/s, {row['updates_per_s']:.1f} updates/s, "
-            f"{row['trained_frames_per_s']:,.0f} trained frames/s; "
-            f"whole run ~{row['projected_train_wall_s'] / 60:.1f} min")
+    return (
+        f"{what}: {row['env_steps_per_s']:,.0f} env steps/s, {row['updates_per_s']:.1f} updates/s, "
+        f"{row['trained_frames_per_s']:,.0f} trained frames/s; "
+        f"whole run ~{row['projected_train_wall_s'] / 60:.1f} min"
+    )
 
 
 def report(result: dict) -> str:
     """Markdown tables of a results_gpu.json (written from the figures, for RESULTS.md)."""
     dev = result["device"]
-    lines = [f"Device: {dev['device_kind']} ({dev['backend']}, jax {dev['jax']}, {dev['cpu_count']} host CPUs)", "",
-             "| env: mode | resolution | envs | env steps/s | compile s |", "|---|---|---|---|---|"]
-    chunks = ["", "| preset | envs | resolution | batch | env steps/s | updates/s | trained frames/s | chunk s | "
-              "compile s | projected training wall |", "|---|---|---|---|---|---|---|---|---|---|"]
+    lines = [
+        f"Device: {dev['device_kind']} ({dev['backend']}, jax {dev['jax']}, {dev['cpu_count']} host CPUs)",
+        "",
+        "| env: mode | resolution | envs | env steps/s | compile s |",
+        "|---|---|---|---|---|",
+    ]
+    chunks = [
+        "",
+        "| preset | envs | resolution | batch | env steps/s | updates/s | trained frames/s | chunk s | "
+        "compile s | projected training wall |",
+        "|---|---|---|---|---|---|---|---|---|---|",
+    ]
     for row in result["items"]:
         item, note = row["item"], row.get("skipped") or row.get("error")
         if item[0] == "env":
-            figures = (f"{row['env_steps_per_s']:,.0f} | {row['compile_s']:.1f}" if not note else f"{note} | -")
+            figures = f"{row['env_steps_per_s']:,.0f} | {row['compile_s']:.1f}" if not note else f"{note} | -"
             lines.append(f"| {item[1]} | {item[2]} | {item[3]} | {figures} |")
         elif note:
             chunks.append(f"| {item[1]} | - | - | - | {note} | - | - | - | - | - |")
         else:
-            chunks.append(f"| {item[1]} | {row['num_envs']} | {row['resolution']} | {row['batch_size']} | "
-                          f"{row['env_steps_per_s']:,.0f} | {row['updates_per_s']:.2f} | "
-                          f"{row['trained_frames_per_s']:,.0f} | {', '.join(f'{s:.3g}' for s in row['chunk_s'])} | "
-                          f"{row['compile_s']:.0f} | {row['projected_train_wall_s'] / 60:.1f} min |")
+            chunks.append(
+                f"| {item[1]} | {row['num_envs']} | {row['resolution']} | {row['batch_size']} | "
+                f"{row['env_steps_per_s']:,.0f} | {row['updates_per_s']:.2f} | "
+                f"{row['trained_frames_per_s']:,.0f} | {', '.join(f'{s:.3g}' for s in row['chunk_s'])} | "
+                f"{row['compile_s']:.0f} | {row['projected_train_wall_s'] / 60:.1f} min |"
+            )
     return "\n".join(lines + chunks)
 
 

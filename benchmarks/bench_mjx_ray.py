@@ -36,8 +36,9 @@ def _time(fn, reps=5):
     return statistics.median(times)
 
 
-def run(out=str(DEFAULT_OUT), quick: bool = False, num_envs: int = 16, res: int = 64,
-        target: str = "Satellite-v0") -> dict:
+def run(
+    out=str(DEFAULT_OUT), quick: bool = False, num_envs: int = 16, res: int = 64, target: str = "Satellite-v0"
+) -> dict:
     xml = Path(targets.resolve(target)).read_text()
     xml = xml.replace("<worldbody>", '<asset><material name="m"/></asset><worldbody>', 1)
     model = mujoco.MjModel.from_xml_string(xml)
@@ -99,9 +100,18 @@ def run(out=str(DEFAULT_OUT), quick: bool = False, num_envs: int = 16, res: int 
     ours_compile = time.perf_counter() - t0
     ours_fps = num_envs / _time(lambda: ours_fn(ours_p, ours_r))
     disagree = float(jnp.mean((mjx_depth > 0) != (ours_depth > 0)))
-    result = dict(target=target, resolution=res, num_envs=num_envs, mjx_ray_fps=mjx_fps, ours_fps=ours_fps,
-                  speedup=ours_fps / mjx_fps, mjx_compile_s=mjx_compile, ours_compile_s=ours_compile,
-                  hit_mask_disagreement=disagree, geom_types=sorted(set(int(t) for t in model.geom_type)))
+    result = dict(
+        target=target,
+        resolution=res,
+        num_envs=num_envs,
+        mjx_ray_fps=mjx_fps,
+        ours_fps=ours_fps,
+        speedup=ours_fps / mjx_fps,
+        mjx_compile_s=mjx_compile,
+        ours_compile_s=ours_compile,
+        hit_mask_disagreement=disagree,
+        geom_types=sorted(set(int(t) for t in model.geom_type)),
+    )
     print(json.dumps(result, indent=1))
     Path(out).parent.mkdir(parents=True, exist_ok=True)
     Path(out).write_text(json.dumps(result, indent=2))

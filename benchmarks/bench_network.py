@@ -116,8 +116,8 @@ def bench_train(cfg, res, ch, b=32, t=12):
 
 def profile_train(cfg, res, ch, b=32, t=12):
     """Where the time goes: encoder fwd / fwd+bwd vs LSTM fwd / fwd+bwd (ms per B x T batch)."""
-    from ramavt_jax.network import Encoder
     from ramavt_jax.layers import LSTMStack
+    from ramavt_jax.network import Encoder
 
     obs_shape = (res, res, ch)
     params = init_params(cfg, jax.random.key(0), obs_shape)["params"]
@@ -157,8 +157,15 @@ def main():
     ap.add_argument("--out", default=str(Path(__file__).resolve().parent / "results_network.json"))
     args = ap.parse_args()
     ch = args.channels
-    results = {"platform": platform.processor() or platform.machine(), "devices": str(jax.devices()),
-               "jax": jax.__version__, "loadavg_start": os.getloadavg(), "rows": [], "train": [], "profile": []}
+    results = {
+        "platform": platform.processor() or platform.machine(),
+        "devices": str(jax.devices()),
+        "jax": jax.__version__,
+        "loadavg_start": os.getloadavg(),
+        "rows": [],
+        "train": [],
+        "profile": [],
+    }
 
     print(f"{'variant':8s} {'res':>4s} {'params':>10s} {'MFLOP/frame':>12s} {'fwd obs/s B64':>14s} {'acting Hz':>10s}")
     for variant in args.variants.split(","):
@@ -175,12 +182,19 @@ def main():
                 acting_hz=bench_acting(cfg, res, ch),
             )
             results["rows"].append(row)
-            print(f"{variant:8s} {res:4d} {row['params']:10,d} {row['flops_per_frame'] / 1e6:12.1f} "
-                  f"{row['forward_obs_per_s']:14,.0f} {row['acting_hz']:10,.0f}", flush=True)
+            print(
+                f"{variant:8s} {res:4d} {row['params']:10,d} {row['flops_per_frame'] / 1e6:12.1f} "
+                f"{row['forward_obs_per_s']:14,.0f} {row['acting_hz']:10,.0f}",
+                flush=True,
+            )
 
     train_cfgs = [(v, NetworkConfig(variant=v)) for v in args.train_variants.split(",") if v]
-    extras = {"lax": dict(conv_impl="lax"), "bf16": dict(dtype="bfloat16"), "nonorm": dict(norm="none"),
-              "batchnorm": dict(norm="batch")}
+    extras = {
+        "lax": dict(conv_impl="lax"),
+        "bf16": dict(dtype="bfloat16"),
+        "nonorm": dict(norm="none"),
+        "batchnorm": dict(norm="batch"),
+    }
     for e in filter(None, args.extra.split(",")):
         train_cfgs.append((f"ramavt+{e}", dataclasses.replace(NetworkConfig(), **extras[e])))
     print(f"\n{'train config':16s} {'res':>4s} {'updates/s':>10s} {'frames/s':>10s}   (B=32 x T=12, adam, MSE)")

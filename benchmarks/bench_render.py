@@ -39,11 +39,14 @@ def make_scene(num_envs: int, seed: int = 0, names=None):
     q = rng.normal(size=(num_envs, 4))
     q /= np.linalg.norm(q, axis=1, keepdims=True)
     w, x, y, z = q.T
-    rot = np.stack([
-        np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
-        np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
-        np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
-    ], 1)
+    rot = np.stack(
+        [
+            np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
+            np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
+            np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
+        ],
+        1,
+    )
     return batch, jnp.asarray(pos, jnp.float32), jnp.asarray(rot, jnp.float32), [names[i] for i in idx], pos, rot
 
 
@@ -121,7 +124,9 @@ def run(envs=DEFAULT_ENVS, resolutions=DEFAULT_RES, budget_s: float = 2.0, out: 
     """Run the sweep, print a table, optionally write JSON; returns the list of result rows."""
     rows = []
     print(f"jax {jax.__version__}, devices {jax.devices()}, GLIBC_TUNABLES={os.environ.get('GLIBC_TUNABLES', '')}")
-    print(f"{'envs':>6} {'res':>5} {'mode':>6} {'frames/s':>11} {'mj_multiRay fps':>16} {'ratio':>7} {'hit%':>6} {'compile s':>10}")
+    print(
+        f"{'envs':>6} {'res':>5} {'mode':>6} {'frames/s':>11} {'mj_multiRay fps':>16} {'ratio':>7} {'hit%':>6} {'compile s':>10}"
+    )
     points = [(n, 64) for n in envs] + [(64, r) for r in resolutions if r != 64]
     mj_cache = {}
     for n, res in points:
@@ -130,15 +135,28 @@ def run(envs=DEFAULT_ENVS, resolutions=DEFAULT_RES, budget_s: float = 2.0, out: 
             mj_cache[key] = bench_mujoco(n, res, budget_s)["fps"]
         for mode, shade in (("depth", False), ("rgbd", True)):
             r = bench_jax(n, res, shade, budget_s, chunk=chunk)
-            row = dict(envs=n, resolution=res, mode=mode, fps=r["fps"], mujoco_fps=mj_cache[key],
-                       ratio=r["fps"] / mj_cache[key], hit_fraction=r["hit_fraction"], compile_s=r["compile_s"])
+            row = dict(
+                envs=n,
+                resolution=res,
+                mode=mode,
+                fps=r["fps"],
+                mujoco_fps=mj_cache[key],
+                ratio=r["fps"] / mj_cache[key],
+                hit_fraction=r["hit_fraction"],
+                compile_s=r["compile_s"],
+            )
             rows.append(row)
-            print(f"{n:>6} {res:>5} {mode:>6} {r['fps']:>11.0f} {mj_cache[key]:>16.0f} {row['ratio']:>7.2f} "
-                  f"{100 * r['hit_fraction']:>6.1f} {r['compile_s']:>10.2f}", flush=True)
+            print(
+                f"{n:>6} {res:>5} {mode:>6} {r['fps']:>11.0f} {mj_cache[key]:>16.0f} {row['ratio']:>7.2f} "
+                f"{100 * r['hit_fraction']:>6.1f} {r['compile_s']:>10.2f}",
+                flush=True,
+            )
     if out:
         os.makedirs(os.path.dirname(out) or ".", exist_ok=True)
         with open(out, "w") as f:
-            json.dump(dict(jax=jax.__version__, glibc_tunables=os.environ.get("GLIBC_TUNABLES", ""), rows=rows), f, indent=1)
+            json.dump(
+                dict(jax=jax.__version__, glibc_tunables=os.environ.get("GLIBC_TUNABLES", ""), rows=rows), f, indent=1
+            )
         print(f"wrote {out}")
     return rows
 

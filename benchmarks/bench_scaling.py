@@ -77,8 +77,15 @@ def _collectives(compiled) -> dict:
     return {op: len(re.findall(rf"= [^=]*? {op}(?:-start)?\(", text)) for op in ops}
 
 
-def env_point(envs_per_device: int, mesh, num_devices: int, resolution: int, budget_s: float,
-              partition: str = "gspmd", seed: int = 0) -> dict:
+def env_point(
+    envs_per_device: int,
+    mesh,
+    num_devices: int,
+    resolution: int,
+    budget_s: float,
+    partition: str = "gspmd",
+    seed: int = 0,
+) -> dict:
     """Env steps/s of N = envs_per_device * D envs, state split over ``mesh`` along the env axis.
 
     partition: 'gspmd' jits the vmapped step over the global batch with sharding constraints and lets XLA's
@@ -95,8 +102,7 @@ def env_point(envs_per_device: int, mesh, num_devices: int, resolution: int, bud
     from ramavt_jax.render import CameraConfig
 
     n = envs_per_device * num_devices
-    tracking_env = env_lib.TrackingEnv(env_lib.EnvConfig(camera=CameraConfig(resolution=resolution),
-                                                         obs_mode="depth"))
+    tracking_env = env_lib.TrackingEnv(env_lib.EnvConfig(camera=CameraConfig(resolution=resolution), obs_mode="depth"))
     params = tracking_env.default_params()
     v_reset = jax.vmap(tracking_env.reset, in_axes=(0, None))
     v_step = jax.vmap(tracking_env.step, in_axes=(0, 0, 0, None))
@@ -113,17 +119,25 @@ def env_point(envs_per_device: int, mesh, num_devices: int, resolution: int, bud
             keys = split(jax.random.split(k_env, num))
             obs, state, reward, *_ = v_step(keys, state, actions, params)
             return split(state), mean(reward.mean() + obs[:, 0, 0, 0].mean())
+
         return jax.lax.scan(body, state, jax.random.split(key, STEPS_PER_CALL))
 
     if partition == "shard_map":
+
         def local(state, key):
             key = jax.random.fold_in(key, jax.lax.axis_index(distributed.DATA_AXIS))
-            return steps(state, key, envs_per_device, lambda x: x,
-                         lambda x: jax.lax.pmean(x, distributed.DATA_AXIS))
+            return steps(state, key, envs_per_device, lambda x: x, lambda x: jax.lax.pmean(x, distributed.DATA_AXIS))
+
         # check_vma=False: the renderer's while_loop carries unsharded-typed buffers
-        run = jax.shard_map(local, mesh=mesh, in_specs=(P(distributed.DATA_AXIS), P()),
-                            out_specs=(P(distributed.DATA_AXIS), P()), check_vma=False)
+        run = jax.shard_map(
+            local,
+            mesh=mesh,
+            in_specs=(P(distributed.DATA_AXIS), P()),
+            out_specs=(P(distributed.DATA_AXIS), P()),
+            check_vma=False,
+        )
     elif partition in ("gspmd", "none"):
+
         def run(state, key):  # per-env leaves kept split along the env axis inside the scan
             return steps(state, key, n, lambda t: distributed.constrain_envs(t, mesh), lambda x: x)
     else:
@@ -144,7 +158,8 @@ def env_point(envs_per_device: int, mesh, num_devices: int, resolution: int, bud
     times, i, start = [], 0, time.perf_counter()
     # >= 3 timed calls, then more until budget_s; a slow point (>= 3 * budget_s spent) stops earlier
     while (len(times) < 3 and time.perf_counter() - start < 3 * budget_s) or (
-            time.perf_counter() - start < budget_s and len(times) < 20):
+        time.perf_counter() - start < budget_s and len(times) < 20
+    ):
         t = time.perf_counter()
         state, out = compiled(state, jax.random.key(2 + i))
         jax.block_until_ready((state, out))
@@ -153,11 +168,23 @@ def env_point(envs_per_device: int, mesh, num_devices: int, resolution: int, bud
     dt = statistics.median(times)
     rate = n * STEPS_PER_CALL / dt
     place = _placement(state, n)
-    return {"kind": "env", "partition": partition, "devices": num_devices, "envs_per_device": envs_per_device,
-            "num_envs": n, "resolution": resolution, "obs_mode": "depth", "env_steps_per_s": rate,
-            "frames_per_s": rate, "call_s": dt, "repeats": len(times), "compile_s": compile_s, **place,
-            "placement_ok": place["state_devices"] == num_devices and place["rows_per_shard"] == [envs_per_device],
-            "collectives": _collectives(compiled)}
+    return {
+        "kind": "env",
+        "partition": partition,
+        "devices": num_devices,
+        "envs_per_device": envs_per_device,
+        "num_envs": n,
+        "resolution": resolution,
+        "obs_mode": "depth",
+        "env_steps_per_s": rate,
+        "frames_per_s": rate,
+        "call_s": dt,
+        "repeats": len(times),
+        "compile_s": compile_s,
+        **place,
+        "placement_ok": place["state_devices"] == num_devices and place["rows_per_shard"] == [envs_per_device],
+        "collectives": _collectives(compiled),
+    }
 
 
 def train_config(num_envs: int, iterations_per_chunk: int):
@@ -167,18 +194,31 @@ def train_config(num_envs: int, iterations_per_chunk: int):
     base = presets.preset("quick")
     per_iter = num_envs * base.acting.rollout_steps
     frames_per_update = base.replay.batch_size * base.replay.train_len
-    updates = max(1, round(base.learner.replay_ratio * per_iter / frames_per_update))  # keep the preset's ratio (2) if whole
+    updates = max(
+        1, round(base.learner.replay_ratio * per_iter / frames_per_update)
+    )  # keep the preset's ratio (2) if whole
     return presets.preset(
-        "quick", num_envs=num_envs, iterations_per_chunk=iterations_per_chunk,
+        "quick",
+        num_envs=num_envs,
+        iterations_per_chunk=iterations_per_chunk,
         total_env_steps=per_iter * iterations_per_chunk,
         capacity_steps=num_envs * TRAIN_REPLAY_STEPS_PER_ENV,
         # rows hold 2 * rollout_steps = 40 >= burn_in + train_len + 1 = 31 steps after 2 iterations: can_sample
-        learning_starts=2 * per_iter, replay_ratio=updates * frames_per_update / per_iter,
-        eval_episodes=0, checkpoint_every_chunks=0)
+        learning_starts=2 * per_iter,
+        replay_ratio=updates * frames_per_update / per_iter,
+        eval_episodes=0,
+        checkpoint_every_chunks=0,
+    )
 
 
-def train_point(envs_per_device: int, mesh, num_devices: int, iterations_per_chunk: int, timed_chunks: int,
-                max_warmup_chunks: int = 4) -> dict:
+def train_point(
+    envs_per_device: int,
+    mesh,
+    num_devices: int,
+    iterations_per_chunk: int,
+    timed_chunks: int,
+    max_warmup_chunks: int = 4,
+) -> dict:
     import jax
     import numpy as np
 
@@ -212,19 +252,38 @@ def train_point(envs_per_device: int, mesh, num_devices: int, iterations_per_chu
     ups = statistics.median(u / w for u, w in zip(updates, walls))
     frames_per_update = cfg.replay.batch_size * cfg.replay.train_len
     return dict(
-        kind="train", partition="none" if mesh is None else "trainer", devices=num_devices,
-        envs_per_device=envs_per_device, num_envs=n, preset="quick",
-        resolution=cfg.env.camera.resolution, batch_size=cfg.replay.batch_size, train_len=cfg.replay.train_len,
-        rollout_steps=cfg.acting.rollout_steps, iterations_per_chunk=cfg.run.iterations_per_chunk,
-        updates_per_iteration=cfg.updates_per_iteration, replay_ratio=cfg.learner.replay_ratio,
-        learning_starts=cfg.learner.learning_starts, replay_capacity=cfg.replay.capacity_steps,
+        kind="train",
+        partition="none" if mesh is None else "trainer",
+        devices=num_devices,
+        envs_per_device=envs_per_device,
+        num_envs=n,
+        preset="quick",
+        resolution=cfg.env.camera.resolution,
+        batch_size=cfg.replay.batch_size,
+        train_len=cfg.replay.train_len,
+        rollout_steps=cfg.acting.rollout_steps,
+        iterations_per_chunk=cfg.run.iterations_per_chunk,
+        updates_per_iteration=cfg.updates_per_iteration,
+        replay_ratio=cfg.learner.replay_ratio,
+        learning_starts=cfg.learner.learning_starts,
+        replay_capacity=cfg.replay.capacity_steps,
         data_parallel_batch=mesh is not None and cfg.replay.batch_size % num_devices == 0,
-        warmup_chunks=warm, warmup_s=warm_s, replay_can_sample=can_sample, timed_chunks=len(walls),
-        chunk_s=wall, chunk_wall_s=walls, updates_per_chunk=updates, all_iterations_learned=all(
-            u == expected for u in updates),
+        warmup_chunks=warm,
+        warmup_s=warm_s,
+        replay_can_sample=can_sample,
+        timed_chunks=len(walls),
+        chunk_s=wall,
+        chunk_wall_s=walls,
+        updates_per_chunk=updates,
+        all_iterations_learned=all(u == expected for u in updates),
         env_steps_per_s=statistics.median(cfg.env_steps_per_chunk / w for w in walls),
-        updates_per_s=ups, trained_frames_per_s=ups * frames_per_update, compile_s=prog.compile_s,
-        memory=prog.memory, collectives=_collectives(prog.chunk), **_placement(state.actor.env_state, n))
+        updates_per_s=ups,
+        trained_frames_per_s=ups * frames_per_update,
+        compile_s=prog.compile_s,
+        memory=prog.memory,
+        collectives=_collectives(prog.chunk),
+        **_placement(state.actor.env_state, n),
+    )
 
 
 def worker(args) -> None:
@@ -238,13 +297,22 @@ def worker(args) -> None:
     if len(devices) < d:
         raise SystemExit(f"worker: {d} devices requested but {len(devices)} visible ({devices[0].platform})")
     mesh = distributed.make_mesh(d)
-    info = {"devices": d, "platform": devices[0].platform, "device_kind": devices[0].device_kind,
-            "visible_devices": len(devices), "jax": jax.__version__, "forced_cpu_devices": not args.real_devices}
-    print(f"worker D={d}: {d} x {info['device_kind']} ({info['platform']}), mesh "
-          f"{None if mesh is None else dict(mesh.shape)}", flush=True)
+    info = {
+        "devices": d,
+        "platform": devices[0].platform,
+        "device_kind": devices[0].device_kind,
+        "visible_devices": len(devices),
+        "jax": jax.__version__,
+        "forced_cpu_devices": not args.real_devices,
+    }
+    print(
+        f"worker D={d}: {d} x {info['device_kind']} ({info['platform']}), mesh "
+        f"{None if mesh is None else dict(mesh.shape)}",
+        flush=True,
+    )
     points = []
     for e in args.envs_per_device:
-        for partition in (args.env_partitions if mesh is not None else ["none"]):
+        for partition in args.env_partitions if mesh is not None else ["none"]:
             p = env_point(e, mesh, d, args.resolution, args.budget, partition)
             points.append(p)
             print(POINT_PREFIX + json.dumps(p), flush=True)
@@ -260,8 +328,7 @@ def _probe_backend(timeout_s: float = 120) -> dict:
     """Backend and device count as a fresh process sees them (this process starts no JAX backend)."""
     code = "import json, jax; d = jax.devices(); print(json.dumps([d[0].platform, len(d), d[0].device_kind]))"
     try:
-        r = subprocess.run([sys.executable, "-c", code], check=False, capture_output=True, text=True,
-                           timeout=timeout_s)
+        r = subprocess.run([sys.executable, "-c", code], check=False, capture_output=True, text=True, timeout=timeout_s)
         platform_, count, kind = json.loads(r.stdout.strip().splitlines()[-1])
         return {"platform": platform_, "count": count, "device_kind": kind}
     except Exception as e:  # noqa: BLE001
@@ -283,15 +350,16 @@ def _run_worker(d: int, worker_args: list[str], real_devices: bool, timeout_s: f
     if real_devices:
         cmd.append("--real-devices")
     t0 = time.time()
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-                            env=_worker_env(d, real_devices))
+    proc = subprocess.Popen(
+        cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=_worker_env(d, real_devices)
+    )
     lines: list[str] = []
 
     def pump():
         for line in proc.stdout:
             lines.append(line.rstrip("\n"))
             if line.startswith(POINT_PREFIX):
-                print(f"  [D={d}] {_row(json.loads(line[len(POINT_PREFIX):]))}", flush=True)
+                print(f"  [D={d}] {_row(json.loads(line[len(POINT_PREFIX) :]))}", flush=True)
             elif not line.startswith(RESULT_PREFIX) and line.strip():
                 print(f"  [D={d}] {line.rstrip()}", flush=True)
 
@@ -310,9 +378,9 @@ def _run_worker(d: int, worker_args: list[str], real_devices: bool, timeout_s: f
     result = None
     for line in lines:
         if line.startswith(RESULT_PREFIX):
-            result = json.loads(line[len(RESULT_PREFIX):])
+            result = json.loads(line[len(RESULT_PREFIX) :])
     if result is None:  # keep the points measured before the failure
-        measured = [json.loads(x[len(POINT_PREFIX):]) for x in lines if x.startswith(POINT_PREFIX)]
+        measured = [json.loads(x[len(POINT_PREFIX) :]) for x in lines if x.startswith(POINT_PREFIX)]
         result = {"info": {"devices": d}, "points": measured}
         if status == "ok":
             status = "no RESULT line"
@@ -339,34 +407,63 @@ def add_efficiency(points: list[dict]) -> None:
 def _row(p: dict) -> str:
     coll = sum((p.get("collectives") or {}).values())
     if p["kind"] == "env":
-        return (f"env {p['partition']:>9} D={p['devices']} envs/dev {p['envs_per_device']:>4} (N={p['num_envs']:>4}): "
-                f"{p['env_steps_per_s']:>6.0f} env steps/s, compile {p['compile_s']:.1f} s, state on "
-                f"{p['state_devices']} device(s), rows/shard {p['rows_per_shard']}, {coll} collectives")
-    return (f"train D={p['devices']} envs/dev {p['envs_per_device']:>4} (N={p['num_envs']:>4}): "
-            f"{p['env_steps_per_s']:>7.0f} env steps/s, {p['updates_per_s']:.2f} updates/s, "
-            f"{p['trained_frames_per_s']:.0f} trained frames/s, chunk {p['chunk_s']:.1f} s, compile "
-            f"{p['compile_s']:.1f} s, data-parallel batch: {p['data_parallel_batch']}, {coll} collectives")
+        return (
+            f"env {p['partition']:>9} D={p['devices']} envs/dev {p['envs_per_device']:>4} (N={p['num_envs']:>4}): "
+            f"{p['env_steps_per_s']:>6.0f} env steps/s, compile {p['compile_s']:.1f} s, state on "
+            f"{p['state_devices']} device(s), rows/shard {p['rows_per_shard']}, {coll} collectives"
+        )
+    return (
+        f"train D={p['devices']} envs/dev {p['envs_per_device']:>4} (N={p['num_envs']:>4}): "
+        f"{p['env_steps_per_s']:>7.0f} env steps/s, {p['updates_per_s']:.2f} updates/s, "
+        f"{p['trained_frames_per_s']:.0f} trained frames/s, chunk {p['chunk_s']:.1f} s, compile "
+        f"{p['compile_s']:.1f} s, data-parallel batch: {p['data_parallel_batch']}, {coll} collectives"
+    )
 
 
 def table(points: list[dict]) -> str:
     def f(v, fmt, suffix=""):
         return "-" if v is None else format(v, fmt) + suffix
 
-    cols = [("kind", 5, "<"), ("split by", 9, "<"), ("D", 2, ">"), ("envs/dev", 8, ">"), ("envs", 5, ">"),
-            ("env steps/s", 11, ">"), ("updates/s", 9, ">"), ("trained fr/s", 12, ">"), ("vs 1 device", 11, ">"),
-            ("efficiency", 10, ">"), ("compile s", 9, ">"), ("on devs", 7, ">"), ("collectives", 11, ">")]
-    lines = ["| " + " | ".join(f"{name:{a}{w}}" for name, w, a in cols) + " |",
-             "|" + "|".join("-" * (w + 2) for _, w, _ in cols) + "|"]
+    cols = [
+        ("kind", 5, "<"),
+        ("split by", 9, "<"),
+        ("D", 2, ">"),
+        ("envs/dev", 8, ">"),
+        ("envs", 5, ">"),
+        ("env steps/s", 11, ">"),
+        ("updates/s", 9, ">"),
+        ("trained fr/s", 12, ">"),
+        ("vs 1 device", 11, ">"),
+        ("efficiency", 10, ">"),
+        ("compile s", 9, ">"),
+        ("on devs", 7, ">"),
+        ("collectives", 11, ">"),
+    ]
+    lines = [
+        "| " + " | ".join(f"{name:{a}{w}}" for name, w, a in cols) + " |",
+        "|" + "|".join("-" * (w + 2) for _, w, _ in cols) + "|",
+    ]
     order = {"none": 0, "shard_map": 1, "gspmd": 2, "trainer": 3}
-    for p in sorted(points, key=lambda p: (p["kind"], p["envs_per_device"], p["devices"],
-                                           order.get(p.get("partition"), 3))):
+    for p in sorted(
+        points, key=lambda p: (p["kind"], p["envs_per_device"], p["devices"], order.get(p.get("partition"), 3))
+    ):
         train = p["kind"] == "train"
         coll = p.get("collectives")
-        values = [p["kind"], p.get("partition", "-"), p["devices"], p["envs_per_device"], p["num_envs"],
-                  f(p["env_steps_per_s"], ",.0f"), f(p.get("updates_per_s") if train else None, ".2f"),
-                  f(p.get("trained_frames_per_s") if train else None, ",.0f"),
-                  f(p.get("speedup_vs_1_device"), ".2f", "x"), f(p.get("efficiency"), ".0%"),
-                  f(p["compile_s"], ".1f"), p["state_devices"], "-" if coll is None else sum(coll.values())]
+        values = [
+            p["kind"],
+            p.get("partition", "-"),
+            p["devices"],
+            p["envs_per_device"],
+            p["num_envs"],
+            f(p["env_steps_per_s"], ",.0f"),
+            f(p.get("updates_per_s") if train else None, ".2f"),
+            f(p.get("trained_frames_per_s") if train else None, ",.0f"),
+            f(p.get("speedup_vs_1_device"), ".2f", "x"),
+            f(p.get("efficiency"), ".0%"),
+            f(p["compile_s"], ".1f"),
+            p["state_devices"],
+            "-" if coll is None else sum(coll.values()),
+        ]
         lines.append("| " + " | ".join(f"{v!s:{a}{w}}" for v, (_, w, a) in zip(values, cols)) + " |")
     return "\n".join(lines)
 
@@ -383,11 +480,19 @@ def plot(points: list[dict], path, title: str = "") -> None:
     palette = plt.rcParams["axes.prop_cycle"].by_key()["color"]
     colors = {d: palette[i % len(palette)] for i, d in enumerate(sorted({d for d, _ in lines}))}
     for d, part in lines:
-        ps = sorted((p for p in env if p["devices"] == d and p.get("partition", "none") == part),
-                    key=lambda p: p["envs_per_device"])
+        ps = sorted(
+            (p for p in env if p["devices"] == d and p.get("partition", "none") == part),
+            key=lambda p: p["envs_per_device"],
+        )
         label = f"{d} device{'s' if d > 1 else ''}" + ("" if part == "none" else f" ({part})")
-        ax_env.plot([p["envs_per_device"] for p in ps], [p["env_steps_per_s"] for p in ps], marker="o",
-                    ls="--" if part == "gspmd" else "-", color=colors[d], label=label)
+        ax_env.plot(
+            [p["envs_per_device"] for p in ps],
+            [p["env_steps_per_s"] for p in ps],
+            marker="o",
+            ls="--" if part == "gspmd" else "-",
+            color=colors[d],
+            label=label,
+        )
     ax_env.set_xscale("log", base=2)
     ax_env.set_yscale("log")
     sizes = sorted({p["envs_per_device"] for p in env})
@@ -400,12 +505,12 @@ def plot(points: list[dict], path, title: str = "") -> None:
     train = sorted((p for p in points if p["kind"] == "train"), key=lambda p: p["devices"])
     if train:
         ds = [p["devices"] for p in train]
-        ax_train.plot(ds, [p["trained_frames_per_s"] for p in train], marker="o",
-                      label="trainer chunk")
+        ax_train.plot(ds, [p["trained_frames_per_s"] for p in train], marker="o", label="trainer chunk")
         one = next((p for p in train if p["devices"] == 1), None)
         if one is not None:
-            ax_train.plot(ds, [one["trained_frames_per_s"] * d for d in ds], ls="--", color="gray",
-                          label="linear from 1 device")
+            ax_train.plot(
+                ds, [one["trained_frames_per_s"] * d for d in ds], ls="--", color="gray", label="linear from 1 device"
+            )
         ax_train.set_xticks(ds)
         ax_train.legend(fontsize=8, loc="upper left")
     ax_train.set_xlabel("devices")
@@ -424,11 +529,21 @@ def _write(out: Path, result: dict) -> None:
     out.write_text(json.dumps(result, indent=1))
 
 
-def run(out: str | Path = str(DEFAULT_OUT), quick: bool = False, devices=None,
-        envs_per_device=None, train_envs_per_device: int | None = None, real_devices: bool | None = None,
-        iterations_per_chunk: int | None = None, timed_chunks: int | None = None, budget_s: float | None = None,
-        resolution: int = 64, timeout_s: float | None = None, png: str | Path | None = None,
-        env_partitions=PARTITIONS) -> dict:
+def run(
+    out: str | Path = str(DEFAULT_OUT),
+    quick: bool = False,
+    devices=None,
+    envs_per_device=None,
+    train_envs_per_device: int | None = None,
+    real_devices: bool | None = None,
+    iterations_per_chunk: int | None = None,
+    timed_chunks: int | None = None,
+    budget_s: float | None = None,
+    resolution: int = 64,
+    timeout_s: float | None = None,
+    png: str | Path | None = None,
+    env_partitions=PARTITIONS,
+) -> dict:
     """Launch one worker per device count, print the table, write JSON to ``out`` and the plot to ``png`` (default
     ``scaling.png`` beside ``out``). ``real_devices`` None: real devices when a probe process sees an accelerator,
     else forced CPU devices. ``train_envs_per_device`` 0 skips the training measurement."""
@@ -452,21 +567,52 @@ def run(out: str | Path = str(DEFAULT_OUT), quick: bool = False, devices=None,
     timed_chunks = timed_chunks or (1 if quick else 2)
     budget_s = budget_s if budget_s is not None else 1.0
     timeout_s = timeout_s or (300 if quick else 480)
-    worker_args = ["--envs-per-device", *map(str, envs_per_device), "--train-envs-per-device",
-                   str(train_envs_per_device), "--iterations-per-chunk", str(iterations_per_chunk), "--timed-chunks",
-                   str(timed_chunks), "--budget", str(budget_s), "--resolution", str(resolution),
-                   "--env-partitions", *env_partitions]
-    machine = {"platform": platform.platform(), "processor": platform.processor(), "cpu_count": os.cpu_count(),
-               "jax": jax.__version__, "loadavg_start": os.getloadavg(), "python": platform.python_version(),
-               "forced_cpu_devices": not real_devices, "probe": probe}
-    settings = {"devices": list(devices), "envs_per_device": list(envs_per_device),
-                "train_envs_per_device": train_envs_per_device, "iterations_per_chunk": iterations_per_chunk,
-                "timed_chunks": timed_chunks, "budget_s": budget_s, "resolution": resolution, "quick": quick,
-                "steps_per_call": STEPS_PER_CALL, "timeout_s": timeout_s, "baseline": "1 device",
-                "env_partitions": list(env_partitions)}
+    worker_args = [
+        "--envs-per-device",
+        *map(str, envs_per_device),
+        "--train-envs-per-device",
+        str(train_envs_per_device),
+        "--iterations-per-chunk",
+        str(iterations_per_chunk),
+        "--timed-chunks",
+        str(timed_chunks),
+        "--budget",
+        str(budget_s),
+        "--resolution",
+        str(resolution),
+        "--env-partitions",
+        *env_partitions,
+    ]
+    machine = {
+        "platform": platform.platform(),
+        "processor": platform.processor(),
+        "cpu_count": os.cpu_count(),
+        "jax": jax.__version__,
+        "loadavg_start": os.getloadavg(),
+        "python": platform.python_version(),
+        "forced_cpu_devices": not real_devices,
+        "probe": probe,
+    }
+    settings = {
+        "devices": list(devices),
+        "envs_per_device": list(envs_per_device),
+        "train_envs_per_device": train_envs_per_device,
+        "iterations_per_chunk": iterations_per_chunk,
+        "timed_chunks": timed_chunks,
+        "budget_s": budget_s,
+        "resolution": resolution,
+        "quick": quick,
+        "steps_per_call": STEPS_PER_CALL,
+        "timeout_s": timeout_s,
+        "baseline": "1 device",
+        "env_partitions": list(env_partitions),
+    }
     where = "real devices" if real_devices else "forced CPU devices (all share this machine's cores)"
-    print(f"scaling over D in {list(devices)} ({where}); envs/device {list(envs_per_device)}; training 'quick' "
-          f"preset with {train_envs_per_device} envs/device", flush=True)
+    print(
+        f"scaling over D in {list(devices)} ({where}); envs/device {list(envs_per_device)}; training 'quick' "
+        f"preset with {train_envs_per_device} envs/device",
+        flush=True,
+    )
     workers, points = [], []
     result = {"partial": True, "machine": machine, "settings": settings, "workers": workers, "points": points}
     for d in devices:
@@ -483,13 +629,18 @@ def run(out: str | Path = str(DEFAULT_OUT), quick: bool = False, devices=None,
     result["wall_s"] = time.time() - t_start
     print()
     print(table(points))
-    print("vs 1 device = rate(D) / rate(1 device) at the same envs per device; efficiency = that / D. "
-          f"Load average {machine['loadavg_start'][0]:.1f} -> {machine['loadavg_end'][0]:.1f} on "
-          f"{os.cpu_count()} cores.")
+    print(
+        "vs 1 device = rate(D) / rate(1 device) at the same envs per device; efficiency = that / D. "
+        f"Load average {machine['loadavg_start'][0]:.1f} -> {machine['loadavg_end'][0]:.1f} on "
+        f"{os.cpu_count()} cores."
+    )
     _write(out, result)
     if points:
-        plot(points, png, title=f"{machine.get('device_kind', '?')} x D, {where}; load average "
-                                 f"{machine['loadavg_start'][0]:.1f}")
+        plot(
+            points,
+            png,
+            title=f"{machine.get('device_kind', '?')} x D, {where}; load average {machine['loadavg_start'][0]:.1f}",
+        )
         result["png"] = str(png)
         print(f"wrote {out} and {png} ({result['wall_s']:.0f} s)")
     else:
@@ -509,14 +660,28 @@ def main(argv=None) -> None:
     p.add_argument("--timed-chunks", type=int, default=None)
     p.add_argument("--budget", type=float, default=None, help="seconds of timed calls per env point (>= 3 calls)")
     p.add_argument("--resolution", type=int, default=64)
-    p.add_argument("--env-partitions", nargs="+", default=None, choices=PARTITIONS,
-                   help="how the env step is split over D > 1 devices (default: both)")
+    p.add_argument(
+        "--env-partitions",
+        nargs="+",
+        default=None,
+        choices=PARTITIONS,
+        help="how the env step is split over D > 1 devices (default: both)",
+    )
     p.add_argument("--timeout", type=float, default=None, help="seconds per worker before it is killed")
     group = p.add_mutually_exclusive_group()
-    group.add_argument("--real-devices", dest="real_devices", action="store_true", default=None,
-                       help="use the first D real devices (GPUs) instead of forced CPU devices")
-    group.add_argument("--forced-cpu", dest="real_devices", action="store_false",
-                       help="forced CPU devices even where an accelerator is visible")
+    group.add_argument(
+        "--real-devices",
+        dest="real_devices",
+        action="store_true",
+        default=None,
+        help="use the first D real devices (GPUs) instead of forced CPU devices",
+    )
+    group.add_argument(
+        "--forced-cpu",
+        dest="real_devices",
+        action="store_false",
+        help="forced CPU devices even where an accelerator is visible",
+    )
     p.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
     a = p.parse_args(argv)
     if a.worker:
@@ -530,9 +695,21 @@ def main(argv=None) -> None:
         a.env_partitions = a.env_partitions or list(PARTITIONS)
         worker(a)
         return
-    run(a.out, a.quick, a.devices, a.envs_per_device, a.train_envs_per_device, a.real_devices,
-        a.iterations_per_chunk, a.timed_chunks, a.budget, a.resolution, a.timeout, a.png,
-        a.env_partitions or PARTITIONS)
+    run(
+        a.out,
+        a.quick,
+        a.devices,
+        a.envs_per_device,
+        a.train_envs_per_device,
+        a.real_devices,
+        a.iterations_per_chunk,
+        a.timed_chunks,
+        a.budget,
+        a.resolution,
+        a.timeout,
+        a.png,
+        a.env_partitions or PARTITIONS,
+    )
 
 
 if __name__ == "__main__":

@@ -40,8 +40,13 @@ def _environment(package_root: Path) -> dict:
 def check_imports(package_root: Path, cwd: Path) -> None:
     """Refuse to time anything unless a process started as the timed ones are imports the package under
     ``package_root``."""
-    where = subprocess.run([sys.executable, "-c", "import ramavt_jax; print(ramavt_jax.__file__)"], cwd=cwd,
-                           env=_environment(package_root), capture_output=True, text=True).stdout.strip()
+    where = subprocess.run(
+        [sys.executable, "-c", "import ramavt_jax; print(ramavt_jax.__file__)"],
+        cwd=cwd,
+        env=_environment(package_root),
+        capture_output=True,
+        text=True,
+    ).stdout.strip()
     if not Path(where).resolve().is_relative_to(package_root.resolve()):
         raise SystemExit(f"a process meant to import ramavt_jax from {package_root} imports {where or 'nothing'}")
 
@@ -50,8 +55,22 @@ def one_chunk_run(steps: int, preset: str, out: Path, package_root: Path) -> dic
     """A fresh ``ramavt train`` process for one chunk (``steps`` env steps), with the ``ramavt_jax`` under
     ``package_root``: {'wall_s', 'compile_s', 'startup_s' (None before it was logged)} from its summary line.
     ``compile_s`` is the chunk's compile before 1fcfe87 and the chunk's and the initial state's after it."""
-    cmd = [sys.executable, "-m", "ramavt_jax.cli", "train", "--preset", preset, "--no-progress", "--no-resume",
-           "--out", str(out), "--run.total-env-steps", str(steps), "--run.eval-episodes", "0"]
+    cmd = [
+        sys.executable,
+        "-m",
+        "ramavt_jax.cli",
+        "train",
+        "--preset",
+        preset,
+        "--no-progress",
+        "--no-resume",
+        "--out",
+        str(out),
+        "--run.total-env-steps",
+        str(steps),
+        "--run.eval-episodes",
+        "0",
+    ]
     t = time.perf_counter()
     # run from the output's folder: `python -m` puts the working directory first on sys.path
     done = subprocess.run(cmd, env=_environment(package_root), capture_output=True, text=True, cwd=out.parent)
@@ -80,15 +99,29 @@ def main(argv=None) -> None:
             for name, path in versions if r % 2 == 0 else versions[::-1]:  # AB, BA, AB, ...: neither always goes first
                 res = one_chunk_run(steps, a.preset, Path(tmp) / f"run_{name}", path)
                 runs[name].append(res)
-                print(f"round {r}: {name:>10}: process {res['wall_s']:.1f} s, compile {res['compile_s']:.1f} s"
-                      + (f", start-up {res['startup_s']:.1f} s" if res["startup_s"] is not None else ""), flush=True)
+                print(
+                    f"round {r}: {name:>10}: process {res['wall_s']:.1f} s, compile {res['compile_s']:.1f} s"
+                    + (f", start-up {res['startup_s']:.1f} s" if res["startup_s"] is not None else ""),
+                    flush=True,
+                )
     load.append(os.getloadavg()[0])
     medians = {k: statistics.median(x["wall_s"] for x in v) for k, v in runs.items()}
-    print(f"median process: this {medians['this']:.1f} s, {a.baseline} {medians[a.baseline]:.1f} s "
-          f"({medians[a.baseline] - medians['this']:+.1f} s); load {load[0]:.1f} -> {load[1]:.1f}")
-    merge_json(a.out, f"{a.preset}_vs_{a.baseline}", dict(
-        runs=runs, median_process_s=medians, load=load, rounds=a.rounds,
-        date=time.strftime("%Y-%m-%d"), commit=code_version()))
+    print(
+        f"median process: this {medians['this']:.1f} s, {a.baseline} {medians[a.baseline]:.1f} s "
+        f"({medians[a.baseline] - medians['this']:+.1f} s); load {load[0]:.1f} -> {load[1]:.1f}"
+    )
+    merge_json(
+        a.out,
+        f"{a.preset}_vs_{a.baseline}",
+        dict(
+            runs=runs,
+            median_process_s=medians,
+            load=load,
+            rounds=a.rounds,
+            date=time.strftime("%Y-%m-%d"),
+            commit=code_version(),
+        ),
+    )
 
 
 if __name__ == "__main__":

@@ -25,10 +25,9 @@ import jax
 import jax.numpy as jnp
 
 from ramavt_jax import env as env_lib
+from ramavt_jax import greedy, presets, train_config
 from ramavt_jax import replay as replay_lib
 from ramavt_jax import train as T
-from ramavt_jax import greedy
-from ramavt_jax import presets, train_config
 from ramavt_jax.network import NetworkConfig, count_params
 from ramavt_jax.render import CameraConfig
 from ramavt_jax.train_config import ActingConfig, LearnerConfig, ReplayConfig, RunConfig
@@ -40,21 +39,33 @@ VARIANTS = ("ramavt", "drlavt", "origin", "se", "mha")
 
 def machine_info(load_start: tuple, start_time: float) -> dict:
     """The machine, the load average at the start and now, and the wall time since ``start_time``, for a JSON."""
-    return {"platform": platform.platform(), "cpus": os.cpu_count(), "jax": jax.__version__,
-            "backend": jax.default_backend(), "loadavg_start": load_start, "loadavg_end": os.getloadavg(),
-            "wall_s": time.time() - start_time}
+    return {
+        "platform": platform.platform(),
+        "cpus": os.cpu_count(),
+        "jax": jax.__version__,
+        "backend": jax.default_backend(),
+        "loadavg_start": load_start,
+        "loadavg_end": os.getloadavg(),
+        "wall_s": time.time() - start_time,
+    }
 
 
 def code_version() -> str:
     """This checkout's commit, with "-dirty" when it has uncommitted changes (the code a JSON's figures measured)."""
-    return subprocess.run(["git", "-C", str(Path(__file__).resolve().parents[1]), "describe", "--always", "--dirty",
-                           "--abbrev=7"], capture_output=True, text=True).stdout.strip()
+    return subprocess.run(
+        ["git", "-C", str(Path(__file__).resolve().parents[1]), "describe", "--always", "--dirty", "--abbrev=7"],
+        capture_output=True,
+        text=True,
+    ).stdout.strip()
 
 
 def export_package(rev: str, where: Path) -> Path:
     """``ramavt_jax`` of git revision ``rev`` extracted into ``where`` (made if needed): ``where / "ramavt_jax"``."""
-    archive = subprocess.run(["git", "-C", str(Path(__file__).resolve().parents[1]), "archive", rev, "ramavt_jax"],
-                             check=True, capture_output=True).stdout
+    archive = subprocess.run(
+        ["git", "-C", str(Path(__file__).resolve().parents[1]), "archive", rev, "ramavt_jax"],
+        check=True,
+        capture_output=True,
+    ).stdout
     where.mkdir(parents=True, exist_ok=True)
     tar_path = where / "package.tar"
     tar_path.write_bytes(archive)
@@ -99,23 +110,39 @@ def _filled_replay(trainer: T.Trainer, key: jax.Array):
         recurrent_state=jax.tree.map(lambda x: jnp.zeros((n, steps, *x.shape)), ex.recurrent_state),
         privileged=None if ex.privileged is None else jnp.zeros((n, steps, *ex.privileged.shape)),
         expert_action=None if ex.expert_action is None else jnp.zeros((n, steps), jnp.int32),
-        standoff=None if ex.standoff is None else jnp.ones((n, steps)))
+        standoff=None if ex.standoff is None else jnp.ones((n, steps)),
+    )
     return trainer.replay.add(trainer.replay.init(), chunk)
 
 
-def bench_variant(variant: str, resolution: int, num_envs: int, batch_size: int, burn_in: int, train_len: int,
-                  rollout_steps: int, repeats: int, network: NetworkConfig | None = None) -> dict:
+def bench_variant(
+    variant: str,
+    resolution: int,
+    num_envs: int,
+    batch_size: int,
+    burn_in: int,
+    train_len: int,
+    rollout_steps: int,
+    repeats: int,
+    network: NetworkConfig | None = None,
+) -> dict:
     net = network or NetworkConfig(variant=variant)
     env_steps = num_envs * rollout_steps
     # replay ratio 1 when the numbers allow it, else one update per iteration
     ratio = batch_size * train_len / env_steps
     cfg = train_config.TrainConfig(
-        env=env_lib.EnvConfig(camera=CameraConfig(resolution=resolution), autoreset="next_step"), network=net,
+        env=env_lib.EnvConfig(camera=CameraConfig(resolution=resolution), autoreset="next_step"),
+        network=net,
         acting=ActingConfig(num_envs=num_envs, rollout_steps=rollout_steps),
-        replay=ReplayConfig(capacity_steps=num_envs * max(burn_in + train_len + 1, rollout_steps) * 2,
-                            burn_in=burn_in, train_len=train_len, batch_size=batch_size),
+        replay=ReplayConfig(
+            capacity_steps=num_envs * max(burn_in + train_len + 1, rollout_steps) * 2,
+            burn_in=burn_in,
+            train_len=train_len,
+            batch_size=batch_size,
+        ),
         learner=LearnerConfig(learning_starts=0, replay_ratio=ratio, n_step=min(5, train_len)),
-        run=RunConfig(iterations_per_chunk=1, total_env_steps=env_steps, eval_episodes=0))
+        run=RunConfig(iterations_per_chunk=1, total_env_steps=env_steps, eval_episodes=0),
+    )
     tr = T.Trainer(cfg)
     key = jax.random.PRNGKey(0)
     state = jax.jit(tr.init)(key)
@@ -156,9 +183,16 @@ def bench_variant(variant: str, resolution: int, num_envs: int, batch_size: int,
     trained_frames = batch_size * train_len
     it_updates = cfg.updates_per_iteration
     return {
-        "variant": variant, "resolution": resolution, "obs_shape": list(tr.obs_shape),
-        "params": count_params(params), "num_envs": num_envs, "batch_size": batch_size, "burn_in": burn_in,
-        "train_len": train_len, "rollout_steps": rollout_steps, "updates_per_iteration": it_updates,
+        "variant": variant,
+        "resolution": resolution,
+        "obs_shape": list(tr.obs_shape),
+        "params": count_params(params),
+        "num_envs": num_envs,
+        "batch_size": batch_size,
+        "burn_in": burn_in,
+        "train_len": train_len,
+        "rollout_steps": rollout_steps,
+        "updates_per_iteration": it_updates,
         "env_only_steps_per_s": 1.0 / t_env,
         "act_forward_steps_per_s": 1.0 / t_act,
         "rollout_env_steps_per_s": 1.0 / t_roll,
@@ -168,15 +202,29 @@ def bench_variant(variant: str, resolution: int, num_envs: int, batch_size: int,
         "iteration_env_steps_per_s": env_steps / t_iter,
         "iteration_trained_frames_per_s": it_updates * trained_frames / t_iter,
         # per iteration: time spent in env, network acting and learning (separately jitted estimates)
-        "split_s": {"env": t_env * env_steps, "acting_network": t_act * env_steps,
-                    "rollout_total": t_roll * env_steps, "learning": t_upd * it_updates},
+        "split_s": {
+            "env": t_env * env_steps,
+            "acting_network": t_act * env_steps,
+            "rollout_total": t_roll * env_steps,
+            "learning": t_upd * it_updates,
+        },
         "single_env_greedy_hz": 1.0 / t_one,
     }
 
 
-def run(variants=VARIANTS, resolution: int = 64, num_envs: int = 64, batch_size: int = 32, burn_in: int = 10,
-        train_len: int = 20, rollout_steps: int = 20, repeats: int = 5, out: str | None = str(DEFAULT_OUT),
-        quiet: bool = False, preset: str | None = None) -> dict:
+def run(
+    variants=VARIANTS,
+    resolution: int = 64,
+    num_envs: int = 64,
+    batch_size: int = 32,
+    burn_in: int = 10,
+    train_len: int = 20,
+    rollout_steps: int = 20,
+    repeats: int = 5,
+    out: str | None = str(DEFAULT_OUT),
+    quiet: bool = False,
+    preset: str | None = None,
+) -> dict:
     """Benchmark each variant (the paper's network at ``resolution``); print a table; write JSON to ``out``
     (None = don't). ``preset``: instead benchmark that training preset's own network and sizes. Returns the results."""
     rows = []
@@ -195,10 +243,22 @@ def run(variants=VARIANTS, resolution: int = 64, num_envs: int = 64, batch_size:
         if not quiet:
             print(f"  {v}: done in {row['bench_wall_s']:.0f} s", flush=True)
     results = {
-        "machine": {"platform": platform.platform(), "cpus": os.cpu_count(), "jax": jax.__version__,
-                    "backend": jax.default_backend(), "loadavg": os.getloadavg()},
-        "settings": dict(resolution=resolution, num_envs=num_envs, batch_size=batch_size, burn_in=burn_in,
-                         train_len=train_len, rollout_steps=rollout_steps, repeats=repeats),
+        "machine": {
+            "platform": platform.platform(),
+            "cpus": os.cpu_count(),
+            "jax": jax.__version__,
+            "backend": jax.default_backend(),
+            "loadavg": os.getloadavg(),
+        },
+        "settings": dict(
+            resolution=resolution,
+            num_envs=num_envs,
+            batch_size=batch_size,
+            burn_in=burn_in,
+            train_len=train_len,
+            rollout_steps=rollout_steps,
+            repeats=repeats,
+        ),
         "rows": rows,
     }
     if not quiet:
@@ -209,8 +269,10 @@ def run(variants=VARIANTS, resolution: int = 64, num_envs: int = 64, batch_size:
 
 
 def table(rows: list[dict]) -> str:
-    head = (f"{'variant':8} {'res':>4} {'params':>9} {'env/s':>8} {'act/s':>8} {'rollout/s':>9} {'upd/s':>7} "
-            f"{'trFr/s':>8} {'iter env/s':>10} {'iter trFr/s':>11} {'env|act|learn s/iter':>22} {'1-env Hz':>9}")
+    head = (
+        f"{'variant':8} {'res':>4} {'params':>9} {'env/s':>8} {'act/s':>8} {'rollout/s':>9} {'upd/s':>7} "
+        f"{'trFr/s':>8} {'iter env/s':>10} {'iter trFr/s':>11} {'env|act|learn s/iter':>22} {'1-env Hz':>9}"
+    )
     lines = [head, "-" * len(head)]
     for r in rows:
         s = r["split_s"]
@@ -219,7 +281,8 @@ def table(rows: list[dict]) -> str:
             f"{r['variant']:8} {r['resolution']:>4} {r['params']:>9,} {r['env_only_steps_per_s']:>8.0f} "
             f"{r['act_forward_steps_per_s']:>8.0f} {r['rollout_env_steps_per_s']:>9.0f} {r['updates_per_s']:>7.2f} "
             f"{r['trained_frames_per_s']:>8.0f} {r['iteration_env_steps_per_s']:>10.0f} "
-            f"{r['iteration_trained_frames_per_s']:>11.0f} {split:>22} {r['single_env_greedy_hz']:>9.0f}")
+            f"{r['iteration_trained_frames_per_s']:>11.0f} {split:>22} {r['single_env_greedy_hz']:>9.0f}"
+        )
     return "\n".join(lines)
 
 
@@ -234,10 +297,22 @@ def main(argv=None):
     p.add_argument("--rollout-steps", type=int, default=20)
     p.add_argument("--repeats", type=int, default=5)
     p.add_argument("--out", default=str(DEFAULT_OUT))
-    p.add_argument("--preset", default=None, choices=sorted(presets.PRESETS), help="benchmark a training preset's network")
+    p.add_argument(
+        "--preset", default=None, choices=sorted(presets.PRESETS), help="benchmark a training preset's network"
+    )
     a = p.parse_args(argv)
-    run(a.variants, a.resolution, a.num_envs, a.batch_size, a.burn_in, a.train_len, a.rollout_steps, a.repeats, a.out,
-        preset=a.preset)
+    run(
+        a.variants,
+        a.resolution,
+        a.num_envs,
+        a.batch_size,
+        a.burn_in,
+        a.train_len,
+        a.rollout_steps,
+        a.repeats,
+        a.out,
+        preset=a.preset,
+    )
 
 
 if __name__ == "__main__":

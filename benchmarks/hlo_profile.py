@@ -22,6 +22,7 @@ import jax
 
 def _parse_hlo_stacks(text: str):
     """instruction name -> list of (file, function, line), innermost first."""
+
     def table(name):
         m = re.search(rf"^{name}\n(.*?)(?:\n\n|\Z)", text, re.S | re.M)
         return m.group(1).splitlines() if m else []
@@ -32,7 +33,11 @@ def _parse_hlo_stacks(text: str):
     for ln in table("FileLocations"):
         i, rest = ln.split(" ", 1)
         kv = dict(re.findall(r"(\w+)=(\d+)", rest))
-        locs[int(i)] = (files.get(int(kv["file_name_id"]), "?"), funcs.get(int(kv["function_name_id"]), "?"), int(kv["line"]))
+        locs[int(i)] = (
+            files.get(int(kv["file_name_id"]), "?"),
+            funcs.get(int(kv["function_name_id"]), "?"),
+            int(kv["line"]),
+        )
     frames = {}
     for ln in table("StackFrames"):
         i, rest = ln.split(" ", 1)
@@ -97,8 +102,21 @@ def trace_breakdown(fn, args, calls: int, label, hlo_text: str):
     return dict(total.most_common())
 
 
-_BYTES = {"pred": 1, "s8": 1, "u8": 1, "bf16": 2, "f16": 2, "s16": 2, "u16": 2, "f32": 4, "s32": 4, "u32": 4,
-          "f64": 8, "s64": 8, "u64": 8}
+_BYTES = {
+    "pred": 1,
+    "s8": 1,
+    "u8": 1,
+    "bf16": 2,
+    "f16": 2,
+    "s16": 2,
+    "u16": 2,
+    "f32": 4,
+    "s32": 4,
+    "u32": 4,
+    "f64": 8,
+    "s64": 8,
+    "u64": 8,
+}
 _SKIP = {"parameter", "constant", "bitcast", "get-tuple-element", "tuple", "while", "conditional", "call"}
 _PARTIAL_READS = {"slice", "gather", "dynamic-slice"}  # read about as many bytes as they write, not their operand
 
@@ -123,8 +141,9 @@ def _computations(text: str) -> dict:
             continue
         lines = list(re.finditer(r"^\s*(ROOT )?%?([\w.\-]+) = (\S+|\(.*?\)) ([\w\-]+)\((.*)$", block, re.M))
         root = next((m.group(4) for m in lines if m.group(1)), None)
-        picks = root in _PARTIAL_READS or (root in ("bitcast", "reshape") and any(m.group(4) in _PARTIAL_READS
-                                                                                   for m in lines))
+        picks = root in _PARTIAL_READS or (
+            root in ("bitcast", "reshape") and any(m.group(4) in _PARTIAL_READS for m in lines)
+        )
         comps[head.group(2)] = (bool(head.group(1)), [m.groups()[1:] for m in lines], picks)
     return comps
 

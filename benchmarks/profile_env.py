@@ -53,7 +53,9 @@ def _repeat(fn):
     def run(*args):
         def body(c, i):
             out = fn(*args, i)
-            return c + jax.tree.reduce(lambda a, b: a + b, jax.tree.map(lambda x: jnp.sum(x.astype(jnp.float32)), out)), None
+            return c + jax.tree.reduce(
+                lambda a, b: a + b, jax.tree.map(lambda x: jnp.sum(x.astype(jnp.float32)), out)
+            ), None
 
         return jax.lax.scan(body, jnp.float32(0), jnp.arange(REPEATS))[0]
 
@@ -88,7 +90,6 @@ def _profile(tenv, config, num_envs, mode, budget_s, seed):
     results["full step"] = _timeit(full, (state, jax.random.key(2)), budget_s)
     hlo = full.lower(state, jax.random.key(2)).compile().as_text()
     breakdown = trace_breakdown(full, (state, jax.random.key(2)), 5, _label, hlo)
-
 
     keys = jax.random.split(jax.random.key(3), num_envs)
     actions = jnp.arange(num_envs) % env_lib.NUM_ACTIONS
@@ -197,13 +198,19 @@ def main(argv=None):
     res, hit, breakdown = profile(a.envs, a.res, a.mode, a.budget)
     load1 = os.getloadavg()[0]
     full = res["full step"]
-    print(f"{a.mode} {a.res}x{a.res}, {a.envs} envs, {REPEATS} steps per call, hit fraction {hit:.3f}, "
-          f"load {load0:.2f} -> {load1:.2f}")
+    print(
+        f"{a.mode} {a.res}x{a.res}, {a.envs} envs, {REPEATS} steps per call, hit fraction {hit:.3f}, "
+        f"load {load0:.2f} -> {load1:.2f}"
+    )
     for k, v in res.items():
-        print(f"  {k:<18} {1e3 * v:8.2f} ms   {100 * v / full:5.1f}% of the full step   "
-              f"({a.envs * REPEATS / v:,.0f} per s)")
+        print(
+            f"  {k:<18} {1e3 * v:8.2f} ms   {100 * v / full:5.1f}% of the full step   "
+            f"({a.envs * REPEATS / v:,.0f} per s)"
+        )
     total = sum(breakdown.values())
-    print(f"\nprofiler trace of the full step (exclusive thunk time, {1e3 * total:.1f} ms per call of {REPEATS} steps):")
+    print(
+        f"\nprofiler trace of the full step (exclusive thunk time, {1e3 * total:.1f} ms per call of {REPEATS} steps):"
+    )
     groups = {}
     for k, v in breakdown.items():
         groups[k.split(" | ")[0]] = groups.get(k.split(" | ")[0], 0.0) + v
@@ -213,8 +220,20 @@ def main(argv=None):
             if k.split(" | ")[0] == g and w > 0.005 * total:
                 print(f"           {100 * w / total:5.1f}%  {k.split(' | ', 1)[1]}")
     if a.out:
-        Path(a.out).write_text(json.dumps(dict(envs=a.envs, res=a.res, mode=a.mode, hit_fraction=hit,
-                                               load=[load0, load1], seconds_per_10=res, trace=breakdown), indent=1))
+        Path(a.out).write_text(
+            json.dumps(
+                dict(
+                    envs=a.envs,
+                    res=a.res,
+                    mode=a.mode,
+                    hit_fraction=hit,
+                    load=[load0, load1],
+                    seconds_per_10=res,
+                    trace=breakdown,
+                ),
+                indent=1,
+            )
+        )
 
 
 if __name__ == "__main__":

@@ -29,14 +29,13 @@ from pathlib import Path
 import jax
 import jax.numpy as jnp
 import optax
-
-from ramavt_jax import train as T
-from ramavt_jax import presets
-from ramavt_jax.network import Encoder, window_start_frames
-
 from bench_train import _filled_replay, _median_time, machine_info, merge_json  # noqa: E402 (the script's directory)
 from hlo_profile import trace_breakdown  # noqa: E402
 from profile_env import _line  # noqa: E402
+
+from ramavt_jax import presets
+from ramavt_jax import train as T
+from ramavt_jax.network import Encoder, window_start_frames
 
 
 def _label(stack, op_name, thunk):
@@ -49,8 +48,9 @@ def _label(stack, op_name, thunk):
     return f"{kind} | {short}:{own[1]}: {_line(own[0], own[2])[:70]}"
 
 
-def profile(preset: str, repeats: int, batch_size: int | None = None, trace: bool = False,
-            network: dict | None = None) -> dict:
+def profile(
+    preset: str, repeats: int, batch_size: int | None = None, trace: bool = False, network: dict | None = None
+) -> dict:
     """The pieces' times at ``preset``'s sizes; ``network``: NetworkConfig fields replaced (e.g. the stem)."""
     cfg = presets.preset(preset, eval_episodes=0, learning_starts=0)
     if batch_size:
@@ -68,8 +68,9 @@ def profile(preset: str, repeats: int, batch_size: int | None = None, trace: boo
     prepared = prepare(params, learner.target_params, batch, key)
     start = batch.start_state.replace(frames=window_start_frames(cfg.network, batch.obs))
     target_fwd = jax.jit(lambda p: tr.q_values(p, batch.obs, batch.reset, start, batch.action)[0])
-    burn_fwd = jax.jit(lambda p: tr.q_values(p, batch.obs[:, :burn], batch.reset[:, :burn], start,
-                                             batch.action[:, :burn])[1])
+    burn_fwd = jax.jit(
+        lambda p: tr.q_values(p, batch.obs[:, :burn], batch.reset[:, :burn], start, batch.action[:, :burn])[1]
+    )
     loss_grad = jax.jit(jax.value_and_grad(tr.trained_loss, has_aux=True))
     frames = prepared.obs.reshape(-1, *prepared.obs.shape[2:])
     encoder = Encoder(cfg.network)
@@ -103,10 +104,17 @@ def profile(preset: str, repeats: int, batch_size: int | None = None, trace: boo
     if trace:
         hlo = update.lower(learner, replay_state, key).compile().as_text()
         breakdown = trace_breakdown(update, (learner, replay_state, key), repeats, _label, hlo)
-    return {"trace_ms": {k: 1e3 * v for k, v in breakdown.items()}, "preset": preset,
-            "bootstrap_from": cfg.learner.bootstrap_from, "batch_size": cfg.replay.batch_size, "burn_in": burn,
-            "train_len": cfg.replay.train_len, "times_ms": times_ms, "updates_per_s": 1e3 / times_ms["update"],
-            "trained_frames_per_s": trained * 1e3 / times_ms["update"]}
+    return {
+        "trace_ms": {k: 1e3 * v for k, v in breakdown.items()},
+        "preset": preset,
+        "bootstrap_from": cfg.learner.bootstrap_from,
+        "batch_size": cfg.replay.batch_size,
+        "burn_in": burn,
+        "train_len": cfg.replay.train_len,
+        "times_ms": times_ms,
+        "updates_per_s": 1e3 / times_ms["update"],
+        "trained_frames_per_s": trained * 1e3 / times_ms["update"],
+    }
 
 
 def main(argv=None) -> None:
@@ -116,9 +124,13 @@ def main(argv=None) -> None:
     p.add_argument("--repeats", type=int, default=20)
     p.add_argument("--trace", action="store_true", help="also attribute the update's time to source lines")
     p.add_argument("--out", default=str(Path(__file__).resolve().parent / "results_learner_profile.json"))
-    p.add_argument("--network", type=json.loads, default=None,
-                   help='NetworkConfig fields as JSON, e.g. \'{"kernels": [4, 3, 3], "strides": [4, 1, 1], '
-                        '"pools": [false, true, false]}\' (the patch stem)')
+    p.add_argument(
+        "--network",
+        type=json.loads,
+        default=None,
+        help='NetworkConfig fields as JSON, e.g. \'{"kernels": [4, 3, 3], "strides": [4, 1, 1], '
+        '"pools": [false, true, false]}\' (the patch stem)',
+    )
     p.add_argument("--key", default=None, help="the result's key in --out (default: PRESET_bBATCH)")
     a = p.parse_args(argv)
     t0, load0 = time.time(), os.getloadavg()
@@ -128,8 +140,10 @@ def main(argv=None) -> None:
     total = res["times_ms"]["update"]
     for name, ms in res["times_ms"].items():
         print(f"{name:13} {ms:8.2f} ms  {100 * ms / total:5.1f} % of an update")
-    print(f"update: {res['updates_per_s']:.1f}/s, {res['trained_frames_per_s']:.0f} trained frames/s "
-          f"(load {load0[0]:.1f} -> {os.getloadavg()[0]:.1f})")
+    print(
+        f"update: {res['updates_per_s']:.1f}/s, {res['trained_frames_per_s']:.0f} trained frames/s "
+        f"(load {load0[0]:.1f} -> {os.getloadavg()[0]:.1f})"
+    )
     if res["trace_ms"]:
         traced = sum(res["trace_ms"].values())
         print(f"\nprofiler trace of the update ({traced:.1f} ms of thunks per update), top 30:")

@@ -16,7 +16,8 @@ Every policy is a `Policy` of pure per-env functions (batch them with vmap):
 from __future__ import annotations
 
 import dataclasses
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -75,8 +76,7 @@ def candidate_sequences(branch: int, num_actions: int = env_lib.NUM_ACTIONS) -> 
     return jnp.stack([g.reshape(-1) for g in grids], axis=-1).astype(jnp.int32)
 
 
-def mpc_policy(config: env_lib.EnvConfig, horizon: int = MPC_HORIZON, branch: int = 2,
-               tail: str = "view") -> Policy:
+def mpc_policy(config: env_lib.EnvConfig, horizon: int = MPC_HORIZON, branch: int = 2, tail: str = "view") -> Policy:
     """Receding-horizon control on the true state: every sequence of `branch` actions (11 ** branch) is simulated
     with the env's own `transition` + `score` from the current state, then `horizon - branch` tail steps; the first
     action of the sequence with the highest model return is taken. Tails:
@@ -106,16 +106,19 @@ def mpc_policy(config: env_lib.EnvConfig, horizon: int = MPC_HORIZON, branch: in
 
     def plan_return(keys, state, params, plan):
         """Model return [] of one plan [horizon]; `keys` [horizon] (inert: the model has no noise)."""
+
         def step(s, xs):
             k, a, use_base, only_view = xs
             a = jnp.where(use_base, base.act(k, None, None, s, params)[0], a)
             s, reward, _, _, info = model.score(model.transition(k, s, a, params), params)
             return s, jnp.where(only_view, jnp.where(info["in_view"], 1.0, -5.0), reward)
+
         return jax.lax.scan(step, state, (keys, plan, follow_base, view_only))[1].sum()
 
     def act(key, pstate, obs, env_state: env_lib.EnvState, params: env_lib.EnvParams):
-        model_params = params.replace(actuator_noise=jnp.zeros_like(params.actuator_noise),
-                                      delay_max=jnp.zeros_like(params.delay_max))
+        model_params = params.replace(
+            actuator_noise=jnp.zeros_like(params.actuator_noise), delay_max=jnp.zeros_like(params.delay_max)
+        )
         keys = jax.random.split(key, horizon)  # every plan sees the same keys: common random numbers
         returns = jax.vmap(plan_return, in_axes=(None, None, None, 0))(keys, env_state, model_params, plans)
         return plans[jnp.argmax(returns), 0], pstate
@@ -150,9 +153,7 @@ def estimate_position(depth: jax.Array, camera) -> tuple[jax.Array, jax.Array]:
     return jnp.array([(u_mean - c) / f * z, (v_mean - c) / f * z, z]), count > 0
 
 
-def depth_tracker_policy(
-    camera, kp: float = 1.0, velocity_smoothing: float = 0.3, dt: float = 0.1
-) -> Policy:
+def depth_tracker_policy(camera, kp: float = 1.0, velocity_smoothing: float = 0.3, dt: float = 0.1) -> Policy:
     """PBVS-style tracker using only the depth image: estimate the target centre from the depth pixels, estimate
     its velocity by finite differences (adding back the chaser's own commanded motion) and command
     v = v_target_est + kp * (p_est - r*), quantised. Without a detection it repeats its last command."""
@@ -169,8 +170,9 @@ def depth_tracker_policy(
         rel_vel = (position - pstate.last_position) / params.dt
         target_vel_raw = rel_vel + pstate.last_command
         blend = jnp.where(pstate.has_estimate, velocity_smoothing, 0.0)
-        target_vel = jnp.where(seen & pstate.has_estimate, blend * pstate.target_vel + (1 - blend) * target_vel_raw,
-                               pstate.target_vel)
+        target_vel = jnp.where(
+            seen & pstate.has_estimate, blend * pstate.target_vel + (1 - blend) * target_vel_raw, pstate.target_vel
+        )
         desired = target_vel + kp * (position - env_lib.desired_position(env_state, params))
         speed = env_lib.command_speed(env_state, params)  # the env's speed rule, as a tracker knows its actuator
         action = quantise_velocity(desired, speed)
@@ -191,8 +193,9 @@ def make_policy(name: str, camera, dynamics: str = "cw", horizon: int = MPC_HORI
     """'random' | 'proportional' | 'mpc' (the ceiling; `horizon` steps) | 'depth' (the classical depth-image tracker).
     `dynamics` is the env's motion model, which the mpc's model must share."""
     if name == "oracle":
-        raise ValueError("baseline 'oracle' was renamed 'proportional' (it is no upper bound); the measured ceiling "
-                         "is 'mpc'")
+        raise ValueError(
+            "baseline 'oracle' was renamed 'proportional' (it is no upper bound); the measured ceiling is 'mpc'"
+        )
     table = {
         "random": random_policy,
         "proportional": proportional_policy,

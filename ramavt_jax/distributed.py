@@ -37,9 +37,22 @@ from jax._src import distributed as jax_distributed  # the coordination-service 
 from jax.sharding import Mesh, NamedSharding
 from jax.sharding import PartitionSpec as P
 
-__all__ = ["P", "DATA_AXIS", "initialize", "make_mesh", "replicated", "runner_shardings", "check_divisible",
-           "check_seeds_divisible", "constrain_envs", "constrain_batch", "local_copy", "is_primary", "barrier",
-           "ShardingError"]
+__all__ = [
+    "P",
+    "DATA_AXIS",
+    "initialize",
+    "make_mesh",
+    "replicated",
+    "runner_shardings",
+    "check_divisible",
+    "check_seeds_divisible",
+    "constrain_envs",
+    "constrain_batch",
+    "local_copy",
+    "is_primary",
+    "barrier",
+    "ShardingError",
+]
 
 DATA_AXIS = "data"
 
@@ -49,8 +62,12 @@ class ShardingError(ValueError):
 
 
 # ============================================================================================ multi-host
-def initialize(coordinator_address: str | None = None, num_processes: int | None = None,
-               process_id: int | None = None, timeout_s: int = 300) -> bool:
+def initialize(
+    coordinator_address: str | None = None,
+    num_processes: int | None = None,
+    process_id: int | None = None,
+    timeout_s: int = 300,
+) -> bool:
     """Join a multi-process JAX job (``jax.distributed.initialize``). Arguments left ``None`` are read from
     ``JAX_COORDINATOR_ADDRESS`` / ``JAX_NUM_PROCESSES`` / ``JAX_PROCESS_ID``. Returns False (and does nothing)
     when neither gives a coordinator address, i.e. a plain single-process run. Must run before any device is used.
@@ -59,23 +76,32 @@ def initialize(coordinator_address: str | None = None, num_processes: int | None
     address = coordinator_address or env.get("JAX_COORDINATOR_ADDRESS") or None
     if address is None:
         if num_processes not in (None, 1) or process_id not in (None, 0):
-            raise ValueError("num_processes / process_id were given without a coordinator address "
-                             "(--coordinator-address host:port or JAX_COORDINATOR_ADDRESS)")
+            raise ValueError(
+                "num_processes / process_id were given without a coordinator address "
+                "(--coordinator-address host:port or JAX_COORDINATOR_ADDRESS)"
+            )
         return False
     if num_processes is None and env.get("JAX_NUM_PROCESSES"):
         num_processes = int(env["JAX_NUM_PROCESSES"])
     if process_id is None and env.get("JAX_PROCESS_ID"):
         process_id = int(env["JAX_PROCESS_ID"])
     if num_processes is None or process_id is None:
-        raise ValueError(f"coordinator address {address!r} given, but the process count and id are missing: pass "
-                         "--num-processes and --process-id (or JAX_NUM_PROCESSES / JAX_PROCESS_ID)")
+        raise ValueError(
+            f"coordinator address {address!r} given, but the process count and id are missing: pass "
+            "--num-processes and --process-id (or JAX_NUM_PROCESSES / JAX_PROCESS_ID)"
+        )
     if not (isinstance(num_processes, int) and num_processes >= 1 and 0 <= process_id < num_processes):
-        raise ValueError(f"need num_processes >= 1 and 0 <= process_id < num_processes, got {num_processes}, "
-                         f"{process_id}")
+        raise ValueError(
+            f"need num_processes >= 1 and 0 <= process_id < num_processes, got {num_processes}, {process_id}"
+        )
     if ":" not in address:
         raise ValueError(f"coordinator address must be host:port, got {address!r}")
-    jax.distributed.initialize(coordinator_address=address, num_processes=num_processes, process_id=process_id,
-                               initialization_timeout=timeout_s)
+    jax.distributed.initialize(
+        coordinator_address=address,
+        num_processes=num_processes,
+        process_id=process_id,
+        initialization_timeout=timeout_s,
+    )
     return True
 
 
@@ -121,9 +147,11 @@ def check_divisible(num_envs: int, mesh: Mesh | None) -> None:
     n = mesh.devices.size
     if num_envs % n:
         ok = [k * n for k in range(max(1, num_envs // n), num_envs // n + 3)]
-        raise ShardingError(f"num_envs={num_envs} does not divide over {n} devices; the envs and replay rows are "
-                            f"split evenly along the env axis. Use a multiple of {n} (e.g. {ok}) or fewer devices "
-                            f"(--devices)")
+        raise ShardingError(
+            f"num_envs={num_envs} does not divide over {n} devices; the envs and replay rows are "
+            f"split evenly along the env axis. Use a multiple of {n} (e.g. {ok}) or fewer devices "
+            f"(--devices)"
+        )
 
 
 def _split_axis(ndim: int, axis: int) -> P:
@@ -154,7 +182,8 @@ def runner_shardings(abstract_state: Any, mesh: Mesh, seed_axis: bool = False) -
     if seed_axis:
         return jax.tree.map(lambda leaf: NamedSharding(mesh, P(DATA_AXIS)), abstract_state)
     return jax.tree_util.tree_map_with_path(
-        lambda path, leaf: NamedSharding(mesh, _env_axis_spec(path, len(leaf.shape))), abstract_state)
+        lambda path, leaf: NamedSharding(mesh, _env_axis_spec(path, len(leaf.shape))), abstract_state
+    )
 
 
 def check_seeds_divisible(num_seeds: int, mesh: Mesh | None) -> None:
@@ -162,9 +191,11 @@ def check_seeds_divisible(num_seeds: int, mesh: Mesh | None) -> None:
         return
     n = mesh.devices.size
     if num_seeds % n:
-        raise ShardingError(f"{num_seeds} seeds on {n} devices: several seeds are split over the devices whole "
-                            f"(each device trains num_seeds / devices seeds), so num_seeds must be a multiple of {n}; "
-                            f"or train one seed over all devices, or pass --devices 1")
+        raise ShardingError(
+            f"{num_seeds} seeds on {n} devices: several seeds are split over the devices whole "
+            f"(each device trains num_seeds / devices seeds), so num_seeds must be a multiple of {n}; "
+            f"or train one seed over all devices, or pass --devices 1"
+        )
 
 
 # ============================================================================================ in-program hints
@@ -174,7 +205,8 @@ def constrain_envs(tree: Any, mesh: Mesh | None, env_axis: int = 0) -> Any:
         return tree
 
     return jax.tree.map(
-        lambda x: jax.lax.with_sharding_constraint(x, NamedSharding(mesh, _split_axis(x.ndim, env_axis))), tree)
+        lambda x: jax.lax.with_sharding_constraint(x, NamedSharding(mesh, _split_axis(x.ndim, env_axis))), tree
+    )
 
 
 def constrain_batch(tree: Any, mesh: Mesh | None, batch_size: int, batch_axis: int = 0) -> Any:
@@ -187,6 +219,7 @@ def constrain_batch(tree: Any, mesh: Mesh | None, batch_size: int, batch_axis: i
 # ============================================================================================ host side
 def local_copy(tree: Any) -> Any:
     """Host numpy copy of a pytree whose leaves are fully addressable or fully replicated (multi-host params)."""
+
     def one(x):
         if isinstance(x, jax.Array) and not x.is_fully_addressable:
             if not x.is_fully_replicated:

@@ -30,11 +30,17 @@ from flax import struct
 
 from ramavt_jax import dynamics, randomisation, render
 from ramavt_jax import targets as targets_lib
-from ramavt_jax.render import CameraConfig, Lighting
-
 from ramavt_jax.env_config import (  # noqa: F401 (re-exported: env.EnvConfig, env.ACTIONS, ... are the public names)
-    ACTIONS, HILL_FROM_CAM, NUM_ACTIONS, OBS_CHANNELS, RETREAT, EnvConfig, EnvParams, validate_params,
+    ACTIONS,
+    HILL_FROM_CAM,
+    NUM_ACTIONS,
+    OBS_CHANNELS,
+    RETREAT,
+    EnvConfig,
+    EnvParams,
+    validate_params,
 )
+from ramavt_jax.render import CameraConfig, Lighting
 
 
 @struct.dataclass
@@ -93,7 +99,7 @@ def standoff_scale(target: targets_lib.TargetModel, params: EnvParams) -> jax.Ar
 def command_speed(state: EnvState, params: EnvParams) -> jax.Array:
     """[] m/s per unit action: speed * max(1, k) ** speed_standoff_power * min(1, k) ** small_standoff_power."""
     large, small = jnp.maximum(state.scale, 1.0), jnp.minimum(state.scale, 1.0)
-    return params.speed * large ** params.speed_standoff_power * small ** params.small_standoff_power
+    return params.speed * large**params.speed_standoff_power * small**params.small_standoff_power
 
 
 def command_gain(state: EnvState, params: EnvParams) -> jax.Array:
@@ -316,8 +322,14 @@ class TrackingEnv:
             first_info = self._first_info(chosen, params)
             info = _where(restart, first_info, info)
             zero = jnp.zeros((), bool)
-            return (obs, chosen, jnp.where(restart, 0.0, reward), jnp.where(restart, zero, terminated),
-                    jnp.where(restart, zero, truncated), info)
+            return (
+                obs,
+                chosen,
+                jnp.where(restart, 0.0, reward),
+                jnp.where(restart, zero, terminated),
+                jnp.where(restart, zero, truncated),
+                info,
+            )
 
         done = terminated | truncated
         if self.config.final_obs_in_info:
@@ -326,7 +338,14 @@ class TrackingEnv:
             first_frame = self._render(fresh, params, visible=done)
             first_obs, fresh = self._postprocess(k_first, first_frame, fresh, params, first=jnp.ones((), bool))
             info["final_observation"] = final_obs
-            return (jnp.where(done, first_obs, final_obs), _where(done, fresh, moved), reward, terminated, truncated, info)
+            return (
+                jnp.where(done, first_obs, final_obs),
+                _where(done, fresh, moved),
+                reward,
+                terminated,
+                truncated,
+                info,
+            )
         # One render per step: a finished env draws only its new episode's first frame.
         chosen = _where(done, fresh, moved)
         obs, chosen = self._postprocess(k_obs, self._render(chosen, params), chosen, params, first=done)

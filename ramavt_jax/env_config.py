@@ -21,10 +21,16 @@ from ramavt_jax.render import OBSERVATION_MODES, CameraConfig
 ACTIONS = np.array(
     [
         [0, 0, 0],
-        [1, 0, 0], [-1, 0, 0],
-        [0, 1, 0], [0, -1, 0],
-        [0, 0, 1], [0, 0, -1],
-        [1, 1, 0], [1, -1, 0], [-1, 1, 0], [-1, -1, 0],
+        [1, 0, 0],
+        [-1, 0, 0],
+        [0, 1, 0],
+        [0, -1, 0],
+        [0, 0, 1],
+        [0, 0, -1],
+        [1, 1, 0],
+        [1, -1, 0],
+        [-1, 1, 0],
+        [-1, -1, 0],
     ],
     dtype=np.float32,
 )
@@ -195,12 +201,29 @@ def validate_params(params: EnvParams, config: EnvConfig) -> EnvParams:
     check("offset_prob", lambda v: (v >= 0) & (v <= 1), "in [0, 1]")
     check("init_z_max", lambda v: v > np.asarray(params.init_z_min), "> init_z_min")
     check("init_z_min", lambda v: v > config.camera.near, f"> camera.near ({config.camera.near})")
-    check("blur_frames", lambda v: (v >= 1) & (v <= config.frame_history), f"in [1, EnvConfig.frame_history={config.frame_history}]")
-    check("target_probs", lambda v: (v >= 0).all() & (abs(v.sum() - 1) < 1e-4) & (v.shape == (len(config.targets),)),
-          f"[{len(config.targets)}] non-negative probabilities summing to 1")
+    check(
+        "blur_frames",
+        lambda v: (v >= 1) & (v <= config.frame_history),
+        f"in [1, EnvConfig.frame_history={config.frame_history}]",
+    )
+    check(
+        "target_probs",
+        lambda v: (v >= 0).all() & (abs(v.sum() - 1) < 1e-4) & (v.shape == (len(config.targets),)),
+        f"[{len(config.targets)}] non-negative probabilities summing to 1",
+    )
     check("frame_drop_prob", lambda v: (v >= 0) & (v <= 1), "in [0, 1]")
     check("perturb_prob", lambda v: (v >= 0) & (v <= 1), "in [0, 1]")
-    for name in ("actuator_noise", "delay_max", "gaussian_blur_sigma", "motion_blur_px", "depth_noise_std",
-                 "target_vel_std", "target_spin_std", "target_accel_std", "init_xy_std", "mean_motion"):
+    for name in (
+        "actuator_noise",
+        "delay_max",
+        "gaussian_blur_sigma",
+        "motion_blur_px",
+        "depth_noise_std",
+        "target_vel_std",
+        "target_spin_std",
+        "target_accel_std",
+        "init_xy_std",
+        "mean_motion",
+    ):
         check(name, lambda v: v >= 0, ">= 0")
     return params

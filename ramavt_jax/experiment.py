@@ -11,8 +11,8 @@ This module sits above the figures layer and below the command line (contracts i
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
-from typing import Callable
 
 from ramavt_jax import distributed
 from ramavt_jax.evaluation.final import evaluate_run
@@ -23,14 +23,30 @@ from ramavt_jax.training import driver
 __all__ = ["train_and_evaluate"]
 
 
-def train_and_evaluate(config: TrainConfig, out: str | Path, seed: int = 0, seeds: int = 1, resume: bool = True,
-                       progress: bool = True, devices: int = 0, log: Callable[[str], None] = print,
-                       **run_kwargs) -> driver.RunSummary:
+def train_and_evaluate(
+    config: TrainConfig,
+    out: str | Path,
+    seed: int = 0,
+    seeds: int = 1,
+    resume: bool = True,
+    progress: bool = True,
+    devices: int = 0,
+    log: Callable[[str], None] = print,
+    **run_kwargs,
+) -> driver.RunSummary:
     """Train into ``out`` (see ``driver.run``), then write each seed folder's ``training_curves.png`` and, when the
     run reached ``total_env_steps`` and ``config.run.eval_episodes > 0``, its ``eval.json``. Returns the summary;
     with ``seeds > 1`` its ``"seeds"`` list holds one summary per seed folder ``out/seed_<k>``."""
-    summary = driver.run(config, Path(out), seed=seed, resume=resume, progress=progress, num_seeds=seeds,
-                         num_devices=devices or None, **run_kwargs)
+    summary = driver.run(
+        config,
+        Path(out),
+        seed=seed,
+        resume=resume,
+        progress=progress,
+        num_seeds=seeds,
+        num_devices=devices or None,
+        **run_kwargs,
+    )
     if not distributed.is_primary():
         return summary
     per_seed = summary.get("seeds", [summary])

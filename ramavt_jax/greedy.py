@@ -15,9 +15,22 @@ from ramavt_jax.network_config import TRUE_STATE_SIZE
 from ramavt_jax.network_inputs import hit_mask
 from ramavt_jax.render import CameraConfig, camera_rays
 
-__all__ = ["BLIND_SEARCHES", "GreedyState", "greedy_policy", "stack_params", "GreedyPolicyOf", "unbatch_state",
-           "batch_state", "standoff_signal", "true_tracking_state", "visible_tracking_state", "tracking_state_of",
-           "privileged_of", "privileged_size", "surface_centroid"]
+__all__ = [
+    "BLIND_SEARCHES",
+    "GreedyState",
+    "greedy_policy",
+    "stack_params",
+    "GreedyPolicyOf",
+    "unbatch_state",
+    "batch_state",
+    "standoff_signal",
+    "true_tracking_state",
+    "visible_tracking_state",
+    "tracking_state_of",
+    "privileged_of",
+    "privileged_size",
+    "surface_centroid",
+]
 
 
 def standoff_signal(network: NetworkConfig, env_state: env_lib.EnvState, env_params: env_lib.EnvParams):
@@ -50,8 +63,9 @@ def surface_centroid(depth: jax.Array, camera: CameraConfig) -> tuple[jax.Array,
     return jnp.sum(jnp.where(hit[..., None], points, 0.0), axis=(0, 1)) / jnp.maximum(count, 1), count
 
 
-def visible_tracking_state(env_state: env_lib.EnvState, env_params: env_lib.EnvParams, camera: CameraConfig,
-                           image_only: bool = False) -> jax.Array:
+def visible_tracking_state(
+    env_state: env_lib.EnvState, env_params: env_lib.EnvParams, camera: CameraConfig, image_only: bool = False
+) -> jax.Array:
     """[6] true_tracking_state with the error measured to the centroid of the target's visible surface instead of
     its centre of mass: the mean camera-frame point of the newest frame's target pixels ('depth' or 'rgbd'
     observations: depth / far last; a target at stand-off scale k is drawn at 1 / k, so the frame is already in
@@ -61,8 +75,10 @@ def visible_tracking_state(env_state: env_lib.EnvState, env_params: env_lib.EnvP
     read sharp: under the blur perturbation the observation averages it with earlier ones, and the Gaussian or
     motion blur of EnvParams would move depth into background pixels; neither is applied here."""
     if env_state.frames.shape[-1] not in (1, 4):
-        raise ValueError(f"visible_tracking_state needs a depth channel ('depth' or 'rgbd' observations), got "
-                         f"{env_state.frames.shape[-1]} channels")
+        raise ValueError(
+            f"visible_tracking_state needs a depth channel ('depth' or 'rgbd' observations), got "
+            f"{env_state.frames.shape[-1]} channels"
+        )
     centroid, count = surface_centroid(env_state.frames[-1][..., -1] * camera.far, camera)  # m / k
     error = (centroid - env_params.desired_pos) / env_params.desired_pos[2]
     if image_only:
@@ -122,8 +138,15 @@ class GreedyState:
     seen: jax.Array  # [] bool: some frame of the episode so far has shown a target pixel (search 'retreat' only)
 
 
-def greedy_policy(network: NetworkConfig, params, obs_shape: tuple, name: str = "greedy",
-                  search: str = "learned", members: int = 0, camera: CameraConfig | None = None) -> Policy:
+def greedy_policy(
+    network: NetworkConfig,
+    params,
+    obs_shape: tuple,
+    name: str = "greedy",
+    search: str = "learned",
+    members: int = 0,
+    camera: CameraConfig | None = None,
+) -> Policy:
     """A ``baselines.Policy`` acting greedily with a trained Q-network (per env; evaluate.run_episodes vmaps it). A
     state_input network also reads env_state: the simulator's state (a diagnostic, not a deployable tracker), or with
     state_input_point 'image' the newest frame (env_state.frames) and the desired point alone.
@@ -141,14 +164,22 @@ def greedy_policy(network: NetworkConfig, params, obs_shape: tuple, name: str = 
         raise ValueError(f"search must be one of {BLIND_SEARCHES}, got {search!r}")
     leading = {leaf.shape[0] for leaf in jax.tree.leaves(params)} if members else set()
     if members < 0 or (members and leading != {members}):
-        raise ValueError(f"members must be 0 (one network) or the leading axis of every stacked parameter, got "
-                         f"{members} for leading axes {sorted(leading)}")
+        raise ValueError(
+            f"members must be 0 (one network) or the leading axis of every stacked parameter, got "
+            f"{members} for leading axes {sorted(leading)}"
+        )
     net = make_network(network)
     state_of = tracking_state_of(network, camera) if network.state_input else None
 
     def forward(member_params, net_state, first, obs, standoff, true_state):  # one network, one step: q [A], state
-        q, new = net.apply({"params": member_params}, obs[None, None], first[None, None], batch_state(net_state),
-                           standoff=standoff, true_state=true_state)
+        q, new = net.apply(
+            {"params": member_params},
+            obs[None, None],
+            first[None, None],
+            batch_state(net_state),
+            standoff=standoff,
+            true_state=true_state,
+        )
         return q[0, 0], new
 
     def init(key):

@@ -24,7 +24,6 @@ from gymnasium import spaces
 from ramavt_jax import env as env_lib
 from ramavt_jax import render
 
-
 ENV_ID = "ramavt_jax/Tracking-v0"
 
 
@@ -55,8 +54,12 @@ class TrackingGymEnv(gymnasium.Env):
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 10}
 
-    def __init__(self, config: env_lib.EnvConfig = env_lib.EnvConfig(), params: env_lib.EnvParams | None = None,
-                 render_mode: str | None = None):
+    def __init__(
+        self,
+        config: env_lib.EnvConfig = env_lib.EnvConfig(),
+        params: env_lib.EnvParams | None = None,
+        render_mode: str | None = None,
+    ):
         if render_mode not in (None, "rgb_array"):
             raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
         self.tracking_env = env_lib.TrackingEnv(config)
@@ -103,8 +106,14 @@ class TrackingGymEnv(gymnasium.Env):
         if self._state is None:
             return None
         pose = self.tracking_env.pose(self._state, self.params)
-        frame = render.render(self._state.target, pose.position, pose.rotation, self.tracking_env.config.camera,
-                              self.tracking_env.lighting(self.params), True)
+        frame = render.render(
+            self._state.target,
+            pose.position,
+            pose.rotation,
+            self.tracking_env.config.camera,
+            self.tracking_env.lighting(self.params),
+            True,
+        )
         return (np.asarray(frame.rgb) * 255).astype(np.uint8)
 
 
@@ -113,8 +122,9 @@ class TrackingVectorEnv(gymnasium.vector.VectorEnv):
 
     metadata = {"autoreset_mode": gymnasium.vector.AutoresetMode.NEXT_STEP, "render_modes": []}
 
-    def __init__(self, num_envs: int, config: env_lib.EnvConfig = env_lib.EnvConfig(),
-                 params: env_lib.EnvParams | None = None):
+    def __init__(
+        self, num_envs: int, config: env_lib.EnvConfig = env_lib.EnvConfig(), params: env_lib.EnvParams | None = None
+    ):
         if num_envs < 1:
             raise ValueError(f"num_envs must be >= 1, got {num_envs}")
         config = dataclasses.replace(config, autoreset="next_step")
@@ -148,14 +158,23 @@ class TrackingVectorEnv(gymnasium.vector.VectorEnv):
         obs, self._state, reward, terminated, truncated, info = self._step(
             jax.random.split(key, self.num_envs), self._state, jnp.asarray(actions, jnp.int32), self.params
         )
-        return (np.asarray(obs, np.float32), np.asarray(reward, np.float64), np.asarray(terminated),
-                np.asarray(truncated), _info_to_numpy(info))
+        return (
+            np.asarray(obs, np.float32),
+            np.asarray(reward, np.float64),
+            np.asarray(terminated),
+            np.asarray(truncated),
+            _info_to_numpy(info),
+        )
 
 
 def _register() -> None:
     if ENV_ID not in gymnasium.registry:
-        gymnasium.register(id=ENV_ID, entry_point=f"{__name__}:TrackingGymEnv",
-                           vector_entry_point=f"{__name__}:TrackingVectorEnv", disable_env_checker=True)
+        gymnasium.register(
+            id=ENV_ID,
+            entry_point=f"{__name__}:TrackingGymEnv",
+            vector_entry_point=f"{__name__}:TrackingVectorEnv",
+            disable_env_checker=True,
+        )
 
 
 _register()

@@ -18,8 +18,16 @@ from ramavt_jax import baselines
 from ramavt_jax import env as env_lib
 from ramavt_jax.losses import masked_mean
 
-__all__ = ["NO_LABEL", "look_ahead_teacher", "teacher_actions", "unseen_yet", "stored_labels",
-           "large_margin_loss", "margin_terms", "policy_terms"]
+__all__ = [
+    "NO_LABEL",
+    "look_ahead_teacher",
+    "teacher_actions",
+    "unseen_yet",
+    "stored_labels",
+    "large_margin_loss",
+    "margin_terms",
+    "policy_terms",
+]
 
 NO_LABEL = -1  # a stored label the margin loss skips (a step whose image cannot show what the label knows)
 
@@ -29,8 +37,9 @@ def look_ahead_teacher(config: env_lib.EnvConfig) -> baselines.Policy:
     return baselines.mpc_policy(config, horizon=1, branch=1)
 
 
-def teacher_actions(teacher: baselines.Policy, env_state: env_lib.EnvState, params: env_lib.EnvParams,
-                    key: jax.Array) -> jax.Array:
+def teacher_actions(
+    teacher: baselines.Policy, env_state: env_lib.EnvState, params: env_lib.EnvParams, key: jax.Array
+) -> jax.Array:
     """[N] int32 the teacher's action for each of the N envs of ``env_state`` (leaves [N, ...]); the key only feeds
     the teacher's noise-free model, so the actions depend on the states alone."""
     n = jax.tree.leaves(env_state)[0].shape[0]
@@ -47,8 +56,9 @@ def unseen_yet(env_state: env_lib.EnvState, camera: env_lib.CameraConfig) -> jax
     return ~in_view & (env_state.lost_steps == env_state.steps)
 
 
-def stored_labels(taught: jax.Array, env_state: env_lib.EnvState, camera: env_lib.CameraConfig,
-                  blind_label: str) -> jax.Array:
+def stored_labels(
+    taught: jax.Array, env_state: env_lib.EnvState, camera: env_lib.CameraConfig, blind_label: str
+) -> jax.Array:
     """[N] int32 the labels to store for the teacher's actions ``taught`` [N], where the target is
     :func:`unseen_yet` replaced as LearnerConfig.blind_label says: 'teacher' keeps them, 'none' stores NO_LABEL
     (those steps left to the TD loss) and 'retreat' stores env.RETREAT (backing off shrinks the bearing of a target in
@@ -59,8 +69,9 @@ def stored_labels(taught: jax.Array, env_state: env_lib.EnvState, camera: env_li
     return jnp.where(unseen_yet(env_state, camera), blind, taught).astype(jnp.int32)
 
 
-def large_margin_loss(q: jax.Array, expert_action: jax.Array, mask: jax.Array, margin: float,
-                      weights: jax.Array | None = None) -> jax.Array:
+def large_margin_loss(
+    q: jax.Array, expert_action: jax.Array, mask: jax.Array, margin: float, weights: jax.Array | None = None
+) -> jax.Array:
     """DQfD's large-margin classification loss (Hester et al. 2018), masked mean over steps of
     ``max_a [Q(s, a) + margin * (a != a_E)] - Q(s, a_E)``: zero once the expert's action leads every other by
     ``margin``, else the shortfall of the worst violator, so its gradient raises Q(s, a_E) and lowers that action's.
@@ -77,8 +88,9 @@ def large_margin_loss(q: jax.Array, expert_action: jax.Array, mask: jax.Array, m
     return masked_mean(jnp.max(q + margin * (1.0 - expert), axis=-1) - q_expert, mask, weights)
 
 
-def margin_terms(q: jax.Array, expert_action: jax.Array, mask: jax.Array, margin: float,
-                 weights: jax.Array | None = None) -> tuple[jax.Array, jax.Array]:
+def margin_terms(
+    q: jax.Array, expert_action: jax.Array, mask: jax.Array, margin: float, weights: jax.Array | None = None
+) -> tuple[jax.Array, jax.Array]:
     """(:func:`large_margin_loss`, the share of the masked steps whose greedy action is the expert's, a constant to
     log); shapes as there. Steps labelled NO_LABEL are masked out of both."""
     mask = mask * (expert_action != NO_LABEL)
@@ -86,8 +98,9 @@ def margin_terms(q: jax.Array, expert_action: jax.Array, mask: jax.Array, margin
     return large_margin_loss(q, expert_action, mask, margin, weights), masked_mean(agreement, mask)
 
 
-def policy_terms(logits: jax.Array, expert_action: jax.Array, mask: jax.Array,
-                 weights: jax.Array | None = None) -> tuple[jax.Array, jax.Array]:
+def policy_terms(
+    logits: jax.Array, expert_action: jax.Array, mask: jax.Array, weights: jax.Array | None = None
+) -> tuple[jax.Array, jax.Array]:
     """(the masked mean cross-entropy of a policy head's ``logits`` [B, T, A] against the labels ``expert_action``
     [B, T], the share of the masked steps whose argmax is the label, a constant to log); ``mask`` [B, T] and
     ``weights`` [B] as in :func:`large_margin_loss`. Steps labelled NO_LABEL are masked out of both."""

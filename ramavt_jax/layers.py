@@ -95,8 +95,9 @@ def conv2d_lax(x: Array, kernel: Array, stride: int) -> Array:
     """XLA's convolution with padding k//2: x [N, H, W, C], kernel [k, k, C, F] -> [N, H_out, W_out, F]. On this CPU
     its forward is about twice the im2col forward, its backward slower than im2col's (benchmarks/RESULTS.md)."""
     pad = kernel.shape[0] // 2
-    return lax.conv_general_dilated(x, kernel, (stride, stride), ((pad, pad), (pad, pad)),
-                                    dimension_numbers=("NHWC", "HWIO", "NHWC"))
+    return lax.conv_general_dilated(
+        x, kernel, (stride, stride), ((pad, pad), (pad, pad)), dimension_numbers=("NHWC", "HWIO", "NHWC")
+    )
 
 
 # Below this many input channels the im2col forward beats XLA's (2 channels, 32x32, stride 2: 14 vs 19 ms per 1,312
@@ -119,7 +120,7 @@ def _lax_forward_im2col_gradient(x: Array, kernel: Array, stride: int) -> Array:
     return _lax_conv_per_kernel(stride)(x, kernel)
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _lax_conv_per_kernel(stride: int):
     """``conv2d_lax`` at ``stride`` whose vmap keeps one convolution per kernel. vmapped over kernels (the seeds of a
     ``--seeds N`` program), XLA's convolution becomes a grouped convolution that runs about 4x slower on this CPU
@@ -204,9 +205,7 @@ def max_pool2(x: Array) -> Array:
     ph, pw = h % 2, w % 2
     if ph or pw:
         x = jnp.pad(x, ((0, 0), (0, ph), (0, pw), (0, 0)), constant_values=-jnp.inf)
-    return jnp.maximum(
-        jnp.maximum(x[:, 0::2, 0::2], x[:, 0::2, 1::2]), jnp.maximum(x[:, 1::2, 0::2], x[:, 1::2, 1::2])
-    )
+    return jnp.maximum(jnp.maximum(x[:, 0::2, 0::2], x[:, 0::2, 1::2]), jnp.maximum(x[:, 1::2, 0::2], x[:, 1::2, 1::2]))
 
 
 class SqueezeExcite(nn.Module):

@@ -178,9 +178,11 @@ class TDConfig:
         if int(self.n_step) != self.n_step or self.n_step < 1:
             raise ValueError(f"TDConfig.n_step must be an integer >= 1, got {self.n_step}")
         if self.td_lambda is not None and not (0.0 <= self.td_lambda <= 1.0 and self.n_step == 1):
-            raise ValueError(f"TDConfig.td_lambda must be None (n-step returns) or in [0, 1] with n_step=1 (the "
-                             f"lambda-returns replace the n-step ones), got td_lambda={self.td_lambda}, "
-                             f"n_step={self.n_step}")
+            raise ValueError(
+                f"TDConfig.td_lambda must be None (n-step returns) or in [0, 1] with n_step=1 (the "
+                f"lambda-returns replace the n-step ones), got td_lambda={self.td_lambda}, "
+                f"n_step={self.n_step}"
+            )
         if self.huber_delta is not None and not self.huber_delta > 0:
             raise ValueError(f"TDConfig.huber_delta must be None (squared loss) or > 0, got {self.huber_delta}")
         if not 0.0 <= self.advantage_alpha < 1.0:
@@ -389,7 +391,25 @@ def td_loss(q_online: jax.Array, batch: TDBatch, cfg: TDConfig) -> tuple[jax.Arr
     """:func:`sequence_td_loss` of ``q_online`` (``[B, T+1, A]``) against a :class:`TDBatch`, or with quantiles
     (``[B, T+1, A, N]`` both) :func:`sequence_quantile_loss`."""
     if batch.q_target.ndim == 4:
-        return sequence_quantile_loss(q_online, batch.q_target, batch.action, batch.reward, batch.terminated,
-                                      batch.truncated, batch.mask, cfg, batch.weight)
-    return sequence_td_loss(q_online, batch.q_target, batch.action, batch.reward, batch.terminated, batch.truncated,
-                            batch.mask, cfg, batch.weight)
+        return sequence_quantile_loss(
+            q_online,
+            batch.q_target,
+            batch.action,
+            batch.reward,
+            batch.terminated,
+            batch.truncated,
+            batch.mask,
+            cfg,
+            batch.weight,
+        )
+    return sequence_td_loss(
+        q_online,
+        batch.q_target,
+        batch.action,
+        batch.reward,
+        batch.terminated,
+        batch.truncated,
+        batch.mask,
+        cfg,
+        batch.weight,
+    )

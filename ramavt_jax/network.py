@@ -52,6 +52,14 @@ from ramavt_jax.layers import (
     make_conv,
     max_pool2,
 )
+from ramavt_jax.network_config import (  # noqa: F401 (re-exported: network.NetworkConfig is the public name)
+    CONV_IMPLS,
+    DTYPES,
+    NORMS,
+    TRUE_STATE_SIZE,
+    VARIANTS,
+    NetworkConfig,
+)
 from ramavt_jax.network_inputs import (  # noqa: F401 (re-exported: the encoder's input helpers)
     coordinate_planes,
     frame_changes,
@@ -61,14 +69,6 @@ from ramavt_jax.network_inputs import (  # noqa: F401 (re-exported: the encoder'
     with_coordinates,
     with_depth_rescaled,
     with_hit_mask,
-)
-from ramavt_jax.network_config import (  # noqa: F401 (re-exported: network.NetworkConfig is the public name)
-    CONV_IMPLS,
-    DTYPES,
-    NORMS,
-    TRUE_STATE_SIZE,
-    VARIANTS,
-    NetworkConfig,
 )
 
 
@@ -99,8 +99,10 @@ def initial_state(config: NetworkConfig, batch: int, obs_shape: tuple | None = N
     h = jnp.zeros((layers, batch, config.lstm), jnp.float32)
     no_buffer = config.recurrent and not config.frame_difference
     if (not no_buffer or config.exposure_rate) and (obs_shape is None or len(obs_shape) != 3):
-        raise ValueError(f"initial_state: {config.variant!r} with frame_difference={config.frame_difference}, "
-                         f"exposure_rate={config.exposure_rate} needs obs_shape=(H, W, C), got {obs_shape!r}")
+        raise ValueError(
+            f"initial_state: {config.variant!r} with frame_difference={config.frame_difference}, "
+            f"exposure_rate={config.exposure_rate} needs obs_shape=(H, W, C), got {obs_shape!r}"
+        )
     # 'drlavt' with frame_stack 1 keeps [B, 0, H, W, C], which stack_frames concatenates along axis 1
     frames = jnp.zeros((batch, 0) if no_buffer else (batch, _kept_frames(config), *obs_shape), jnp.float32)
     prev_action = jnp.zeros((1, batch), jnp.int32) if config.prev_action else None
@@ -132,17 +134,20 @@ def record_action(state: RecurrentState, action: jax.Array) -> RecurrentState:
     return state if state.prev_action is None else state.replace(prev_action=action[None].astype(jnp.int32))
 
 
-def previous_actions(config: NetworkConfig, reset: jax.Array, state: RecurrentState,
-                     actions: jax.Array | None) -> jax.Array:
+def previous_actions(
+    config: NetworkConfig, reset: jax.Array, state: RecurrentState, actions: jax.Array | None
+) -> jax.Array:
     """One-hot previous action per step [B, T, A + 1]: state.prev_action before step 0, ``actions[:, t - 1]`` (
     [B, T] or [B, T - 1], needed when T > 1) before step t > 0, the extra 'none' entry A where ``reset``."""
     b, t = reset.shape
     prev = state.prev_action[0][:, None]  # [B, 1]
     if t > 1:
         if actions is None or actions.shape[1] not in (t - 1, t):
-            raise ValueError(f"QNetwork: a prev_action network needs the window's actions [B, T] or [B, T - 1] "
-                             f"when T > 1, got {None if actions is None else actions.shape} for T = {t}")
-        prev = jnp.concatenate([prev, actions[:, :t - 1].astype(prev.dtype)], axis=1)
+            raise ValueError(
+                f"QNetwork: a prev_action network needs the window's actions [B, T] or [B, T - 1] "
+                f"when T > 1, got {None if actions is None else actions.shape} for T = {t}"
+            )
+        prev = jnp.concatenate([prev, actions[:, : t - 1].astype(prev.dtype)], axis=1)
     prev = jnp.where(reset, config.num_actions, prev)
     return jax.nn.one_hot(prev, config.num_actions + 1, dtype=config.jnp_dtype)
 
@@ -231,12 +236,21 @@ class QNetwork(nn.Module):
         return initial_state(self.config, batch, obs_shape)
 
     @nn.compact
-    def __call__(self, obs: jax.Array, reset: jax.Array, state: RecurrentState, train: bool = False,
-                 actions: jax.Array | None = None, standoff: jax.Array | None = None,
-                 true_state: jax.Array | None = None):
+    def __call__(
+        self,
+        obs: jax.Array,
+        reset: jax.Array,
+        state: RecurrentState,
+        train: bool = False,
+        actions: jax.Array | None = None,
+        standoff: jax.Array | None = None,
+        true_state: jax.Array | None = None,
+    ):
         cfg = self.config
         if obs.ndim != 5 or reset.shape != obs.shape[:2]:
-            raise ValueError(f"QNetwork: expected obs [B, T, H, W, C] and reset [B, T], got {obs.shape} and {reset.shape}")
+            raise ValueError(
+                f"QNetwork: expected obs [B, T, H, W, C] and reset [B, T], got {obs.shape} and {reset.shape}"
+            )
         b, t = obs.shape[:2]
         dtype = cfg.jnp_dtype
         reset = reset.astype(bool)
@@ -273,8 +287,9 @@ class QNetwork(nn.Module):
             if cfg.policy_head:  # acting takes the logits' argmax, the TD loss Q (NetworkConfig.policy_head)
                 self.sow("intermediates", "q_values", q.astype(jnp.float32))
                 q = nn.Dense(cfg.num_actions, dtype=dtype, kernel_init=lecun_init, name="policy")(y)
-            new_state = RecurrentState(h=h, c=c, frames=frames.astype(state.frames.dtype), prev_action=prev_action,
-                                       exposure=exposure)
+            new_state = RecurrentState(
+                h=h, c=c, frames=frames.astype(state.frames.dtype), prev_action=prev_action, exposure=exposure
+            )
         else:
             for j, width in enumerate(cfg.drlavt_dense):
                 x = nn.relu(nn.Dense(width, dtype=dtype, kernel_init=he_init, name=f"dense{j}")(x))
@@ -296,8 +311,10 @@ def standoff_feature(standoff: jax.Array | None, shape: tuple[int, int]) -> jax.
     """[B, T] ln of each step's stand-off signal standoff [B, T] (greedy.standoff_signal: k or the command gain);
     refuses a missing one (1 is passed, not assumed: a caller that forgets it would act on the wrong size unnoticed)."""
     if standoff is None or standoff.shape != tuple(shape):
-        raise ValueError(f"QNetwork: this network needs standoff [B, T] = {tuple(shape)} (the episodes' "
-                         f"stand-off signal), got {None if standoff is None else standoff.shape}")
+        raise ValueError(
+            f"QNetwork: this network needs standoff [B, T] = {tuple(shape)} (the episodes' "
+            f"stand-off signal), got {None if standoff is None else standoff.shape}"
+        )
     return jnp.log(standoff)
 
 
@@ -307,8 +324,10 @@ def true_state_feature(true_state: jax.Array | None, shape: tuple[int, int]) -> 
     want = (*shape, TRUE_STATE_SIZE)
     if true_state is None or true_state.shape != want:
         got = None if true_state is None else true_state.shape
-        raise ValueError(f"QNetwork: a state_input network needs true_state [B, T, {TRUE_STATE_SIZE}] = {want} "
-                         f"(greedy.tracking_state_of per step), got {got}")
+        raise ValueError(
+            f"QNetwork: a state_input network needs true_state [B, T, {TRUE_STATE_SIZE}] = {want} "
+            f"(greedy.tracking_state_of per step), got {got}"
+        )
     return true_state
 
 
@@ -385,8 +404,9 @@ def attention_maps(params, config: NetworkConfig, obs: jax.Array, variables: dic
     net = make_network(config)
     obs = jnp.asarray(obs, jnp.float32)
     state = initial_state(config, 1, obs.shape)
-    _, mut = net.apply(variables, obs[None, None], jnp.ones((1, 1), bool), state, **_dummy_signals(),
-                       mutable=["intermediates"])
+    _, mut = net.apply(
+        variables, obs[None, None], jnp.ones((1, 1), bool), state, **_dummy_signals(), mutable=["intermediates"]
+    )
     inter = mut["intermediates"]["encoder"]
     maps = {}
     for name, (act,) in inter.items():
@@ -395,6 +415,17 @@ def attention_maps(params, config: NetworkConfig, obs: jax.Array, variables: dic
     return maps
 
 
-__all__ = ["NetworkConfig", "RecurrentState", "QNetwork", "initial_state", "make_network", "init_params",
-           "count_params", "flops_per_frame", "attention_maps", "stack_frames", "with_coordinates",
-           "window_start_frames"]
+__all__ = [
+    "NetworkConfig",
+    "RecurrentState",
+    "QNetwork",
+    "initial_state",
+    "make_network",
+    "init_params",
+    "count_params",
+    "flops_per_frame",
+    "attention_maps",
+    "stack_frames",
+    "with_coordinates",
+    "window_start_frames",
+]

@@ -53,7 +53,9 @@ class NetworkConfig:
     kernels: tuple = (3, 3, 3, 1)
     strides: tuple = (2, 2, 1, 1)
     pools: tuple = (True, True, True, True)  # 2x2 max-pool in block i
-    pool_first: bool = True  # conv -> pool -> SE -> norm -> ReLU (fast); False: *orig* conv -> SE -> norm -> pool -> ReLU
+    pool_first: bool = (
+        True  # conv -> pool -> SE -> norm -> ReLU (fast); False: *orig* conv -> SE -> norm -> pool -> ReLU
+    )
     norm: str = "layer"
     se_reduction: int = 8
     attention_heads: int = 8
@@ -150,14 +152,24 @@ class NetworkConfig:
             if getattr(self, name) not in allowed:
                 _fail(f"{name}={getattr(self, name)!r} is not one of {allowed}")
         self._check_encoder()
-        for name in ("num_actions", "se_reduction", "attention_heads", "dense", "lstm", "lstm_layers", "head",
-                     "frame_stack"):
+        for name in (
+            "num_actions",
+            "se_reduction",
+            "attention_heads",
+            "dense",
+            "lstm",
+            "lstm_layers",
+            "head",
+            "frame_stack",
+        ):
             v = getattr(self, name)
             if not _is_int(v) or v < 1:
                 _fail(f"{name} must be a positive integer, got {v!r}")
         if self.use_mha and self.channels[-1] % self.attention_heads != 0:
-            _fail(f"attention_heads={self.attention_heads} must divide the last block's channels "
-                  f"({self.channels[-1]}) for variant {self.variant!r}")
+            _fail(
+                f"attention_heads={self.attention_heads} must divide the last block's channels "
+                f"({self.channels[-1]}) for variant {self.variant!r}"
+            )
         if not _is_int(self.aux_outputs) or self.aux_outputs < 0:
             _fail(f"aux_outputs must be an integer >= 0, got {self.aux_outputs!r}")
         for name in ("depth_centre", "depth_gain"):
@@ -166,8 +178,10 @@ class NetworkConfig:
         if not self.depth_gain > 0:
             _fail(f"depth_gain must be > 0 (1 = the observation as it is), got {self.depth_gain!r}")
         if self.rescales_depth and not self.coord_channels:
-            _fail("depth_centre / depth_gain need coord_channels=True: once centred, a target pixel at depth_centre "
-                  "reads 0 like the background, and only the hit mask tells them apart")
+            _fail(
+                "depth_centre / depth_gain need coord_channels=True: once centred, a target pixel at depth_centre "
+                "reads 0 like the background, and only the hit mask tells them apart"
+            )
         if not _is_int(self.quantiles) or self.quantiles == 1 or self.quantiles < 0:
             _fail(f"quantiles must be 0 (expected values) or an integer >= 2, got {self.quantiles!r}")
         if self.policy_head and (self.quantiles or not self.recurrent):
@@ -197,14 +211,18 @@ class NetworkConfig:
         if n == 0:
             _fail("channels must name at least one conv block")
         if not (len(self.kernels) == len(self.strides) == len(self.pools) == n):
-            _fail(f"channels, kernels, strides and pools must have the same length (one entry per conv block), "
-                  f"got {len(self.channels)}, {len(self.kernels)}, {len(self.strides)}, {len(self.pools)}")
+            _fail(
+                f"channels, kernels, strides and pools must have the same length (one entry per conv block), "
+                f"got {len(self.channels)}, {len(self.kernels)}, {len(self.strides)}, {len(self.pools)}"
+            )
         for name in ("channels", "kernels", "strides", "drlavt_dense"):
             if not all(_is_int(v) and v >= 1 for v in getattr(self, name)):
                 _fail(f"{name} must be positive integers, got {getattr(self, name)!r}")
         if not all(k % 2 == 1 or k == s for k, s in zip(self.kernels, self.strides)):
-            _fail(f"kernels must be odd (padding k//2 keeps the grid centred) or equal to their block's stride (a "
-                  f"patch layer), got kernels {self.kernels!r} with strides {self.strides!r}")
+            _fail(
+                f"kernels must be odd (padding k//2 keeps the grid centred) or equal to their block's stride (a "
+                f"patch layer), got kernels {self.kernels!r} with strides {self.strides!r}"
+            )
 
     def _check_state_input(self):
         """The diagnostic true-state input: its gain and entries need state_input (entries stored as ints)."""
@@ -214,8 +232,12 @@ class NetworkConfig:
         if g != 1.0 and not self.state_input:
             _fail("state_input_gain scales the true state at the input: it needs state_input=True")
         entries = self.state_input_entries
-        if not (isinstance(entries, (tuple, list)) and entries and len(set(entries)) == len(entries) and all(
-                _is_int(i) and 0 <= i < TRUE_STATE_SIZE for i in entries)):
+        if not (
+            isinstance(entries, (tuple, list))
+            and entries
+            and len(set(entries)) == len(entries)
+            and all(_is_int(i) and 0 <= i < TRUE_STATE_SIZE for i in entries)
+        ):
             _fail(f"state_input_entries must be distinct indices in 0-{TRUE_STATE_SIZE - 1}, got {entries!r}")
         entries = tuple(int(i) for i in entries)  # hashable and JSON-friendly
         object.__setattr__(self, "state_input_entries", entries)

@@ -8,8 +8,18 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-__all__ = ["hit_mask", "with_hit_mask", "with_depth_rescaled", "coordinate_planes", "with_coordinates",
-           "silhouette_stats", "STATS_DEPTH_CENTRE", "STATS_DEPTH_GAIN", "frame_changes", "long_exposure"]
+__all__ = [
+    "hit_mask",
+    "with_hit_mask",
+    "with_depth_rescaled",
+    "coordinate_planes",
+    "with_coordinates",
+    "silhouette_stats",
+    "STATS_DEPTH_CENTRE",
+    "STATS_DEPTH_GAIN",
+    "frame_changes",
+    "long_exposure",
+]
 
 
 def hit_mask(x: jax.Array) -> jax.Array:
@@ -26,8 +36,10 @@ def with_depth_rescaled(x: jax.Array, hit: jax.Array, centre: float, gain: float
     """[N, H, W, C] -> the same with the depth channel (the last; C = 1 'depth' or 4 'rgbd') of the hit pixels
     (hit [N, H, W, 1], 1 on the target) mapped to (depth - centre) * gain; the background stays 0."""
     if x.shape[-1] not in (1, 4):
-        raise ValueError(f"depth_centre / depth_gain need a depth channel (1 'depth' or 4 'rgbd' channels), got "
-                         f"{x.shape[-1]} channels")
+        raise ValueError(
+            f"depth_centre / depth_gain need a depth channel (1 'depth' or 4 'rgbd' channels), got "
+            f"{x.shape[-1]} channels"
+        )
     depth = (x[..., -1:] - centre) * gain * hit
     return jnp.concatenate([x[..., :-1], depth], axis=-1)
 

@@ -32,17 +32,48 @@ def _quick() -> TrainConfig:
     chunks, 37-48 (higher AER, narrower spread over seeds; training itself acts with the online params)."""
     return TrainConfig(
         env=env_lib.EnvConfig(camera=CameraConfig(resolution=32), autoreset="next_step"),
-        network=NetworkConfig(variant="ramavt", channels=(16, 32, 32), kernels=(4, 2, 3), strides=(4, 2, 1),
-                              pools=(False, False, False), se_reduction=4, attention_heads=4, dense=128, lstm=128,
-                              lstm_layers=1, head=128, coord_channels=True, pooled_skip=True, prev_action=True,
-                              aux_outputs=3),
+        network=NetworkConfig(
+            variant="ramavt",
+            channels=(16, 32, 32),
+            kernels=(4, 2, 3),
+            strides=(4, 2, 1),
+            pools=(False, False, False),
+            se_reduction=4,
+            attention_heads=4,
+            dense=128,
+            lstm=128,
+            lstm_layers=1,
+            head=128,
+            coord_channels=True,
+            pooled_skip=True,
+            prev_action=True,
+            aux_outputs=3,
+        ),
         acting=ActingConfig(num_envs=64, rollout_steps=20, eps_start=1.0, eps_end=0.05, eps_decay_steps=200_000),
         replay=ReplayConfig(capacity_steps=64_000, burn_in=10, train_len=20, batch_size=32),
-        learner=LearnerConfig(learning_starts=10_240, replay_ratio=2.0, lr=1e-3, gamma=0.97, n_step=5,
-                              reward_scale=0.1, target_update="polyak", polyak_tau=0.01, bootstrap_lost=True,
-                              aux_weight=1.0, max_grad_norm=1.0, bootstrap_from="online", expert_margin_weight=1.0),
-        run=RunConfig(total_env_steps=1_536_000, iterations_per_chunk=25, eval_episodes=32, checkpoint_every_chunks=5,
-                      policy_params="averaged", policy_average_from=36),
+        learner=LearnerConfig(
+            learning_starts=10_240,
+            replay_ratio=2.0,
+            lr=1e-3,
+            gamma=0.97,
+            n_step=5,
+            reward_scale=0.1,
+            target_update="polyak",
+            polyak_tau=0.01,
+            bootstrap_lost=True,
+            aux_weight=1.0,
+            max_grad_norm=1.0,
+            bootstrap_from="online",
+            expert_margin_weight=1.0,
+        ),
+        run=RunConfig(
+            total_env_steps=1_536_000,
+            iterations_per_chunk=25,
+            eval_episodes=32,
+            checkpoint_every_chunks=5,
+            policy_params="averaged",
+            policy_average_from=36,
+        ),
     )
 
 
@@ -66,8 +97,9 @@ def _sizes() -> TrainConfig:
     included (48 chunks, the policy averaged over 37-48), as chosen (docs/experiments.md, arms size-quick,
     size-res64, size-1536k, size-margin, size-wide-retreat and size-wider-retreat: on the resized validation models
     71 % of the ceiling over five seeds, 0.6 % of the blind starts lost against 16.4 % for size-margin)."""
-    return at_64x64(_quick()).override(env_params={"size_scale_min": 0.15, "size_scale_max": 1.0, "init_xy_std": 3.0},
-                                       blind_label="retreat")
+    return at_64x64(_quick()).override(
+        env_params={"size_scale_min": 0.15, "size_scale_max": 1.0, "init_xy_std": 3.0}, blind_label="retreat"
+    )
 
 
 def _robust() -> TrainConfig:
@@ -84,16 +116,19 @@ def under_table2_perturbations(config: TrainConfig, share: float) -> TrainConfig
     each drawn on in a ``share`` of the training episodes, with the 3-frame history the blur needs; the run's other
     env overrides kept. Evaluation flies each Table II setting as it is, whatever a run trained with."""
     perturbations = {"actuator_noise": 0.3, "delay_max": 0.5, "blur_frames": 3, "perturb_prob": share}
-    return config.override(env=dataclasses.replace(config.env, frame_history=3),
-                           env_params={**dict(config.env_params), **perturbations})
+    return config.override(
+        env=dataclasses.replace(config.env, frame_history=3), env_params={**dict(config.env_params), **perturbations}
+    )
 
 
 def at_64x64(config: TrainConfig) -> TrainConfig:
     """``config`` (a 32x32 one with a 4x4 first patch) at 64x64 depth with an 8x8 first patch, so that the attention
     keeps its 4x4 token grid; everything else unchanged."""
     camera = dataclasses.replace(config.env.camera, resolution=64)
-    return config.override(env=dataclasses.replace(config.env, camera=camera),
-                           network=dataclasses.replace(config.network, kernels=(8, 2, 3), strides=(8, 2, 1)))
+    return config.override(
+        env=dataclasses.replace(config.env, camera=camera),
+        network=dataclasses.replace(config.network, kernels=(8, 2, 3), strides=(8, 2, 1)),
+    )
 
 
 def _paper() -> TrainConfig:
@@ -105,10 +140,18 @@ def _paper() -> TrainConfig:
         network=NetworkConfig(variant="ramavt"),
         acting=ActingConfig(num_envs=16, rollout_steps=20, eps_start=0.9, eps_end=0.1, eps_decay_steps=1_000_000),
         replay=ReplayConfig(capacity_steps=50_000, burn_in=4, train_len=8, batch_size=64),
-        learner=LearnerConfig(learning_starts=10_000, replay_ratio=1.6, lr=1e-4, gamma=0.99, n_step=1, double_q=False,
-                              reward_scale=1.0, target_update="period", target_period=1000),
-        run=RunConfig(total_env_steps=2_000_000, iterations_per_chunk=10, checkpoint_every_chunks=20,
-                      eval_episodes=32),
+        learner=LearnerConfig(
+            learning_starts=10_000,
+            replay_ratio=1.6,
+            lr=1e-4,
+            gamma=0.99,
+            n_step=1,
+            double_q=False,
+            reward_scale=1.0,
+            target_update="period",
+            target_period=1000,
+        ),
+        run=RunConfig(total_env_steps=2_000_000, iterations_per_chunk=10, checkpoint_every_chunks=20, eval_episodes=32),
     )
 
 
@@ -116,13 +159,23 @@ def _smoke() -> TrainConfig:
     """Seconds of compute: plumbing checks (tests, CI). 16x16 depth, a tiny plain DRQN, 4 chunks of 320 steps."""
     return TrainConfig(
         env=env_lib.EnvConfig(camera=CameraConfig(resolution=16), autoreset="next_step"),
-        network=NetworkConfig(variant="origin", channels=(8, 8), kernels=(3, 3), strides=(1, 1), pools=(True, True),
-                              dense=32, lstm=32, lstm_layers=1, head=32),
+        network=NetworkConfig(
+            variant="origin",
+            channels=(8, 8),
+            kernels=(3, 3),
+            strides=(1, 1),
+            pools=(True, True),
+            dense=32,
+            lstm=32,
+            lstm_layers=1,
+            head=32,
+        ),
         acting=ActingConfig(num_envs=8, rollout_steps=10, eps_decay_steps=1280),
         replay=ReplayConfig(capacity_steps=800, burn_in=3, train_len=5, batch_size=4),
         learner=LearnerConfig(learning_starts=160, replay_ratio=0.5, n_step=2),
-        run=RunConfig(total_env_steps=1280, iterations_per_chunk=4, eval_episodes=4, eval_max_steps=50,
-                      checkpoint_every_chunks=2),
+        run=RunConfig(
+            total_env_steps=1280, iterations_per_chunk=4, eval_episodes=4, eval_max_steps=50, checkpoint_every_chunks=2
+        ),
     )
 
 

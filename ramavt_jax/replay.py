@@ -207,11 +207,19 @@ def sequence_batch(window: Transition, burn_in: int) -> SequenceBatch:
     # only the window's first state is needed: the network carries its own state from there
     start = jax.tree.map(lambda x: jnp.moveaxis(x[:, 0], 0, 1), window.recurrent_state)
     return SequenceBatch(
-        obs=window.obs, reset=window.is_first.astype(bool), action=transition(window.action),
-        reward=transition(window.reward), terminated=transition(window.terminated),
-        truncated=transition(window.truncated), loss_mask=loss_mask(window.is_first, burn_in), start_state=start,
-        privileged=window.privileged, standoff=window.standoff,
-        expert_action=None if window.expert_action is None else transition(window.expert_action), burn_in=burn_in)
+        obs=window.obs,
+        reset=window.is_first.astype(bool),
+        action=transition(window.action),
+        reward=transition(window.reward),
+        terminated=transition(window.terminated),
+        truncated=transition(window.truncated),
+        loss_mask=loss_mask(window.is_first, burn_in),
+        start_state=start,
+        privileged=window.privileged,
+        standoff=window.standoff,
+        expert_action=None if window.expert_action is None else transition(window.expert_action),
+        burn_in=burn_in,
+    )
 
 
 def _storage_example(example: Transition, config: ReplayConfig) -> Transition:
@@ -327,20 +335,28 @@ def make_replay(config: ReplayConfig, num_envs: int, example_transition: Transit
     """
     per_env = config.steps_per_env(num_envs)
     if len(example_transition.obs.shape) != 3:
-        raise ValueError(f"example_transition.obs must be one [H, W, C] observation, got shape "
-                         f"{tuple(example_transition.obs.shape)}")
+        raise ValueError(
+            f"example_transition.obs must be one [H, W, C] observation, got shape {tuple(example_transition.obs.shape)}"
+        )
     min_len = max(config.sequence_length, math.ceil(config.min_fill_steps / num_envs))
-    sizes = dict(add_batch_size=num_envs, sample_batch_size=config.batch_size,
-                 sample_sequence_length=config.sequence_length, period=config.period, min_length_time_axis=min_len,
-                 max_length_time_axis=per_env)
+    sizes = dict(
+        add_batch_size=num_envs,
+        sample_batch_size=config.batch_size,
+        sample_sequence_length=config.sequence_length,
+        period=config.period,
+        min_length_time_axis=min_len,
+        max_length_time_axis=per_env,
+    )
     if config.prioritised:
         device = "cpu" if jax.default_backend() == "cpu" else "gpu"  # flashbax's sum-tree update for that device
-        buffer = fbx.make_prioritised_trajectory_buffer(**sizes, priority_exponent=config.priority_exponent,
-                                                        device=device)
+        buffer = fbx.make_prioritised_trajectory_buffer(
+            **sizes, priority_exponent=config.priority_exponent, device=device
+        )
     else:
         buffer = fbx.make_trajectory_buffer(**sizes)
-    return SequenceReplay(config=config, num_envs=num_envs, steps_per_env=per_env, example=example_transition,
-                          buffer=buffer)
+    return SequenceReplay(
+        config=config, num_envs=num_envs, steps_per_env=per_env, example=example_transition, buffer=buffer
+    )
 
 
 def memory_bytes(config: ReplayConfig, num_envs: int, obs_shape: tuple[int, ...], state_shape: Any) -> int:
@@ -359,9 +375,15 @@ def memory_bytes(config: ReplayConfig, num_envs: int, obs_shape: tuple[int, ...]
     else:
         state = jax.tree.map(lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype), state_shape)
     scalar = lambda dtype: jnp.zeros((), dtype)  # noqa: E731
-    example = Transition(obs=jax.ShapeDtypeStruct(tuple(obs_shape), jnp.float32), action=scalar(jnp.int32),
-                         reward=scalar(jnp.float32), terminated=scalar(bool), truncated=scalar(bool),
-                         is_first=scalar(bool), recurrent_state=state)
+    example = Transition(
+        obs=jax.ShapeDtypeStruct(tuple(obs_shape), jnp.float32),
+        action=scalar(jnp.int32),
+        reward=scalar(jnp.float32),
+        terminated=scalar(bool),
+        truncated=scalar(bool),
+        is_first=scalar(bool),
+        recurrent_state=state,
+    )
     replay = make_replay(config, num_envs, example)
     abstract = jax.eval_shape(replay.init)
     return int(sum(math.prod(x.shape) * np.dtype(x.dtype).itemsize for x in jax.tree.leaves(abstract)))

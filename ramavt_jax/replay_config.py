@@ -110,7 +110,8 @@ class ReplayConfig:
         if self.prioritised and per_env % self.period:
             raise ValueError(
                 f"ReplayConfig.period={self.period} must divide the {per_env} steps per env of a prioritised buffer "
-                f"(flashbax's window grid; capacity_steps={self.capacity_steps}, num_envs={num_envs})")
+                f"(flashbax's window grid; capacity_steps={self.capacity_steps}, num_envs={num_envs})"
+            )
         if per_env < self.sequence_length:
             raise ValueError(
                 f"ReplayConfig.capacity_steps={self.capacity_steps} gives {per_env} steps per env with "

@@ -48,8 +48,10 @@ class ActingConfig:
     def __post_init__(self):
         check_ints("ActingConfig", self, dict(num_envs=1, rollout_steps=1, eps_decay_steps=0, teacher_envs=0))
         if self.teacher_envs >= self.num_envs:
-            raise ValueError(f"ActingConfig: teacher_envs must be < num_envs={self.num_envs} (some envs must act with "
-                             f"the Q-net), got {self.teacher_envs}")
+            raise ValueError(
+                f"ActingConfig: teacher_envs must be < num_envs={self.num_envs} (some envs must act with "
+                f"the Q-net), got {self.teacher_envs}"
+            )
         check_floats("ActingConfig", self)
         for name in ("eps_start", "eps_end"):
             if not 0.0 <= getattr(self, name) <= 1.0:
@@ -134,31 +136,39 @@ class LearnerConfig:
             raise fail(f"lr_final must be None (constant lr) or in [0, lr={self.lr}], got {self.lr_final}")
         if not 0.0 <= self.advantage_alpha < 1.0:
             raise fail(f"advantage_alpha must be in [0, 1) (0 = plain Q-learning targets), got {self.advantage_alpha}")
-        for name, ok, rule in (("gamma", 0.0 <= self.gamma <= 1.0, "in [0, 1]"),
-                               ("polyak_tau", 0.0 < self.polyak_tau <= 1.0, "in (0, 1]"),
-                               ("max_grad_norm", self.max_grad_norm >= 0, ">= 0 (0 = no clipping)"),
-                               ("aux_weight", self.aux_weight >= 0, ">= 0 (0 = no auxiliary loss)"),
-                               ("reward_scale", self.reward_scale > 0, "> 0"),
-                               ("command_cost", self.command_cost >= 0, ">= 0 (0 = no shaping)"),
-                               ("expert_margin_weight", self.expert_margin_weight >= 0, ">= 0 (0 = no margin loss)"),
-                               ("expert_margin", self.expert_margin > 0, "> 0"),
-                               ("policy_weight", self.policy_weight > 0, "> 0"),
-                               ("blind_label", self.blind_label in BLIND_LABELS, f"one of {BLIND_LABELS}"),
-                               ("quantile_kappa", self.quantile_kappa > 0, "> 0"),
-                               ("replay_ratio", self.replay_ratio > 0, "> 0"),
-                               ("target_update", self.target_update in ("polyak", "period"), "'polyak' or 'period'"),
-                               ("bootstrap_from", self.bootstrap_from in ("target", "online"), "'target' or 'online'")):
+        for name, ok, rule in (
+            ("gamma", 0.0 <= self.gamma <= 1.0, "in [0, 1]"),
+            ("polyak_tau", 0.0 < self.polyak_tau <= 1.0, "in (0, 1]"),
+            ("max_grad_norm", self.max_grad_norm >= 0, ">= 0 (0 = no clipping)"),
+            ("aux_weight", self.aux_weight >= 0, ">= 0 (0 = no auxiliary loss)"),
+            ("reward_scale", self.reward_scale > 0, "> 0"),
+            ("command_cost", self.command_cost >= 0, ">= 0 (0 = no shaping)"),
+            ("expert_margin_weight", self.expert_margin_weight >= 0, ">= 0 (0 = no margin loss)"),
+            ("expert_margin", self.expert_margin > 0, "> 0"),
+            ("policy_weight", self.policy_weight > 0, "> 0"),
+            ("blind_label", self.blind_label in BLIND_LABELS, f"one of {BLIND_LABELS}"),
+            ("quantile_kappa", self.quantile_kappa > 0, "> 0"),
+            ("replay_ratio", self.replay_ratio > 0, "> 0"),
+            ("target_update", self.target_update in ("polyak", "period"), "'polyak' or 'period'"),
+            ("bootstrap_from", self.bootstrap_from in ("target", "online"), "'target' or 'online'"),
+        ):
             if not ok:
                 raise fail(f"{name} must be {rule}, got {getattr(self, name)!r}")
         if self.td_lambda is not None and not (0.0 <= self.td_lambda <= 1.0 and self.n_step == 1):
-            raise fail(f"td_lambda must be None (n-step targets) or in [0, 1] with n_step=1 (lambda-returns replace "
-                       f"the n-step ones), got td_lambda={self.td_lambda}, n_step={self.n_step}")
+            raise fail(
+                f"td_lambda must be None (n-step targets) or in [0, 1] with n_step=1 (lambda-returns replace "
+                f"the n-step ones), got td_lambda={self.td_lambda}, n_step={self.n_step}"
+            )
         if self.polyak_tau_start is not None and not 0.0 < self.polyak_tau_start <= 1.0:
-            raise fail(f"polyak_tau_start must be None (a constant polyak_tau) or in (0, 1], "
-                       f"got {self.polyak_tau_start}")
+            raise fail(
+                f"polyak_tau_start must be None (a constant polyak_tau) or in (0, 1], got {self.polyak_tau_start}"
+            )
         steps = tuple(self.polyak_tau_decay) if isinstance(self.polyak_tau_decay, (tuple, list)) else ()
-        if not (len(steps) == 2 and all(isinstance(k, int) and not isinstance(k, bool) for k in steps)
-                and 0 <= steps[0] <= steps[1]):
+        if not (
+            len(steps) == 2
+            and all(isinstance(k, int) and not isinstance(k, bool) for k in steps)
+            and 0 <= steps[0] <= steps[1]
+        ):
             raise fail(f"polyak_tau_decay must be two gradient steps 0 <= hold <= end, got {self.polyak_tau_decay}")
         if self.huber_delta is not None and not self.huber_delta > 0:
             raise fail(f"huber_delta must be None (MSE) or > 0, got {self.huber_delta}")
@@ -168,10 +178,16 @@ class LearnerConfig:
     @property
     def td(self) -> TDConfig:
         """The loss's view of these settings (losses.TDConfig)."""
-        return TDConfig(gamma=self.gamma, n_step=self.n_step, td_lambda=self.td_lambda, double_q=self.double_q,
-                        value_rescale=self.value_rescale, huber_delta=self.huber_delta,
-                        quantile_kappa=self.quantile_kappa,
-                        advantage_alpha=self.advantage_alpha)
+        return TDConfig(
+            gamma=self.gamma,
+            n_step=self.n_step,
+            td_lambda=self.td_lambda,
+            double_q=self.double_q,
+            value_rescale=self.value_rescale,
+            huber_delta=self.huber_delta,
+            quantile_kappa=self.quantile_kappa,
+            advantage_alpha=self.advantage_alpha,
+        )
 
 
 @dataclasses.dataclass(frozen=True)
@@ -198,16 +214,29 @@ class RunConfig:
     policy_average_from: int | None = None
 
     def __post_init__(self):
-        check_ints("RunConfig", self, dict(total_env_steps=1, iterations_per_chunk=1, eval_episodes=0,
-                                            eval_max_steps=1, checkpoint_every_chunks=0, keep_checkpoints=1))
+        check_ints(
+            "RunConfig",
+            self,
+            dict(
+                total_env_steps=1,
+                iterations_per_chunk=1,
+                eval_episodes=0,
+                eval_max_steps=1,
+                checkpoint_every_chunks=0,
+                keep_checkpoints=1,
+            ),
+        )
         if self.policy_average_from is not None:
             check_ints("RunConfig", self, dict(policy_average_from=0))
         if self.policy_params not in ("online", "target", "averaged"):
-            raise ValueError(f"RunConfig: policy_params must be 'online', 'target' or 'averaged', "
-                             f"got {self.policy_params!r}")
+            raise ValueError(
+                f"RunConfig: policy_params must be 'online', 'target' or 'averaged', got {self.policy_params!r}"
+            )
         if self.policy_params == "averaged" and self.policy_average_from is None:
-            raise ValueError("RunConfig: policy_params='averaged' needs policy_average_from (the chunk after which "
-                             "the target params are averaged), or policy_params='target'")
+            raise ValueError(
+                "RunConfig: policy_params='averaged' needs policy_average_from (the chunk after which "
+                "the target params are averaged), or policy_params='target'"
+            )
 
 
 _GROUPS = {"acting": ActingConfig, "replay": ReplayConfig, "learner": LearnerConfig, "run": RunConfig}
@@ -223,8 +252,9 @@ def _build(cls, data: dict):
     for f in dataclasses.fields(cls):
         if f.name in data:
             value, sub = data[f.name], hints.get(f.name)
-            kwargs[f.name] = _build(sub, value) if dataclasses.is_dataclass(sub) and isinstance(value, dict) \
-                else _tuplify(value)
+            kwargs[f.name] = (
+                _build(sub, value) if dataclasses.is_dataclass(sub) and isinstance(value, dict) else _tuplify(value)
+            )
     return cls(**kwargs)
 
 
@@ -265,19 +295,27 @@ class TrainConfig:
             if not isinstance(getattr(self, name), cls):
                 _fail(f"{name} must be a {cls.__name__}, got {type(getattr(self, name)).__name__}")
         if self.env.autoreset != "next_step":
-            _fail("env.autoreset must be 'next_step' for training (the final observation of every episode is stored "
-                  f"and truncation bootstraps from it), got {self.env.autoreset!r}")
+            _fail(
+                "env.autoreset must be 'next_step' for training (the final observation of every episode is stored "
+                f"and truncation bootstraps from it), got {self.env.autoreset!r}"
+            )
         if self.network.num_actions != env_lib.NUM_ACTIONS:
             _fail(f"network.num_actions={self.network.num_actions} but the env has {env_lib.NUM_ACTIONS} actions")
         if (self.learner.aux_weight > 0) != (self.network.aux_outputs in (3, 6)):  # error x, y, z (+ velocity)
-            _fail(f"learner.aux_weight > 0 and network.aux_outputs = 3 or 6 go together (the head and its loss), got "
-                  f"{self.learner.aux_weight} and {self.network.aux_outputs}")
+            _fail(
+                f"learner.aux_weight > 0 and network.aux_outputs = 3 or 6 go together (the head and its loss), got "
+                f"{self.learner.aux_weight} and {self.network.aux_outputs}"
+            )
         if self.network.quantiles and (self.learner.value_rescale or self.learner.advantage_alpha):
-            _fail("network.quantiles (the quantile loss) does not combine with learner.value_rescale or "
-                  "learner.advantage_alpha (both defined on expected values)")
+            _fail(
+                "network.quantiles (the quantile loss) does not combine with learner.value_rescale or "
+                "learner.advantage_alpha (both defined on expected values)"
+            )
         if self.network.norm == "batch":
-            _fail("network.norm='batch' is not supported by the trainer (acting and learning must see the same "
-                  "network); use 'layer' or 'none'")
+            _fail(
+                "network.norm='batch' is not supported by the trainer (acting and learning must see the same "
+                "network); use 'layer' or 'none'"
+            )
         known = {f.name for f in dataclasses.fields(env_lib.EnvParams)} - {"catalogue"}
         for item in self.env_params:
             if not (isinstance(item, tuple) and len(item) == 2 and item[0] in known):
@@ -294,33 +332,47 @@ class TrainConfig:
             _fail(f"learner.n_step={lr.n_step} must be <= replay.train_len={r.train_len}")
         n = self.env_steps_per_chunk
         if run.total_env_steps % n:
-            _fail(f"run.total_env_steps={run.total_env_steps} must be a multiple of the env steps per chunk "
-                  f"(acting.num_envs * acting.rollout_steps * run.iterations_per_chunk = {n}); try "
-                  f"{max(1, round(run.total_env_steps / n)) * n}")
+            _fail(
+                f"run.total_env_steps={run.total_env_steps} must be a multiple of the env steps per chunk "
+                f"(acting.num_envs * acting.rollout_steps * run.iterations_per_chunk = {n}); try "
+                f"{max(1, round(run.total_env_steps / n)) * n}"
+            )
         if r.capacity_steps % a.num_envs:
             _fail(f"replay.capacity_steps={r.capacity_steps} must be divisible by acting.num_envs={a.num_envs}")
         per_env = r.capacity_steps // a.num_envs
         if per_env < max(r.sequence_length, a.rollout_steps):
-            _fail(f"replay.capacity_steps={r.capacity_steps} leaves {per_env} steps per env, fewer than the window "
-                  f"(burn_in + train_len + 1 = {r.sequence_length}) or acting.rollout_steps ({a.rollout_steps})")
+            _fail(
+                f"replay.capacity_steps={r.capacity_steps} leaves {per_env} steps per env, fewer than the window "
+                f"(burn_in + train_len + 1 = {r.sequence_length}) or acting.rollout_steps ({a.rollout_steps})"
+            )
         if lr.learning_starts > r.capacity_steps:
             _fail(f"learner.learning_starts={lr.learning_starts} exceeds replay.capacity_steps={r.capacity_steps}")
         if lr.learning_starts > run.total_env_steps:
-            _fail(f"learner.learning_starts={lr.learning_starts} exceeds run.total_env_steps={run.total_env_steps}: "
-                  f"nothing would be learned")
+            _fail(
+                f"learner.learning_starts={lr.learning_starts} exceeds run.total_env_steps={run.total_env_steps}: "
+                f"nothing would be learned"
+            )
         exact = lr.replay_ratio * self.env_steps_per_iteration / (r.batch_size * r.train_len)
         if exact < 1 - 1e-9 or abs(exact - round(exact)) > 1e-6:
-            _fail(f"learner.replay_ratio={lr.replay_ratio} gives {exact:.4g} gradient steps per iteration "
-                  f"(replay_ratio * num_envs * rollout_steps / (batch_size * train_len)); must be a whole number >= 1")
+            _fail(
+                f"learner.replay_ratio={lr.replay_ratio} gives {exact:.4g} gradient steps per iteration "
+                f"(replay_ratio * num_envs * rollout_steps / (batch_size * train_len)); must be a whole number >= 1"
+            )
         if not self.network.recurrent and r.burn_in < self.network.frame_stack - 1:
-            _fail(f"variant 'drlavt' rebuilds its {self.network.frame_stack}-frame stack from the window's own obs "
-                  f"during burn-in: replay.burn_in must be >= frame_stack - 1 = {self.network.frame_stack - 1}")
+            _fail(
+                f"variant 'drlavt' rebuilds its {self.network.frame_stack}-frame stack from the window's own obs "
+                f"during burn-in: replay.burn_in must be >= frame_stack - 1 = {self.network.frame_stack - 1}"
+            )
         if self.network.exposure_rate and lr.augment:
-            _fail("network.exposure_rate with learner.augment: the stored long exposure is of the frames as flown, "
-                  "an augmented window's frames are not; turn one off")
+            _fail(
+                "network.exposure_rate with learner.augment: the stored long exposure is of the frames as flown, "
+                "an augmented window's frames are not; turn one off"
+            )
         if self.network.frame_difference and r.burn_in < 1:
-            _fail("network.frame_difference starts each stored window with no change (the frame before it is not "
-                  "stored): replay.burn_in must be >= 1 so that no trained step sees it")
+            _fail(
+                "network.frame_difference starts each stored window with no change (the frame before it is not "
+                "stored): replay.burn_in must be >= 1 so that no trained step sees it"
+            )
 
     # ---- derived (read-only)
     @property
@@ -352,7 +404,7 @@ class TrainConfig:
         return self.run.total_env_steps // self.env_steps_per_chunk
 
     # ---- changing and serialising
-    def override(self, **fields: Any) -> "TrainConfig":
+    def override(self, **fields: Any) -> TrainConfig:
         """A copy with fields replaced: this class's own (``env=``, ``learner=``, ...) and any group's field by its
         own name (``lr=1e-3`` is ``learner.lr``; see _FIELD_GROUPS). Validated once, as a whole."""
         top = {k: v for k, v in fields.items() if k in _TOP_FIELDS}
@@ -369,16 +421,18 @@ class TrainConfig:
 
     def to_dict(self) -> dict:
         """JSON-friendly nested dict (for config.json and checkpoint metadata)."""
+
         def conv(x):
             if dataclasses.is_dataclass(x):
                 return {f.name: conv(getattr(x, f.name)) for f in dataclasses.fields(x)}
             if isinstance(x, (tuple, list)):
                 return [conv(v) for v in x]
             return x.item() if isinstance(x, (np.integer, np.floating)) else x
+
         return conv(self)
 
     @classmethod
-    def from_dict(cls, data: dict) -> "TrainConfig":
+    def from_dict(cls, data: dict) -> TrainConfig:
         """The config of a ``to_dict()`` dict (config.json's "config"): lists become tuples, fields it lacks take
         their defaults, unknown keys are ignored."""
         return _build(cls, data)

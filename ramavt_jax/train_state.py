@@ -15,8 +15,17 @@ from ramavt_jax import env as env_lib
 from ramavt_jax.losses import TDBatch
 from ramavt_jax.network import RecurrentState
 
-__all__ = ["TrainingDivergedError", "LearnerState", "ActorState", "RolloutCarry", "RunnerState", "ChunkMetrics",
-           "EpisodeStats", "LearnStats", "PreparedBatch"]
+__all__ = [
+    "TrainingDivergedError",
+    "LearnerState",
+    "ActorState",
+    "RolloutCarry",
+    "RunnerState",
+    "ChunkMetrics",
+    "EpisodeStats",
+    "LearnStats",
+    "PreparedBatch",
+]
 
 
 class TrainingDivergedError(RuntimeError):
@@ -112,11 +121,19 @@ class LearnStats:
     updates: jax.Array  # int32 gradient steps
 
     @classmethod
-    def zeros(cls) -> "LearnStats":
+    def zeros(cls) -> LearnStats:
         """No gradient step (the replay not yet ready)."""
         z = jnp.zeros(())
-        return cls(loss=z, aux_loss=z, margin_loss=z, expert_agreement=z, policy_loss=z, q_mean=z, grad_norm=z,
-                   updates=jnp.zeros((), jnp.int32))
+        return cls(
+            loss=z,
+            aux_loss=z,
+            margin_loss=z,
+            expert_agreement=z,
+            policy_loss=z,
+            q_mean=z,
+            grad_norm=z,
+            updates=jnp.zeros((), jnp.int32),
+        )
 
 
 @struct.dataclass

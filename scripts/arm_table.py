@@ -82,12 +82,17 @@ def main(argv=None) -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("arms", nargs="+", help="RESULTS_JSON:ARM, in the order of the table")
     p.add_argument("--ceiling", type=Path, default=None, help="a results.json with the mpc row on the same episodes")
-    p.add_argument("--setting", default="none", help="the Table II setting tabulated: none (default), "
-                   "actuator_noise, time_delay, blur or all (results of `ramavt eval --tables 2`)")
+    p.add_argument(
+        "--setting",
+        default="none",
+        help="the Table II setting tabulated: none (default), "
+        "actuator_noise, time_delay, blur or all (results of `ramavt eval --tables 2`)",
+    )
     a = p.parse_args(argv)
     loaded = [load_arm(spec, a.setting) for spec in a.arms]
-    ceiling, episodes, task = (ceiling_aer(a.ceiling, a.setting) if a.ceiling
-                               else (None, loaded[0].episodes, loaded[0].task))
+    ceiling, episodes, task = (
+        ceiling_aer(a.ceiling, a.setting) if a.ceiling else (None, loaded[0].episodes, loaded[0].task)
+    )
     if any(arm.episodes != episodes for arm in loaded):
         raise SystemExit("the results did not fly the same episodes (seed, episodes per target, targets, cap differ)")
     for arm in loaded:  # a field both record must agree (a speed rule, say); older results record fewer
@@ -95,8 +100,11 @@ def main(argv=None) -> None:
         if differ:
             raise SystemExit(f"{arm.name} flew other evaluation fields than the first result: {differ}")
     targets = episodes[2]
-    print("| arm | seeds | AER | 95 % CI | std over seeds | of ceiling | lost | P(> row above) | "
-          + " | ".join(targets) + " |")
+    print(
+        "| arm | seeds | AER | 95 % CI | std over seeds | of ceiling | lost | P(> row above) | "
+        + " | ".join(targets)
+        + " |"
+    )
     print("|---" * (8 + len(targets)) + "|")
     previous = None
     for arm in loaded:
@@ -105,9 +113,11 @@ def main(argv=None) -> None:
         ci = f"[{s['return_ci_low']:.1f}, {s['return_ci_high']:.1f}]" if s["return_ci_low"] is not None else "-"
         p_up = f"{statistics.probability_of_improvement(scores, previous):.2f}" if previous is not None else "-"
         per = " | ".join(f"{v:+.0f}" for v in scores.mean(axis=0))
-        print(f"| {arm.name} | {scores.shape[0]} | {s['return_mean']:+.1f} | {ci} "
-              f"| {s['return_sample_std_over_runs']:.1f} "
-              f"| {frac} | {100 * s['lost_fraction_over_runs']:.1f} % | {p_up} | {per} |")
+        print(
+            f"| {arm.name} | {scores.shape[0]} | {s['return_mean']:+.1f} | {ci} "
+            f"| {s['return_sample_std_over_runs']:.1f} "
+            f"| {frac} | {100 * s['lost_fraction_over_runs']:.1f} % | {p_up} | {per} |"
+        )
         previous = scores
 
 

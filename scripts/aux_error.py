@@ -23,7 +23,8 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-from typing import Callable, NamedTuple
+from collections.abc import Callable
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -66,8 +67,10 @@ def make_rollout(run: runs.LoadedRun, targets: tuple[str, ...], episodes: int, s
     acts on, as the auxiliary label is in training."""
     cfg = run.config
     if cfg.network.state_input:
-        raise SystemExit(f"{run.run_dir}: a state_input network reads its state as an input; its auxiliary head's "
-                         f"estimate is not what this script measures")
+        raise SystemExit(
+            f"{run.run_dir}: a state_input network reads its state as an input; its auxiliary head's "
+            f"estimate is not what this script measures"
+        )
     env = env_lib.TrackingEnv(dataclasses.replace(cfg.env, targets=tuple(targets)))
     net = make_network(cfg.network)
     encoder_only = lambda module, method: isinstance(module, Encoder) and method == "__call__"  # noqa: E731
@@ -75,24 +78,38 @@ def make_rollout(run: runs.LoadedRun, targets: tuple[str, ...], episodes: int, s
     def episode(params: env_lib.EnvParams, net_params, k: jax.Array) -> Step:
         k_reset, k_steps = jax.random.split(k)
         obs, state = env.reset(k_reset, params)
-        start = Carry(obs, state, initial_state(cfg.network, 1, tuple(cfg.env.obs_shape)), jnp.ones((), bool),
-                      jnp.ones((), bool))
+        start = Carry(
+            obs, state, initial_state(cfg.network, 1, tuple(cfg.env.obs_shape)), jnp.ones((), bool), jnp.ones((), bool)
+        )
 
         def body(c: Carry, k_step):
             signal = greedy.standoff_signal(cfg.network, c.state, params)  # [] or None
             standoff = None if signal is None else signal[None, None]
-            (q, net_state), sown = net.apply({"params": net_params}, c.obs[None, None], c.first[None, None],
-                                             c.net_state, standoff=standoff, mutable=["intermediates"],
-                                             capture_intermediates=encoder_only)
-            step = Step(truth=env_lib.relative_position(c.state) / c.state.scale - params.desired_pos,
-                        estimate=sown["intermediates"]["aux"][0][0, 0, :3] * params.desired_pos[2],  # the error part
-                        memory=net_state.h[-1, 0],
-                        frame=sown["intermediates"]["encoder"]["__call__"][0][0],
-                        alive=c.alive)
+            (q, net_state), sown = net.apply(
+                {"params": net_params},
+                c.obs[None, None],
+                c.first[None, None],
+                c.net_state,
+                standoff=standoff,
+                mutable=["intermediates"],
+                capture_intermediates=encoder_only,
+            )
+            step = Step(
+                truth=env_lib.relative_position(c.state) / c.state.scale - params.desired_pos,
+                estimate=sown["intermediates"]["aux"][0][0, 0, :3] * params.desired_pos[2],  # the error part
+                memory=net_state.h[-1, 0],
+                frame=sown["intermediates"]["encoder"]["__call__"][0][0],
+                alive=c.alive,
+            )
             action = jnp.argmax(q[0, 0]).astype(jnp.int32)
             obs, state, _, terminated, truncated, _ = env.step_env(k_step, c.state, action, params)
-            return Carry(obs, state, record_action(net_state, action[None]), jnp.zeros((), bool),
-                         c.alive & ~(terminated | truncated)), step
+            return Carry(
+                obs,
+                state,
+                record_action(net_state, action[None]),
+                jnp.zeros((), bool),
+                c.alive & ~(terminated | truncated),
+            ), step
 
         return jax.lax.scan(body, start, jax.random.split(k_steps, steps))[1]
 
@@ -135,15 +152,20 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("run", help="a training run folder whose network has the auxiliary head")
     ap.add_argument("--targets", default="val", help="a split of targets_lib.split: val (default), test, ...")
-    ap.add_argument("--episodes", type=int, default=8, help="episodes per target (at least 2: the probes are "
-                                                            "fitted on the even ones and scored on the odd ones)")
+    ap.add_argument(
+        "--episodes",
+        type=int,
+        default=8,
+        help="episodes per target (at least 2: the probes are fitted on the even ones and scored on the odd ones)",
+    )
     ap.add_argument("--steps", type=int, default=1000)
     ap.add_argument("--skip", type=int, default=100, help="steps of each episode left out (the approach)")
     ap.add_argument("--seed", type=int, default=5)
     args = ap.parse_args()
     if args.episodes < 2:
-        raise SystemExit(f"--episodes must be at least 2 (the probes need episodes to fit and to score), got "
-                         f"{args.episodes}")
+        raise SystemExit(
+            f"--episodes must be at least 2 (the probes need episodes to fit and to score), got {args.episodes}"
+        )
     run = runs.load_policy(args.run)
     if not run.config.network.aux_outputs:
         raise SystemExit(f"{args.run}: its network has no auxiliary head (NetworkConfig.aux_outputs = 0)")
@@ -156,23 +178,30 @@ def main() -> None:
         per_target.append(target_steps(steps, args.skip))
     every = TargetSteps(*(np.concatenate(x) for x in zip(*per_target)))
     groups = np.concatenate([np.full(len(t.fit), i) for i, t in enumerate(per_target)])
-    print(f"{'target':15s} tracking error std x/y/z (m)   estimate error std x/y/z (m)   corr(est, e) x/y/z"
-          f"      mean |e|  mean |est - e|")
+    print(
+        f"{'target':15s} tracking error std x/y/z (m)   estimate error std x/y/z (m)   corr(est, e) x/y/z"
+        f"      mean |e|  mean |est - e|"
+    )
     for name, t in zip(names, per_target):
         miss = t.estimate - t.truth
         corr = [np.corrcoef(t.estimate[:, i], t.truth[:, i])[0, 1] for i in range(3)]
-        print(f"{name:15s} {str(np.round(t.truth.std(0), 3)):30s} {str(np.round(miss.std(0), 3)):30s} "
-              f"{str(np.round(corr, 2)):24s}"
-              f"{np.linalg.norm(t.truth, axis=1).mean():8.3f}  {np.linalg.norm(miss, axis=1).mean():.3f}")
+        print(
+            f"{name:15s} {str(np.round(t.truth.std(0), 3)):30s} {str(np.round(miss.std(0), 3)):30s} "
+            f"{str(np.round(corr, 2)):24s}"
+            f"{np.linalg.norm(t.truth, axis=1).mean():8.3f}  {np.linalg.norm(miss, axis=1).mean():.3f}"
+        )
     # One read-out for every target (as the head is), and one per target (the target's identity given).
     probes = {}
     for source in ("memory", "frame"):
         features = getattr(every, source)
         probes[source, "one"] = probe_correlation(features, every.truth, every.fit, groups)
-        probes[source, "per target"] = np.concatenate([
-            probe_correlation(getattr(t, source), t.truth, t.fit, np.zeros(len(t.fit), int)) for t in per_target])
-    print(f"\nlinear probes, correlation with e x/y/z on the odd episodes\n{'target':15s} "
-          + "".join(f"{f'{source}, {kind}':24s}" for source, kind in probes))
+        probes[source, "per target"] = np.concatenate(
+            [probe_correlation(getattr(t, source), t.truth, t.fit, np.zeros(len(t.fit), int)) for t in per_target]
+        )
+    print(
+        f"\nlinear probes, correlation with e x/y/z on the odd episodes\n{'target':15s} "
+        + "".join(f"{f'{source}, {kind}':24s}" for source, kind in probes)
+    )
     for index, name in enumerate(names):
         print(f"{name:15s} " + "".join(f"{str(np.round(c[index], 2)):24s}" for c in probes.values()))
 

@@ -37,8 +37,9 @@ def average_params(run_dir: Path, first: int, last: int):
     try:
         missing = sorted(set(range(first, last + 1)) - set(store.all_steps()))
         if missing:
-            raise SystemExit(f"{run_dir}: no checkpoint of chunk(s) {missing}; "
-                             f"train with --run.checkpoint-every-chunks 1")
+            raise SystemExit(
+                f"{run_dir}: no checkpoint of chunk(s) {missing}; train with --run.checkpoint-every-chunks 1"
+            )
         like = jax.eval_shape(Trainer(config).init, jax.ShapeDtypeStruct((2,), jnp.uint32))
         if not config.run.checkpoint_replay:
             like = like.replace(replay=None)

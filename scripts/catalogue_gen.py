@@ -21,7 +21,6 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-
 from mjcf_builder import Target
 
 MAX_BOUND_RADIUS = 2.4  # m: the largest bounding radius of a catalogue target (see the size rule above)
@@ -29,16 +28,16 @@ MAX_BOUND_RADIUS = 2.4  # m: the largest bounding radius of a catalogue target (
 MODEL_DIR = Path(__file__).resolve().parents[1] / "ramavt_jax" / "targets" / "models"
 
 # Colours (rgb in [0, 1]).
-GOLD = (0.83, 0.66, 0.22)        # gold MLI foil
-SILVER = (0.78, 0.78, 0.80)      # aluminised MLI / bare aluminium
-WHITE = (0.92, 0.92, 0.90)       # white paint / beta cloth
+GOLD = (0.83, 0.66, 0.22)  # gold MLI foil
+SILVER = (0.78, 0.78, 0.80)  # aluminised MLI / bare aluminium
+WHITE = (0.92, 0.92, 0.90)  # white paint / beta cloth
 GREY = (0.55, 0.55, 0.57)
-DARK = (0.22, 0.22, 0.24)        # nozzles, black paint
-PANEL = (0.08, 0.12, 0.38)       # solar cells
-PANEL2 = (0.14, 0.10, 0.30)      # older (purple-ish) solar cells
+DARK = (0.22, 0.22, 0.24)  # nozzles, black paint
+PANEL = (0.08, 0.12, 0.38)  # solar cells
+PANEL2 = (0.14, 0.10, 0.30)  # older (purple-ish) solar cells
 RADIATOR = (0.96, 0.96, 0.96)
-SHIELD = (0.32, 0.22, 0.15)      # charred ablative heat shield
-OLIVE = (0.50, 0.54, 0.44)       # Soviet-style green-grey insulation
+SHIELD = (0.32, 0.22, 0.15)  # charred ablative heat shield
+OLIVE = (0.50, 0.54, 0.44)  # Soviet-style green-grey insulation
 
 # Effective densities (kg/m^3).
 D_PANEL = 100.0
@@ -70,8 +69,11 @@ def satellite_v0() -> Target:
 
 
 def satellite_v1() -> Target:
-    t = Target("Satellite-v1", "Earth observer: cylindrical silver bus, gold instrument box, one 2-panel canted wing, "
-               "magnetometer boom, downlink dish")
+    t = Target(
+        "Satellite-v1",
+        "Earth observer: cylindrical silver bus, gold instrument box, one 2-panel canted wing, "
+        "magnetometer boom, downlink dish",
+    )
     t.cylinder("bus", [0, 0, -1.2], [0, 0, 0.8], 0.75, SILVER, D_BUS)
     t.box("instrument", [0, 0, 1.25], [0.6, 0.55, 0.45], GOLD, D_BUS)
     t.cylinder("aperture", [0.6, 0, 1.3], [0.75, 0, 1.3], 0.3, DARK, D_DENSE)
@@ -89,16 +91,20 @@ def satellite_v1() -> Target:
 
 
 def satellite_v2() -> Target:
-    t = Target("Satellite-v2", "science probe: cylindrical gold bus, four petal solar panels in a cross, "
-               "large high-gain dish on a mast, long whip antenna")
+    t = Target(
+        "Satellite-v2",
+        "science probe: cylindrical gold bus, four petal solar panels in a cross, "
+        "large high-gain dish on a mast, long whip antenna",
+    )
     t.cylinder("bus", [0, 0, -0.9], [0, 0, 0.9], 0.85, GOLD, D_BUS)
     t.cylinder("deck", [0, 0, 0.9], [0, 0, 1.0], 0.9, SILVER, D_PANEL)
     for k in range(4):
         a = np.deg2rad(45 + 90 * k)
         c, s = np.cos(a), np.sin(a)
         # petal centred 1.0 m outside the bus, tilted 20 deg towards +z, long axis radial
-        t.box(f"petal_{k}", [2.05 * c, 2.05 * s, -0.55], [1.15, 0.55, 0.015], PANEL, D_PANEL,
-              euler=[0, -20, 45 + 90 * k])
+        t.box(
+            f"petal_{k}", [2.05 * c, 2.05 * s, -0.55], [1.15, 0.55, 0.015], PANEL, D_PANEL, euler=[0, -20, 45 + 90 * k]
+        )
         t.cylinder(f"hinge_{k}", [0.85 * c, 0.85 * s, -0.75], [0.95 * c, 0.95 * s, -0.75], 0.05, GREY, D_DENSE)
     t.cylinder("mast", [0, 0, 1.0], [0, 0, 1.5], 0.08, GREY, D_DENSE)
     t.ellipsoid("hga", [0, 0, 1.65], [1.1, 1.1, 0.14], WHITE, D_PANEL)
@@ -112,8 +118,11 @@ def satellite_v2() -> Target:
 
 # ------------------------------------------------------------------------------------------------------------- stations
 def station_v0() -> Target:
-    t = Target("Station-v0", "truss station: 16 m main truss with eight big solar wings, a chain of white "
-               "pressurised modules, radiators and a small service module with its own wings")
+    t = Target(
+        "Station-v0",
+        "truss station: 16 m main truss with eight big solar wings, a chain of white "
+        "pressurised modules, radiators and a small service module with its own wings",
+    )
     t.box("truss", [0, 0, 0], [0.3, 8.0, 0.3], GREY, 200.0)
     for ys in (5.3, 7.1):
         for sy in (1, -1):
@@ -136,8 +145,11 @@ def station_v0() -> Target:
 
 
 def station_v1() -> Target:
-    t = Target("Station-v1", "modular station: spherical docking node with modules radiating along five "
-               "directions, each with its own solar wings, a core module with an aft section and a lattice mast")
+    t = Target(
+        "Station-v1",
+        "modular station: spherical docking node with modules radiating along five "
+        "directions, each with its own solar wings, a core module with an aft section and a lattice mast",
+    )
     t.sphere("node", [0, 0, 0], 1.1, SILVER, D_MODULE)
     t.cylinder("core", [-1.0, 0, 0], [-6.0, 0, 0], 1.05, WHITE, D_MODULE)
     t.cylinder("core_aft", [-6.0, 0, 0], [-8.5, 0, 0], 0.75, GREY, D_MODULE)
@@ -163,8 +175,11 @@ def station_v1() -> Target:
 
 
 def station_v2() -> Target:
-    t = Target("Station-v2", "T-shaped station: stepped core module with two laboratory modules on the forward "
-               "node forming a T, huge wings at the ends of the labs, core wings and a docked cargo ship")
+    t = Target(
+        "Station-v2",
+        "T-shaped station: stepped core module with two laboratory modules on the forward "
+        "node forming a T, huge wings at the ends of the labs, core wings and a docked cargo ship",
+    )
     t.cylinder("core_big", [-4.2, 0, 0], [0.5, 0, 0], 1.4, WHITE, D_MODULE)
     t.cylinder("core_small", [0.5, 0, 0], [3.2, 0, 0], 1.0, WHITE, D_MODULE)
     t.sphere("node", [4.1, 0, 0], 1.05, SILVER, D_MODULE)
@@ -191,8 +206,11 @@ def station_v2() -> Target:
 
 # -------------------------------------------------------------------------------------------------------------- rockets
 def rocket_v0() -> Target:
-    t = Target("Rocket-v0", "Centaur-like upper stage: 3 m silver balloon tank with insulation bands, forward "
-               "adapter, domed aft bulkhead, single bell nozzle and RCS pods")
+    t = Target(
+        "Rocket-v0",
+        "Centaur-like upper stage: 3 m silver balloon tank with insulation bands, forward "
+        "adapter, domed aft bulkhead, single bell nozzle and RCS pods",
+    )
     t.cylinder("tank", [0, 0, -4.5], [0, 0, 4.5], 1.5, SILVER, D_TANK)
     for i, z in enumerate((-2.5, 0.0, 2.5)):
         t.cylinder(f"band_{i}", [0, 0, z - 0.08], [0, 0, z + 0.08], 1.53, GREY, D_TANK)
@@ -203,15 +221,24 @@ def rocket_v0() -> Target:
     t.cylinder("nozzle", [0, 0, -5.6], [0, 0, -6.6], 0.6, DARK, 150.0)
     for k in range(4):
         a = np.deg2rad(45 + 90 * k)
-        t.box(f"rcs_{k}", [1.58 * np.cos(a), 1.58 * np.sin(a), -4.0], [0.12, 0.12, 0.2], GREY, D_DENSE,
-              euler=[0, 0, 45 + 90 * k])
+        t.box(
+            f"rcs_{k}",
+            [1.58 * np.cos(a), 1.58 * np.sin(a), -4.0],
+            [0.12, 0.12, 0.2],
+            GREY,
+            D_DENSE,
+            euler=[0, 0, 45 + 90 * k],
+        )
     t.cylinder("helium_bottle", [0.0, 1.4, -4.9], [0.0, 1.4, -5.5], 0.2, WHITE, 300.0)
     return t
 
 
 def rocket_v1() -> Target:
-    t = Target("Rocket-v1", "Falcon-9-like second stage: 3.7 m white tank, stepped payload adapter, raceway, and a "
-               "very large dark vacuum nozzle extension")
+    t = Target(
+        "Rocket-v1",
+        "Falcon-9-like second stage: 3.7 m white tank, stepped payload adapter, raceway, and a "
+        "very large dark vacuum nozzle extension",
+    )
     t.cylinder("tank", [0, 0, -2.8], [0, 0, 4.0], 1.83, WHITE, D_TANK)
     t.ellipsoid("aft_dome", [0, 0, -2.8], [1.83, 1.83, 0.6], WHITE, D_TANK)
     t.cylinder("black_band", [0, 0, 3.2], [0, 0, 4.0], 1.85, DARK, D_TANK)
@@ -228,8 +255,11 @@ def rocket_v1() -> Target:
 
 
 def rocket_v2() -> Target:
-    t = Target("Rocket-v2", "Soviet-style upper stage: green-grey stacked ellipsoidal tanks with a dark intertank, "
-               "gold equipment bay, black aft skirt, a central and four vernier nozzles and external conduits")
+    t = Target(
+        "Rocket-v2",
+        "Soviet-style upper stage: green-grey stacked ellipsoidal tanks with a dark intertank, "
+        "gold equipment bay, black aft skirt, a central and four vernier nozzles and external conduits",
+    )
     t.cylinder("aft_skirt", [0, 0, -4.3], [0, 0, -3.0], 1.3, DARK, 80.0)
     t.ellipsoid("tank_lower", [0, 0, -1.6], [1.25, 1.25, 1.7], OLIVE, D_TANK)
     t.cylinder("intertank", [0, 0, -0.3], [0, 0, 0.8], 1.2, DARK, 80.0)
@@ -249,8 +279,11 @@ def rocket_v2() -> Target:
 
 # ------------------------------------------------------------------------------------------------------------- capsules
 def capsule_v0() -> Target:
-    t = Target("Capsule-v0", "Apollo-like command module: 3.9 m ablative heat shield, conical silver body as "
-               "stacked cylinders, docking tunnel and probe, four RCS quads")
+    t = Target(
+        "Capsule-v0",
+        "Apollo-like command module: 3.9 m ablative heat shield, conical silver body as "
+        "stacked cylinders, docking tunnel and probe, four RCS quads",
+    )
     t.ellipsoid("heat_shield", [0, 0, 0.1], [1.95, 1.95, 0.35], SHIELD, 400.0)
     for i, (z0, z1, r) in enumerate(((0.1, 0.7, 1.8), (0.7, 1.3, 1.45), (1.3, 1.9, 1.1), (1.9, 2.4, 0.75))):
         t.cylinder(f"cone_{i}", [0, 0, z0], [0, 0, z1], r, SILVER, 350.0)
@@ -258,16 +291,20 @@ def capsule_v0() -> Target:
     t.capsule("probe", [0, 0, 2.85], [0, 0, 3.25], 0.08, GREY, D_DENSE)
     for k in range(4):
         a = np.deg2rad(90 * k)
-        t.box(f"rcs_{k}", [1.5 * np.cos(a), 1.5 * np.sin(a), 1.0], [0.12, 0.12, 0.12], DARK, D_DENSE,
-              euler=[0, 0, 90 * k])
+        t.box(
+            f"rcs_{k}", [1.5 * np.cos(a), 1.5 * np.sin(a), 1.0], [0.12, 0.12, 0.12], DARK, D_DENSE, euler=[0, 0, 90 * k]
+        )
     t.box("window_a", [0.95, 0.75, 1.6], [0.02, 0.15, 0.12], DARK, 300.0, euler=[0, 0, 38])
     t.box("window_b", [0.95, -0.75, 1.6], [0.02, 0.15, 0.12], DARK, 300.0, euler=[0, 0, -38])
     return t
 
 
 def capsule_v1() -> Target:
-    t = Target("Capsule-v1", "Soyuz-like descent module: 2.2 m bell-shaped green-grey body (ellipsoid), dark heat "
-               "shield, hatch, periscope, parachute container and whip antennas")
+    t = Target(
+        "Capsule-v1",
+        "Soyuz-like descent module: 2.2 m bell-shaped green-grey body (ellipsoid), dark heat "
+        "shield, hatch, periscope, parachute container and whip antennas",
+    )
     t.ellipsoid("body", [0, 0, 0.95], [1.1, 1.1, 0.95], OLIVE, 550.0)
     t.ellipsoid("heat_shield", [0, 0, 0.15], [1.12, 1.12, 0.28], SHIELD, 550.0)
     t.cylinder("hatch", [0, 0, 1.8], [0, 0, 2.05], 0.38, GREY, 400.0)
@@ -283,8 +320,11 @@ def capsule_v1() -> Target:
 
 
 def capsule_v2() -> Target:
-    t = Target("Capsule-v2", "Dragon-like capsule: 3.7 m flat heat shield, white stepped sidewall with black "
-               "thruster pods, domed top with an opened nose cap")
+    t = Target(
+        "Capsule-v2",
+        "Dragon-like capsule: 3.7 m flat heat shield, white stepped sidewall with black "
+        "thruster pods, domed top with an opened nose cap",
+    )
     t.cylinder("heat_shield", [0, 0, -0.2], [0, 0, 0.1], 1.85, SHIELD, 400.0)
     for i, (z0, z1, r) in enumerate(((0.1, 0.8, 1.75), (0.8, 1.5, 1.5), (1.5, 2.1, 1.2))):
         t.cylinder(f"wall_{i}", [0, 0, z0], [0, 0, z1], r, WHITE, 300.0)
@@ -293,8 +333,14 @@ def capsule_v2() -> Target:
     t.cylinder("hinge", [0, 0.5, 2.4], [0, 0.8, 2.6], 0.06, GREY, D_DENSE)
     for k in range(4):
         a = np.deg2rad(45 + 90 * k)
-        t.box(f"pod_{k}", [1.55 * np.cos(a), 1.55 * np.sin(a), 1.05], [0.14, 0.3, 0.35], DARK, D_DENSE,
-              euler=[0, -20, 45 + 90 * k])
+        t.box(
+            f"pod_{k}",
+            [1.55 * np.cos(a), 1.55 * np.sin(a), 1.05],
+            [0.14, 0.3, 0.35],
+            DARK,
+            D_DENSE,
+            euler=[0, -20, 45 + 90 * k],
+        )
     t.box("window", [1.35, 0, 1.25], [0.05, 0.2, 0.2], DARK, 300.0)
     t.cylinder("trunk_ring", [0, 0, -0.45], [0, 0, -0.2], 1.6, GREY, 200.0)
     return t
@@ -322,8 +368,9 @@ def asteroid(name: str, seed: int, n: int, axes, lobes: int, density: float, com
         centres = [off, -off * 0.9]
         lobe_axes = [np.array([0.55, 0.85, 0.85]) * axes, np.array([0.45, 0.65, 0.7]) * axes]
     for i, (c, la) in enumerate(zip(centres, lobe_axes)):
-        t.ellipsoid(f"lobe_{i}", c, la * rng.uniform(0.9, 1.05, 3), colour(), density,
-                    euler=rng.uniform(-15, 15, 3).round(1))
+        t.ellipsoid(
+            f"lobe_{i}", c, la * rng.uniform(0.9, 1.05, 3), colour(), density, euler=rng.uniform(-15, 15, 3).round(1)
+        )
     for j in range(n - lobes):
         k = rng.integers(len(centres))
         d = rng.normal(size=3)
@@ -360,8 +407,11 @@ def validation_asteroids() -> list[Target]:
 
 
 def capsule_val0() -> Target:
-    t = Target("Capsule-val0", "Gemini-like two-part spacecraft: dark conical re-entry module on its heat shield, "
-               "stepped white adapter section behind it with radiator panels, nose RCS section")
+    t = Target(
+        "Capsule-val0",
+        "Gemini-like two-part spacecraft: dark conical re-entry module on its heat shield, "
+        "stepped white adapter section behind it with radiator panels, nose RCS section",
+    )
     for i, (z0, z1, r) in enumerate(((-1.2, -0.8, 1.4), (-0.8, -0.4, 1.28), (-0.4, 0.0, 1.15))):
         t.cylinder(f"adapter_{i}", [0, 0, z0], [0, 0, z1], r, WHITE, 250.0)
     t.ellipsoid("heat_shield", [0, 0, 0.1], [1.12, 1.12, 0.18], SHIELD, 450.0)
@@ -371,14 +421,24 @@ def capsule_val0() -> Target:
     t.cylinder("rendezvous_nose", [0, 0, 2.3], [0, 0, 2.55], 0.3, SILVER, 350.0)
     for k in range(2):
         a = np.deg2rad(60 + 180 * k)
-        t.box(f"hatch_{k}", [0.72 * np.cos(a), 0.72 * np.sin(a), 1.1], [0.03, 0.28, 0.4], GREY, 300.0,
-              euler=[0, -25, 60 + 180 * k])
+        t.box(
+            f"hatch_{k}",
+            [0.72 * np.cos(a), 0.72 * np.sin(a), 1.1],
+            [0.03, 0.28, 0.4],
+            GREY,
+            300.0,
+            euler=[0, -25, 60 + 180 * k],
+        )
     t.box("radiator", [1.42, 0, -0.7], [0.02, 0.45, 0.4], RADIATOR, 200.0)
     return t
 
+
 def rocket_val0() -> Target:
-    t = Target("Rocket-val0", "Delta-IV-like cryogenic upper stage: wide white hydrogen tank over a narrower "
-               "orange oxygen tank hung on exposed struts, RL10-like engine with a long extendable nozzle")
+    t = Target(
+        "Rocket-val0",
+        "Delta-IV-like cryogenic upper stage: wide white hydrogen tank over a narrower "
+        "orange oxygen tank hung on exposed struts, RL10-like engine with a long extendable nozzle",
+    )
     ORANGE = (0.80, 0.45, 0.18)
     t.cylinder("lh2_tank", [0, 0, 0.2], [0, 0, 4.4], 2.0, WHITE, D_TANK)
     t.ellipsoid("lh2_dome_top", [0, 0, 4.4], [2.0, 2.0, 0.9], WHITE, D_TANK)
@@ -397,9 +457,13 @@ def rocket_val0() -> Target:
     t.sphere("helium_b", [-1.4, 0, -2.3], 0.32, DARK, 300.0)
     return t
 
+
 def satellite_val0() -> Target:
-    t = Target("Satellite-val0", "mobile-comms satellite: white box bus, large offset mesh reflector on a long "
-               "boom, two short single-panel wings, feed array and radiators")
+    t = Target(
+        "Satellite-val0",
+        "mobile-comms satellite: white box bus, large offset mesh reflector on a long "
+        "boom, two short single-panel wings, feed array and radiators",
+    )
     t.box("bus", [0, 0, 0], [0.6, 0.6, 0.8], WHITE, D_BUS)
     t.box("radiator_n", [0, 0.62, 0], [0.58, 0.02, 0.75], RADIATOR, D_PANEL)
     t.box("radiator_s", [0, -0.62, 0], [0.58, 0.02, 0.75], RADIATOR, D_PANEL)
@@ -413,9 +477,13 @@ def satellite_val0() -> Target:
     t.cylinder("tt_c_antenna", [-0.3, 0.3, 0.8], [-0.3, 0.3, 1.2], 0.06, WHITE, D_BOOM)
     return t
 
+
 def station_val0() -> Target:
-    t = Target("Station-val0", "Skylab-like station: wide orbital workshop with one surviving wing, airlock and "
-               "docking adapter in line, a solar observatory on a truss with four windmill arrays, docked capsule")
+    t = Target(
+        "Station-val0",
+        "Skylab-like station: wide orbital workshop with one surviving wing, airlock and "
+        "docking adapter in line, a solar observatory on a truss with four windmill arrays, docked capsule",
+    )
     t.cylinder("workshop", [-6.4, 0, 0], [2.5, 0, 0], 3.0, WHITE, D_MODULE)
     t.cylinder("aft_skirt", [-6.4, 0, 0], [-7.0, 0, 0], 2.6, GREY, D_MODULE)
     t.box("wing", [-3.0, 6.3, 0], [3.0, 3.2, 0.015], PANEL, D_PANEL)
@@ -428,8 +496,9 @@ def station_val0() -> Target:
     for k in range(4):
         a = np.deg2rad(45 + 90 * k)
         c, s = np.cos(a), np.sin(a)
-        t.box(f"windmill_{k}", [5.5, 3.4 * c, 4.0 + 3.4 * s], [0.015, 2.1, 0.6], PANEL, D_PANEL,
-              euler=[45 + 90 * k, 0, 0])
+        t.box(
+            f"windmill_{k}", [5.5, 3.4 * c, 4.0 + 3.4 * s], [0.015, 2.1, 0.6], PANEL, D_PANEL, euler=[45 + 90 * k, 0, 0]
+        )
     t.box("radiator", [-6.7, 0, -2.7], [0.3, 1.2, 0.015], RADIATOR, D_PANEL)
     return t
 
@@ -466,8 +535,10 @@ def all_targets() -> list[Target]:
             t.scale, t.scale_reason = scale, f"size rule: bounding radius <= {MAX_BOUND_RADIUS} m"
         for t in validation:
             if bound_radius(t) > MAX_BOUND_RADIUS + 1e-6:
-                raise ValueError(f"{t.name}: bounding radius {bound_radius(t):.3f} m at its class's scale {scale:.4f} "
-                                 f"exceeds {MAX_BOUND_RADIUS} m; make it smaller than its class's largest model")
+                raise ValueError(
+                    f"{t.name}: bounding radius {bound_radius(t):.3f} m at its class's scale {scale:.4f} "
+                    f"exceeds {MAX_BOUND_RADIUS} m; make it smaller than its class's largest model"
+                )
     return [t for members, _ in classes for t in members] + [t for _, validation in classes for t in validation]
 
 

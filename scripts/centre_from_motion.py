@@ -35,10 +35,15 @@ from pathlib import Path
 
 import jax
 import numpy as np
-
 from centre_estimator import (  # scripts/ is the running script's own folder, first on sys.path
-    DESIRED, collect, errors_by_target, print_errors, visible_centroid, write_results,
+    DESIRED,
+    collect,
+    errors_by_target,
+    print_errors,
+    visible_centroid,
+    write_results,
 )
+
 from ramavt_jax import env as env_lib
 from ramavt_jax.evaluation import rollouts
 from ramavt_jax.render.camera import camera_rays
@@ -52,8 +57,12 @@ def flow_rows(depth0: np.ndarray, depth1: np.ndarray, rays: np.ndarray, dt: floa
     mid = 0.5 * (depth0 + depth1)
     points = mid[..., None] * rays  # [N, H, W, 3]: the surface between the two frames
     inner = (slice(None), slice(1, -1), slice(1, -1))
-    right, left, down, up = ((slice(None), slice(1, -1), slice(2, None)), (slice(None), slice(1, -1), slice(None, -2)),
-                             (slice(None), slice(2, None), slice(1, -1)), (slice(None), slice(None, -2), slice(1, -1)))
+    right, left, down, up = (
+        (slice(None), slice(1, -1), slice(2, None)),
+        (slice(None), slice(1, -1), slice(None, -2)),
+        (slice(None), slice(2, None), slice(1, -1)),
+        (slice(None), slice(None, -2), slice(1, -1)),
+    )
     normal = np.cross(points[right] - points[left], points[down] - points[up])
     normal /= np.maximum(np.linalg.norm(normal, axis=-1, keepdims=True), 1e-12)
     valid = hit[inner] & hit[right] & hit[left] & hit[down] & hit[up]
@@ -116,8 +125,15 @@ def _cross_matrix(w: np.ndarray) -> np.ndarray:
     return np.array([[0.0, -w[2], w[1]], [w[2], 0.0, -w[0]], [-w[1], w[0], 0.0]])
 
 
-def centre_from_flow(motion: np.ndarray, chaser_position: np.ndarray, centroid: np.ndarray, window: int,
-                     pull: float, dt: float = 0.1, skip: int = 0) -> np.ndarray:
+def centre_from_flow(
+    motion: np.ndarray,
+    chaser_position: np.ndarray,
+    centroid: np.ndarray,
+    window: int,
+    pull: float,
+    dt: float = 0.1,
+    skip: int = 0,
+) -> np.ndarray:
     """[T, 3] the centre (camera frame, m) at each step t >= ``skip`` from rigid_motion's [T-1, 6] (a + chaser
     velocity, w) of the ``window`` pairs that end by obs t (pairs t - window .. t - 1; a motion summed over several
     pairs is placed at its last pair, a lag of a few steps that the slowly turning spin hardly notices): least
@@ -171,14 +187,18 @@ def spin_errors(episodes, names, camera, windows, skip: int, jump: float, dt: fl
             spin = np.concatenate([spins[e] for e in pick])
             ok = ~np.isnan(error)
             table.setdefault(f"pairs {window}", {})[name] = {
-                "spin": float(np.median(spin)), "error": float(np.median(error[ok])) if ok.any() else None,
-                "relative": float(np.median(error[ok] / spin[ok])) if ok.any() else None, "solved": float(ok.mean()),
-                "pixels": float(np.median(np.concatenate([pixels[e] for e in pick])))}
+                "spin": float(np.median(spin)),
+                "error": float(np.median(error[ok])) if ok.any() else None,
+                "relative": float(np.median(error[ok] / spin[ok])) if ok.any() else None,
+                "solved": float(ok.mean()),
+                "pixels": float(np.median(np.concatenate([pixels[e] for e in pick]))),
+            }
     return table
 
 
-def flow_centre(episodes, camera, pairs: int, window: int, pull: float, skip: int, jump: float,
-                dt: float = 0.1) -> np.ndarray:
+def flow_centre(
+    episodes, camera, pairs: int, window: int, pull: float, skip: int, jump: float, dt: float = 0.1
+) -> np.ndarray:
     """[E, T, 3] centre_from_flow's error estimate (stand-off distances, as Episodes.label), on rigid_motion over
     ``pairs`` frame pairs."""
     rays = np.asarray(camera_rays(camera), np.float64)
@@ -223,15 +243,23 @@ def main() -> None:
     ap.add_argument("--val-episodes", type=int, default=4, help="per evaluated target")
     ap.add_argument("--steps", type=int, default=1000)
     ap.add_argument("--skip", type=int, default=100, help="steps left out (the approach)")
-    ap.add_argument("--eval-targets", default="val",
-                    help="a split or names, as `ramavt eval` takes; targets at stand-off scale k = 1 (the catalogue's:"
-                         " the desired point 5 m ahead and 1 m/s commands are assumed)")
+    ap.add_argument(
+        "--eval-targets",
+        default="val",
+        help="a split or names, as `ramavt eval` takes; targets at stand-off scale k = 1 (the catalogue's:"
+        " the desired point 5 m ahead and 1 m/s commands are assumed)",
+    )
     ap.add_argument("--resolution", type=int, default=32)
     ap.add_argument("--seed", type=int, default=0, help="the recorded episodes' draw (centre_estimator's)")
     ap.add_argument("--out", type=Path)
     args = ap.parse_args()
-    if (min(args.spin_windows + args.windows + [args.centre_pairs], default=1) < 1 or args.centre_window < 0
-            or args.degree < 0 or args.pull < 0 or args.skip >= args.steps):
+    if (
+        min(args.spin_windows + args.windows + [args.centre_pairs], default=1) < 1
+        or args.centre_window < 0
+        or args.degree < 0
+        or args.pull < 0
+        or args.skip >= args.steps
+    ):
         ap.error("windows and --centre-pairs must be >= 1, --centre-window, --degree and --pull >= 0, --skip < --steps")
     try:
         names = rollouts.resolve_targets(args.eval_targets)
@@ -239,18 +267,25 @@ def main() -> None:
         ap.error(f"--eval-targets: {e}")
     camera = env_lib.CameraConfig(resolution=args.resolution)
     # the key centre_estimator records its validation episodes with: the same episodes as its fits
-    episodes = collect(names, args.val_episodes, args.steps, jax.random.fold_in(jax.random.PRNGKey(args.seed), 1),
-                       camera)
+    episodes = collect(
+        names, args.val_episodes, args.steps, jax.random.fold_in(jax.random.PRNGKey(args.seed), 1), camera
+    )
     spin = spin_errors(episodes, names, camera, args.spin_windows, args.skip, args.jump)
     print(f"{'spin from range flow':24s} {'error / spin':>12s} {'solved':>7s}   per target: error / spin (spin rad/s)")
     for name, table in spin.items():
         rel = [t["relative"] for t in table.values() if t["relative"] is not None]
-        print(f"{name:24s} {np.mean(rel):12.2f} {np.mean([t['solved'] for t in table.values()]):7.2f}   "
-              + " ".join(f"{k}:{v['relative'] if v['relative'] is None else round(v['relative'], 2)}"
-                         f"({v['spin']:.3f})" for k, v in table.items()))
+        print(
+            f"{name:24s} {np.mean(rel):12.2f} {np.mean([t['solved'] for t in table.values()]):7.2f}   "
+            + " ".join(
+                f"{k}:{v['relative'] if v['relative'] is None else round(v['relative'], 2)}({v['spin']:.3f})"
+                for k, v in table.items()
+            )
+        )
     zero = np.zeros(episodes.label.shape)
-    rows = {"desired point": errors_by_target(zero, episodes, names, args.skip),
-            "visible centroid": errors_by_target(visible_centroid(episodes, camera), episodes, names, args.skip)}
+    rows = {
+        "desired point": errors_by_target(zero, episodes, names, args.skip),
+        "visible centroid": errors_by_target(visible_centroid(episodes, camera), episodes, names, args.skip),
+    }
     for window in args.windows:
         guess = averaged_centroid(episodes, camera, window, args.degree)
         rows[f"centroid averaged {window}"] = errors_by_target(guess, episodes, names, args.skip)

@@ -65,8 +65,9 @@ def offset_ceiling(ceiling: Policy, size: float, random_size: bool = False, rand
     return Policy(f"offset {size}", init, act)
 
 
-def visible_offset(state: env_lib.EnvState, params: env_lib.EnvParams, camera: env_lib.CameraConfig,
-                   axes: tuple[float, float, float]) -> jax.Array:
+def visible_offset(
+    state: env_lib.EnvState, params: env_lib.EnvParams, camera: env_lib.CameraConfig, axes: tuple[float, float, float]
+) -> jax.Array:
     """[3] m, camera frame: the visible surface's centroid minus the centre, on the axes where ``axes`` is 1 (0 on the
     others, and on all of them when the frame shows no target: greedy.visible_tracking_state's fallback)."""
     true = greedy.true_tracking_state(state, params)[:3]
@@ -74,8 +75,9 @@ def visible_offset(state: env_lib.EnvState, params: env_lib.EnvParams, camera: e
     return (seen - true) * params.desired_pos[2] * state.scale * jnp.asarray(axes, jnp.float32)  # stand-off -> m
 
 
-def visible_ceiling(ceiling: Policy, camera: env_lib.CameraConfig, axes: tuple[float, float, float],
-                    name: str = "visible") -> Policy:
+def visible_ceiling(
+    ceiling: Policy, camera: env_lib.CameraConfig, axes: tuple[float, float, float], name: str = "visible"
+) -> Policy:
     """``ceiling`` told the visible surface's centroid (visible_offset) instead of the centre."""
 
     def act(key, pstate, obs, state, params):
@@ -87,8 +89,15 @@ def visible_ceiling(ceiling: Policy, camera: env_lib.CameraConfig, axes: tuple[f
     return Policy(name, lambda key: jnp.zeros(()), act)
 
 
-def precision_table(targets: tuple[str, ...], episodes: int, offsets: list[float], seed: int = 0,
-                    resolution: int = 32, visible: bool = True, overrides: dict | None = None) -> dict:
+def precision_table(
+    targets: tuple[str, ...],
+    episodes: int,
+    offsets: list[float],
+    seed: int = 0,
+    resolution: int = 32,
+    visible: bool = True,
+    overrides: dict | None = None,
+) -> dict:
     """{arm: {'aer': mean over targets, 'lost': share, 'per_target': {name: AER}}}; arm 'exact' is the ceiling.
     ``overrides``: EnvParams fields over the evaluation's (a shorter max_steps in tests)."""
     camera = env_lib.CameraConfig(resolution=resolution)
@@ -102,11 +111,21 @@ def precision_table(targets: tuple[str, ...], episodes: int, offsets: list[float
     tracking_env = tables.suite_env(config, targets, rollouts.PERTURBATION_VALUES)
     table = {}
     for name, policy in arms.items():
-        result = tables.evaluate_setting(tracking_env, policy, overrides, episodes, max_steps, jax.random.PRNGKey(seed),
-                                         "none", rollouts.PERTURBATION_VALUES)
-        table[name] = {"aer": float(result["overall"]["return_mean"]),
-                       "lost": float(result["overall"]["lost_fraction"]),
-                       "per_target": {t: float(s["return_mean"]) for t, s in result["per_target"].items()}}
+        result = tables.evaluate_setting(
+            tracking_env,
+            policy,
+            overrides,
+            episodes,
+            max_steps,
+            jax.random.PRNGKey(seed),
+            "none",
+            rollouts.PERTURBATION_VALUES,
+        )
+        table[name] = {
+            "aer": float(result["overall"]["return_mean"]),
+            "lost": float(result["overall"]["lost_fraction"]),
+            "per_target": {t: float(s["return_mean"]) for t, s in result["per_target"].items()},
+        }
     return table
 
 
@@ -156,8 +175,13 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--targets", default="val", help="a split or catalogue names, as `ramavt eval --targets` takes")
     ap.add_argument("--episodes", type=int, default=20, help="episodes per target")
-    ap.add_argument("--offsets", type=float, nargs="*", default=[0.05, 0.1, 0.2, 0.3, 0.5],
-                    help="sizes of the fixed centre errors, metres / k")
+    ap.add_argument(
+        "--offsets",
+        type=float,
+        nargs="*",
+        default=[0.05, 0.1, 0.2, 0.3, 0.5],
+        help="sizes of the fixed centre errors, metres / k",
+    )
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--resolution", type=int, default=32)
     ap.add_argument("--out", type=Path, help="JSON file for the table")
@@ -181,8 +205,10 @@ def main() -> None:
     header = " ".join(f"{t[:14]:>14s}" for t in targets)
     print(f"{'centre told':16s} {'AER':>7s} {'of exact':>8s} {'lost':>5s}  {header}")
     for name, row in table.items():
-        print(f"{name:16s} {row['aer']:7.1f} {row['aer'] / exact:8.0%} {row['lost']:5.1%}  "
-              + " ".join(f"{row['per_target'][t]:14.1f}" for t in targets))
+        print(
+            f"{name:16s} {row['aer']:7.1f} {row['aer'] / exact:8.0%} {row['lost']:5.1%}  "
+            + " ".join(f"{row['per_target'][t]:14.1f}" for t in targets)
+        )
     if args.out:
         args.out.parent.mkdir(parents=True, exist_ok=True)
         command = {k: str(v) if isinstance(v, Path) else v for k, v in vars(args).items()}

@@ -28,13 +28,18 @@ STANDOFF = 5.0  # m, the nominal desired distance
 def centroid_offsets(target: targets_lib.TargetModel, rotations_b: jax.Array, cam: render.CameraConfig) -> dict:
     """Visible-surface centroid of ``target`` at (0, 0, 5 m) in each attitude of ``rotations_b`` [B, 3, 3]:
     {'sideways': [B'] m, 'distance': [B'] m} over the B' <= B attitudes in which the target is seen."""
-    frames = jax.jit(jax.vmap(lambda r: render.render(target, jnp.array([0.0, 0.0, STANDOFF]), r, cam,
-                                                      render.default_lighting(), False)))(rotations_b)
+    frames = jax.jit(
+        jax.vmap(
+            lambda r: render.render(target, jnp.array([0.0, 0.0, STANDOFF]), r, cam, render.default_lighting(), False)
+        )
+    )(rotations_b)
     depth = jnp.where(frames.hit, frames.depth, 0.0)  # [B, H, W] m, 0 where the target is not hit
     centres, counts = jax.vmap(lambda d: greedy.surface_centroid(d, cam))(depth)
     centres = np.asarray(centres)[np.asarray(counts) > 0]  # camera frame, the attitudes in which it is seen
-    return {"sideways": np.linalg.norm(centres[:, :2] / centres[:, 2:] * STANDOFF, axis=1),
-            "distance": np.linalg.norm(centres - np.array([0.0, 0.0, STANDOFF]), axis=1)}
+    return {
+        "sideways": np.linalg.norm(centres[:, :2] / centres[:, 2:] * STANDOFF, axis=1),
+        "distance": np.linalg.norm(centres - np.array([0.0, 0.0, STANDOFF]), axis=1),
+    }
 
 
 def main() -> None:
@@ -59,8 +64,10 @@ def main() -> None:
         if not got["sideways"].size:
             print(f"{name:36s} {k:5.2f} not seen in any attitude")
             continue
-        print(f"{name:36s} {k:5.2f} {got['sideways'].mean():13.2f} {got['sideways'].max():6.2f} "
-              f"{got['distance'].mean():9.2f}")
+        print(
+            f"{name:36s} {k:5.2f} {got['sideways'].mean():13.2f} {got['sideways'].max():6.2f} "
+            f"{got['distance'].mean():9.2f}"
+        )
 
 
 if __name__ == "__main__":

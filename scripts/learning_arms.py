@@ -21,14 +21,13 @@ from pathlib import Path
 import jax
 import jax.numpy as jnp
 import numpy as np
+import procedural_targets  # a sibling script in scripts/, on the path when this one runs or is imported
 
 from ramavt_jax import baselines, greedy, presets
 from ramavt_jax import env as env_lib
 from ramavt_jax import targets as targets_lib
 from ramavt_jax.evaluation import runs, statistics
 from ramavt_jax.training.driver import run as train_run
-
-import procedural_targets  # a sibling script in scripts/, on the path when this one runs or is imported
 
 
 def _net(cfg, **kw):
@@ -57,13 +56,28 @@ _LR = 5e-4  # the quick preset's learning rate before 'aux-lr2': every arm's, un
 
 
 def _base(c):
-    net = dataclasses.replace(c.network, coord_channels=False, pooled_skip=False, kernels=(3, 3, 3),
-                              strides=(2, 1, 1), pools=(True, True, True), prev_action=False, aux_outputs=0)
-    return c.override(network=net, bootstrap_lost=False, aux_weight=0.0, lr=_LR, total_env_steps=384_000,
-                      max_grad_norm=10.0,  # every arm before 'clip-1' clipped at norm 10
-                      bootstrap_from="target",  # and every arm before 'online-boot' bootstrapped from the target net
-                      policy_params="target", policy_average_from=None,  # and acted with the target params
-                      expert_margin_weight=0.0)  # and every arm before 'expert-margin' had no margin loss
+    net = dataclasses.replace(
+        c.network,
+        coord_channels=False,
+        pooled_skip=False,
+        kernels=(3, 3, 3),
+        strides=(2, 1, 1),
+        pools=(True, True, True),
+        prev_action=False,
+        aux_outputs=0,
+    )
+    return c.override(
+        network=net,
+        bootstrap_lost=False,
+        aux_weight=0.0,
+        lr=_LR,
+        total_env_steps=384_000,
+        max_grad_norm=10.0,  # every arm before 'clip-1' clipped at norm 10
+        bootstrap_from="target",  # and every arm before 'online-boot' bootstrapped from the target net
+        policy_params="target",
+        policy_average_from=None,  # and acted with the target params
+        expert_margin_weight=0.0,
+    )  # and every arm before 'expert-margin' had no margin loss
 
 
 ARMS = {
@@ -71,8 +85,9 @@ ARMS = {
     "see": lambda c: _net(_base(c), coord_channels=True, pooled_skip=True),  # depth scale + position visible
     "grid": lambda c: _net(_base(c), pools=(True, True, False)),  # 4x4 feature map (16 attention tokens) at 32x32
     "boot": lambda c: _base(c).override(bootstrap_lost=True),  # no incentive to lose the target
-    "all": lambda c: _net(_base(c), coord_channels=True, pooled_skip=True,
-                          pools=(True, True, False)).override(bootstrap_lost=True),
+    "all": lambda c: _net(_base(c), coord_channels=True, pooled_skip=True, pools=(True, True, False)).override(
+        bootstrap_lost=True
+    ),
 }
 # Table I's inputs at the quick budget: 'all' seeing colour or colour + depth instead of depth.
 ARMS["rgbd"] = lambda c: _obs(ARMS["all"](c), "rgbd")
@@ -146,22 +161,24 @@ ARMS["patch-768k"] = lambda c: ARMS["patch"](c).override(total_env_steps=768_000
 # randomisation over [0.15, 5]x (bounding radii of about 0.1-12 m) for targets of other sizes (split 'val-sizes'),
 # trained before the stand-off speed rule (1 m/s at every size: speed_standoff_power 0).
 ARMS["gamma09"] = lambda c: ARMS["patch-768k"](c).override(gamma=0.9)
-ARMS["size-wide"] = lambda c: ARMS["patch-768k"](c).override(env_params={"size_scale_min": 0.15, "size_scale_max": 5.0,
-                                                                          "speed_standoff_power": 0.0})
+ARMS["size-wide"] = lambda c: ARMS["patch-768k"](c).override(
+    env_params={"size_scale_min": 0.15, "size_scale_max": 5.0, "speed_standoff_power": 0.0}
+)
 # Size randomisation towards small sizes only ([0.15, 1]x): size-wide's gain on other sizes was all on the small
 # models and its cost on the large ones; the command speed rule (EnvParams.speed_standoff_power) now serves large
 # targets. R2D2's value rescaling of the targets (one change to the preset).
-ARMS["size-small"] = lambda c: ARMS["patch-768k"](c).override(env_params={"size_scale_min": 0.15,
-                                                                           "size_scale_max": 1.0})
+ARMS["size-small"] = lambda c: ARMS["patch-768k"](c).override(
+    env_params={"size_scale_min": 0.15, "size_scale_max": 1.0}
+)
 ARMS["value-rescale"] = lambda c: ARMS["patch-768k"](c).override(value_rescale=True)
 # size-small on the budget of 'patch-1152k' (one change to 'size-small'): whether more env steps buy back its cost
 # on the catalogue's sizes.
 ARMS["size-small-1152k"] = lambda c: ARMS["size-small"](c).override(total_env_steps=1_152_000)
 # size-small gained most on the small models and cost 72 AER on the catalogue's sizes: resize only half of the
 # episodes (one change to 'size-small').
-ARMS["size-half"] = lambda c: ARMS["size-small"](c).override(env_params={"size_scale_min": 0.15,
-                                                                          "size_scale_max": 1.0,
-                                                                          "size_scale_prob": 0.5})
+ARMS["size-half"] = lambda c: ARMS["size-small"](c).override(
+    env_params={"size_scale_min": 0.15, "size_scale_max": 1.0, "size_scale_prob": 0.5}
+)
 # Each one change to the preset, on the validation split: a replay 4x as long (64k steps hold about one episode per
 # env, so the late fall of the training curve might be forgetting); exploration decaying in half the steps (the
 # time to a tracker that beats the depth tracker); 64x64 images with an 8x8 first patch, so that the attention
@@ -502,8 +519,13 @@ ARMS["state-visible-margin"] = lambda c: _net(ARMS["state-error-margin"](c), sta
 # frame), back-projected to the camera frame and read as the diagnostics read the error, at 10x, one change to
 # 'expert-margin' (the quick preset): the conv features carry the silhouette's place only as coarsely as their
 # patches and pooling keep it ('stats' gave it to the dense layer unscaled, before the labels).
-ARMS["centroid-input-margin"] = lambda c: _net(ARMS["expert-margin"](c), state_input=True, state_input_gain=10.0,
-                                               state_input_entries=(0, 1, 2), state_input_point="image")
+ARMS["centroid-input-margin"] = lambda c: _net(
+    ARMS["expert-margin"](c),
+    state_input=True,
+    state_input_gain=10.0,
+    state_input_entries=(0, 1, 2),
+    state_input_point="image",
+)
 
 
 def arm_config(name: str, preset: str = "quick", **overrides):
@@ -533,8 +555,9 @@ def batched_rollout(tracking_env, params_b, policy, key, num_steps):
         t, obs, state, pstate, alive, length, ret, lost = c
         k_act, k_env = jax.random.split(jax.random.fold_in(k_loop, t))
         action, pstate = jax.vmap(policy.act)(jax.random.split(k_act, n), pstate, obs, state, params_b)
-        obs, state, reward, term, trunc, _ = jax.vmap(tracking_env.step_env)(jax.random.split(k_env, n), state,
-                                                                              action, params_b)
+        obs, state, reward, term, trunc, _ = jax.vmap(tracking_env.step_env)(
+            jax.random.split(k_env, n), state, action, params_b
+        )
         length = length + alive
         ret = ret + jnp.where(alive, reward, 0.0)
         lost = lost | (alive & term)
@@ -547,33 +570,41 @@ def batched_rollout(tracking_env, params_b, policy, key, num_steps):
 def heldout_setup(resolution: int, episodes: int, targets=targets_lib.TEST_TARGETS, obs_mode: str = "depth"):
     """The held-out episodes: the reset states depend only on the key and the targets, not on the input mode, so
     depth, colour and RGBD agents see the same episodes."""
-    cfg = env_lib.EnvConfig(camera=env_lib.CameraConfig(resolution=resolution), targets=tuple(targets),
-                            obs_mode=obs_mode)
+    cfg = env_lib.EnvConfig(
+        camera=env_lib.CameraConfig(resolution=resolution), targets=tuple(targets), obs_mode=obs_mode
+    )
     tracking_env = env_lib.TrackingEnv(cfg)
     params = tracking_env.eval_params()
     ids = jnp.repeat(jnp.arange(len(targets)), episodes)
     params_b = jax.vmap(lambda i: params.replace(target_probs=jax.nn.one_hot(i, len(targets))))(ids)
-    params_b = params_b.replace(catalogue=jax.tree.map(lambda a: jnp.broadcast_to(a, (ids.shape[0],) + a.shape),
-                                                       params.catalogue))
+    params_b = params_b.replace(
+        catalogue=jax.tree.map(lambda a: jnp.broadcast_to(a, (ids.shape[0],) + a.shape), params.catalogue)
+    )
     return tracking_env, params_b, np.asarray(ids)
 
 
 def _summary(length, ret, lost, ids, names):
     length, ret, lost = (np.asarray(x, np.float64) for x in (length, ret, lost))
-    per = {n: {"AEL": float(length[ids == i].mean()), "AER": float(ret[ids == i].mean()),
-               "lost": float(lost[ids == i].mean())} for i, n in enumerate(names)}
+    per = {
+        n: {
+            "AEL": float(length[ids == i].mean()),
+            "AER": float(ret[ids == i].mean()),
+            "lost": float(lost[ids == i].mean()),
+        }
+        for i, n in enumerate(names)
+    }
     return {"AEL": float(length.mean()), "AER": float(ret.mean()), "lost": float(lost.mean()), "per_target": per}
 
 
-def evaluate_arm(out: Path, arm: str, episodes: int, key: jax.Array, max_steps: int = 1000,
-                 policy_params: str | None = None) -> dict:
+def evaluate_arm(
+    out: Path, arm: str, episodes: int, key: jax.Array, max_steps: int = 1000, policy_params: str | None = None
+) -> dict:
     """Every seed of the arm on the held-out episodes, acting with ``policy_params`` ('online' | 'target' |
     'averaged'; None = the runs' own RunConfig.policy_params)."""
     seed_dirs = sorted((out / arm).glob("seed_*")) or [out / arm]
     loaded = [runs.load_policy(d, policy_params=policy_params) for d in seed_dirs]
     config = loaded[0].config
-    tracking_env, params_b, ids = heldout_setup(config.env.camera.resolution, episodes,
-                                                obs_mode=config.env.obs_mode)
+    tracking_env, params_b, ids = heldout_setup(config.env.camera.resolution, episodes, obs_mode=config.env.obs_mode)
     stacked = jax.tree.map(lambda *xs: jnp.stack(xs), *[lr.params for lr in loaded])
 
     @jax.jit
@@ -581,17 +612,27 @@ def evaluate_arm(out: Path, arm: str, episodes: int, key: jax.Array, max_steps: 
         def one(p):
             policy = greedy.greedy_policy(config.network, p, tuple(config.env.obs_shape), camera=config.env.camera)
             return batched_rollout(tracking_env, params_b, policy, key, max_steps)
+
         return jax.lax.map(one, net_params)
 
     t = time.time()
     length, ret, lost = jax.device_get(run_all(stacked))
-    seeds = [dict(_summary(length[k], ret[k], lost[k], ids, tracking_env.config.targets), run=str(d))
-             for k, d in enumerate(seed_dirs)]
+    seeds = [
+        dict(_summary(length[k], ret[k], lost[k], ids, tracking_env.config.targets), run=str(d))
+        for k, d in enumerate(seed_dirs)
+    ]
     ael, aer = np.array([s["AEL"] for s in seeds]), np.array([s["AER"] for s in seeds])
-    return {"arm": arm, "policy_params": config.run.policy_params, "episodes_per_target": episodes,
-            "eval_wall_s": time.time() - t, "seeds": seeds,
-            "AEL_mean": float(ael.mean()), "AEL_std": statistics.sample_std(ael), "AER_mean": float(aer.mean()),
-            "AER_std": statistics.sample_std(aer)}
+    return {
+        "arm": arm,
+        "policy_params": config.run.policy_params,
+        "episodes_per_target": episodes,
+        "eval_wall_s": time.time() - t,
+        "seeds": seeds,
+        "AEL_mean": float(ael.mean()),
+        "AEL_std": statistics.sample_std(ael),
+        "AER_mean": float(aer.mean()),
+        "AER_std": statistics.sample_std(aer),
+    }
 
 
 def evaluate_baselines(resolution: int, episodes: int, key: jax.Array, max_steps: int = 1000) -> dict:
@@ -615,15 +656,20 @@ def main() -> None:
     ap.add_argument("--preset", default="quick")
     ap.add_argument("--episodes", type=int, default=10, help="held-out episodes per target")
     ap.add_argument("--eval-seed", type=int, default=0)
-    ap.add_argument("--policy-params", choices=("online", "target", "averaged"), default=None,
-                    help="evaluate these params (default: each run's own); writes heldout_<choice>.json")
+    ap.add_argument(
+        "--policy-params",
+        choices=("online", "target", "averaged"),
+        default=None,
+        help="evaluate these params (default: each run's own); writes heldout_<choice>.json",
+    )
     args = ap.parse_args()
     key = jax.random.PRNGKey(args.eval_seed)
     for arm in args.arms:
         if args.command == "train":
             t = time.time()
-            train_run(arm_config(arm, args.preset), args.out / arm, seed=args.first_seed, num_seeds=args.seeds,
-                      progress=False)
+            train_run(
+                arm_config(arm, args.preset), args.out / arm, seed=args.first_seed, num_seeds=args.seeds, progress=False
+            )
             print(f"[{arm}] trained {args.seeds} seeds in {time.time() - t:.0f} s", flush=True)
         elif args.command == "eval" and arm == "baselines":
             res = evaluate_baselines(32, args.episodes, key)
@@ -633,8 +679,11 @@ def main() -> None:
             res = evaluate_arm(args.out, arm, args.episodes, key, policy_params=args.policy_params)
             name = "heldout.json" if args.policy_params is None else f"heldout_{args.policy_params}.json"
             (args.out / arm / name).write_text(json.dumps(res, indent=1))
-            print(f"[{arm} {res['policy_params']}] AEL {res['AEL_mean']:.1f} ± {res['AEL_std']:.1f}  "
-                  f"AER {res['AER_mean']:.1f} ± {res['AER_std']:.1f}  ({res['eval_wall_s']:.0f} s)", flush=True)
+            print(
+                f"[{arm} {res['policy_params']}] AEL {res['AEL_mean']:.1f} ± {res['AEL_std']:.1f}  "
+                f"AER {res['AER_mean']:.1f} ± {res['AER_std']:.1f}  ({res['eval_wall_s']:.0f} s)",
+                flush=True,
+            )
     if args.command == "report":
         report(args.out)
 
@@ -644,8 +693,10 @@ def _row_head(r: dict) -> str:
     params = r.get("policy_params")
     tag = f" [{params} params]" if params not in (None, "online") else ""
     lost = 100 * np.mean([s["lost"] for s in r["seeds"]])
-    return (f"| {r['arm']}{tag} | {r['AEL_mean']:.1f} ± {r['AEL_std']:.1f} | {r['AER_mean']:.1f} ± "
-            f"{r['AER_std']:.1f} | {lost:.0f} |")
+    return (
+        f"| {r['arm']}{tag} | {r['AEL_mean']:.1f} ± {r['AEL_std']:.1f} | {r['AER_mean']:.1f} ± "
+        f"{r['AER_std']:.1f} | {lost:.0f} |"
+    )
 
 
 def report(out: Path) -> None:

@@ -31,8 +31,11 @@ def load(spec: str, resolution: int, names: tuple[str, ...], search: str = "lear
         camera = env_lib.CameraConfig(resolution=resolution)
         return baselines.make_policy(spec, camera), env_lib.EnvConfig(camera=camera, targets=names), {}
     loaded = pretrained.load(search=search) if spec == "pretrained" else runs.load_policy(spec, search=search)
-    return (loaded.policy, dataclasses.replace(loaded.config.env, targets=names),
-            rollouts.run_env_overrides(loaded.config.env_params))
+    return (
+        loaded.policy,
+        dataclasses.replace(loaded.config.env, targets=names),
+        rollouts.run_env_overrides(loaded.config.env_params),
+    )
 
 
 def describe(rec, stats, episode: int, dt: float, speed: float) -> str:
@@ -48,13 +51,18 @@ def describe(rec, stats, episode: int, dt: float, speed: float) -> str:
     if hidden.size:
         shown = np.nonzero(seen)[0]
         stayed = (int(shown[-1]) + 2) if shown.size else 1
-        left = f"step {int(hidden[0]) + 1}, out for good from step {stayed}" if not seen[-1] else \
-            f"step {int(hidden[0]) + 1}, in view at the end"
+        left = (
+            f"step {int(hidden[0]) + 1}, out for good from step {stayed}"
+            if not seen[-1]
+            else f"step {int(hidden[0]) + 1}, in view at the end"
+        )
     else:
         left = "never"
-    return (f"  episode {episode:3d}: length {length:4d}, start {np.round(rel[0], 2)} m, target drift "
-            f"{drift:.2f} m/s (commands {speed:.2f} m/s), closest {np.linalg.norm(rel[closest]):.2f} m at step "
-            f"{closest + 1}, first out of view: {left}")
+    return (
+        f"  episode {episode:3d}: length {length:4d}, start {np.round(rel[0], 2)} m, target drift "
+        f"{drift:.2f} m/s (commands {speed:.2f} m/s), closest {np.linalg.norm(rel[closest]):.2f} m at step "
+        f"{closest + 1}, first out of view: {left}"
+    )
 
 
 def main() -> None:
@@ -76,9 +84,11 @@ def main() -> None:
     root = jax.random.PRNGKey(args.seed)
     for index, name in enumerate(names):
         pinned = tracking_env.pinned(params, index)
-        stats, rec = jax.device_get(rollouts.run_episodes(tracking_env, policy, pinned,
-                                                          tables.episode_key(root, "none", name), args.episodes,
-                                                          record=True))
+        stats, rec = jax.device_get(
+            rollouts.run_episodes(
+                tracking_env, policy, pinned, tables.episode_key(root, "none", name), args.episodes, record=True
+            )
+        )
         lost = np.nonzero(np.asarray(stats.terminated))[0]
         print(f"{name}: {lost.size} of {args.episodes} lost, AEL {float(np.mean(stats.length)):.1f}")
         state = tracking_env.initial_state(jax.random.PRNGKey(0), pinned)

@@ -40,8 +40,9 @@ def merge(name: str, results: list[dict]) -> dict:
         mine = result["settings"]
         # evaluation fields recorded by both (results of earlier versions record fewer of them)
         shared = set(mine.get("eval_params", {})) & set(first.get("eval_params", {}))
-        if (any(mine.get(k) != first.get(k) for k in keys)
-                or any(mine["eval_params"][k] != first["eval_params"][k] for k in shared)):
+        if any(mine.get(k) != first.get(k) for k in keys) or any(
+            mine["eval_params"][k] != first["eval_params"][k] for k in shared
+        ):
             raise SystemExit("the results flew different episodes or rules; merge only results of the same episodes")
         for row in result["rows"]:
             if row.get("kind") != "checkpoint" or row["info"].get("ensemble_of"):  # one seed per row

@@ -37,24 +37,30 @@ def main() -> None:
     ap.add_argument("--targets", default="val", help="a split of targets_lib.split: val (default), test, ...")
     args = ap.parse_args()
     policies = {spec: load(spec, args.resolution) for spec in args.policies}
-    print(f"{'target':13s} {'policy':24s} {'AEL':>6s} {'AER':>7s}  bias x/y/z (m)       std x/y/z (m)      "
-          "mean |e|  still")
+    print(
+        f"{'target':13s} {'policy':24s} {'AEL':>6s} {'AER':>7s}  bias x/y/z (m)       std x/y/z (m)      "
+        "mean |e|  still"
+    )
     names = targets_lib.split(args.targets)
-    tracking_env = env_lib.TrackingEnv(env_lib.EnvConfig(camera=env_lib.CameraConfig(resolution=args.resolution),
-                                                         targets=names))  # one env: each policy compiles once
+    tracking_env = env_lib.TrackingEnv(
+        env_lib.EnvConfig(camera=env_lib.CameraConfig(resolution=args.resolution), targets=names)
+    )  # one env: each policy compiles once
     for index, name in enumerate(names):
         params = tracking_env.pinned(tracking_env.eval_params(), index)
         k = float(tracking_env.initial_state(jax.random.PRNGKey(0), params).scale)  # stand-off scale: 1 unless resized
         for spec, policy in policies.items():
-            stats, rec = rollouts.run_episodes(tracking_env, policy, params, jax.random.PRNGKey(5), args.episodes,
-                                               record=True)
-            alive = np.asarray(rec.alive)[args.skip:]
-            err = (np.asarray(rec.rel_pos) / k - np.asarray(params.desired_pos))[args.skip:][alive]  # [steps, 3]
+            stats, rec = rollouts.run_episodes(
+                tracking_env, policy, params, jax.random.PRNGKey(5), args.episodes, record=True
+            )
+            alive = np.asarray(rec.alive)[args.skip :]
+            err = (np.asarray(rec.rel_pos) / k - np.asarray(params.desired_pos))[args.skip :][alive]  # [steps, 3]
             bias, std = np.round(err.mean(0), 2), np.round(err.std(0), 2)
-            still = float((np.asarray(rec.action)[args.skip:][alive] == 0).mean())
-            print(f"{name:13s} {spec[-24:]:24s} {float(stats.length.mean()):6.1f} "
-                  f"{float(stats.episode_return.mean()):7.1f}  {str(bias):20s} {str(std):18s} "
-                  f"{np.linalg.norm(err, axis=1).mean():.2f}  {still:5.1%}")
+            still = float((np.asarray(rec.action)[args.skip :][alive] == 0).mean())
+            print(
+                f"{name:13s} {spec[-24:]:24s} {float(stats.length.mean()):6.1f} "
+                f"{float(stats.episode_return.mean()):7.1f}  {str(bias):20s} {str(std):18s} "
+                f"{np.linalg.norm(err, axis=1).mean():.2f}  {still:5.1%}"
+            )
 
 
 if __name__ == "__main__":

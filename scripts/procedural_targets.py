@@ -28,9 +28,24 @@ import re
 from pathlib import Path
 
 import numpy as np
-
-from catalogue_gen import (D_BOOM, D_BUS, D_DENSE, D_MODULE, D_PANEL, D_TANK, DARK, GOLD, GREY, OLIVE, PANEL, PANEL2,
-                           RADIATOR, SILVER, WHITE, bound_radius)
+from catalogue_gen import (
+    D_BOOM,
+    D_BUS,
+    D_DENSE,
+    D_MODULE,
+    D_PANEL,
+    D_TANK,
+    DARK,
+    GOLD,
+    GREY,
+    OLIVE,
+    PANEL,
+    PANEL2,
+    RADIATOR,
+    SILVER,
+    WHITE,
+    bound_radius,
+)
 from mjcf_builder import Target
 
 MAX_GEOMS = 21  # the most geoms of a catalogue training model (Station-v1): the pad training already has
@@ -79,11 +94,15 @@ def _satellite(t: Target, rng) -> None:
     for i in range(int(rng.integers(0, 3))):  # instrument boxes on the faces
         face = np.eye(3)[2 - int(rng.integers(faces))] * rng.choice([-1, 1])
         size = [_u(rng, 0.08, 0.35) for _ in range(3)]
-        t.box(f"instrument_{i}", face * (np.array(half) + size) + (1 - np.abs(face)) * rng.uniform(-0.3, 0.3, 3),
-              size, BODY_COLOURS[int(rng.integers(len(BODY_COLOURS)))], D_DENSE)
+        t.box(
+            f"instrument_{i}",
+            face * (np.array(half) + size) + (1 - np.abs(face)) * rng.uniform(-0.3, 0.3, 3),
+            size,
+            BODY_COLOURS[int(rng.integers(len(BODY_COLOURS)))],
+            D_DENSE,
+        )
     if rng.random() < 0.7:
-        t.cylinder("engine", [0, 0, -half[2]], [0, 0, -half[2] - _u(rng, 0.2, 0.5)], _u(rng, 0.1, 0.3), DARK,
-                   D_DENSE)
+        t.cylinder("engine", [0, 0, -half[2]], [0, 0, -half[2] - _u(rng, 0.2, 0.5)], _u(rng, 0.1, 0.3), DARK, D_DENSE)
 
 
 def _stack(t: Target, rng) -> None:
@@ -113,16 +132,27 @@ def _modules(t: Target, rng) -> None:
         if rng.random() < 0.6:  # a pair of wings (or one) across this module, their roots on its hull
             half_x, half_y = _u(rng, 0.6, 2.0), _u(rng, 1.0, 3.0)
             colour = PANEL_COLOURS[int(rng.integers(2))]
-            for side in ((1, -1) if rng.random() < 0.7 else (int(rng.choice([-1, 1])),)):
-                t.box(f"wing_{i}{'p' if side > 0 else 'm'}", [x + length / 2, side * (radius + half_y), 0],
-                      [min(half_x, length / 2), half_y, 0.015], colour, D_PANEL)
+            for side in (1, -1) if rng.random() < 0.7 else (int(rng.choice([-1, 1])),):
+                t.box(
+                    f"wing_{i}{'p' if side > 0 else 'm'}",
+                    [x + length / 2, side * (radius + half_y), 0],
+                    [min(half_x, length / 2), half_y, 0.015],
+                    colour,
+                    D_PANEL,
+                )
         chain.append((x, x + length, radius))
         x += length
     if rng.random() < 0.5:  # a side module rising from a module's hull
         start, end, radius = chain[int(rng.integers(len(chain)))]
         at, length, side = _u(rng, start, end), _u(rng, 2.0, 5.0), rng.choice([-1, 1])
-        t.cylinder("side_module", [at, 0, side * radius], [at, 0, side * (radius + length)],
-                   _u(rng, 0.5, 1.0) * radius, WHITE, D_MODULE)
+        t.cylinder(
+            "side_module",
+            [at, 0, side * radius],
+            [at, 0, side * (radius + length)],
+            _u(rng, 0.5, 1.0) * radius,
+            WHITE,
+            D_MODULE,
+        )
     if rng.random() < 0.5:  # a radiator panel flat against a module's underside
         start, end, radius = chain[int(rng.integers(len(chain)))]
         half = [_u(rng, 0.3, 0.5) * (end - start), _u(rng, 0.5, 1.5), 0.02]
@@ -133,7 +163,7 @@ def _rock(t: Target, rng) -> None:
     """A cluster of lobes, each centred inside an earlier one's smallest half-axis so that the rock is one piece."""
     colour, density = (_u(rng, 0.3, 0.6),) * 3, _u(rng, 1800, 2300)
     centres, axes = [np.zeros(3)], [rng.uniform(0.6, 1.1, 3)]
-    for i in range(int(rng.integers(2, 8))):
+    for _ in range(int(rng.integers(2, 8))):
         k, direction = int(rng.integers(len(centres))), rng.normal(size=3)
         centres.append(centres[k] + direction / np.linalg.norm(direction) * axes[k].min() * _u(rng, 0.5, 0.9))
         axes.append(rng.uniform(0.3, 0.9, 3))
@@ -152,8 +182,9 @@ def procedural_target(seed: int, index: int) -> Target:
     scaled to a bounding radius drawn in RADIUS_RANGE."""
     rng = np.random.default_rng([seed, index])
     kind = KINDS[index % len(KINDS)]
-    t = Target(f"Gen{seed}-{kind}{index:03d}", f"procedural {kind}, seed {seed}",
-               generator="scripts/procedural_targets.py")
+    t = Target(
+        f"Gen{seed}-{kind}{index:03d}", f"procedural {kind}, seed {seed}", generator="scripts/procedural_targets.py"
+    )
     BUILDERS[kind](t, rng)
     if len(t.geoms) > MAX_GEOMS:  # the builders' counts stay below it; a change to them must too
         raise ValueError(f"{t.name}: {len(t.geoms)} geoms, more than MAX_GEOMS = {MAX_GEOMS}")
@@ -199,8 +230,12 @@ def main() -> None:
     parser.add_argument("--count", type=int, default=48, help="models to write (their kinds cycle through KINDS)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--out", type=Path, default=Path("runs/procedural"))
-    parser.add_argument("--list-train", type=Path, metavar="DIR",
-                        help="print the catalogue's training targets and the models in DIR (training_targets), and exit")
+    parser.add_argument(
+        "--list-train",
+        type=Path,
+        metavar="DIR",
+        help="print the catalogue's training targets and the models in DIR (training_targets), and exit",
+    )
     args = parser.parse_args()
     if args.list_train is not None:
         try:

@@ -42,13 +42,20 @@ def main() -> None:
     for spec in (f"{args.target}@{r:g}m" for r in args.radii):
         config = env.EnvConfig(camera=camera, targets=(spec,))
         radius, k, share = coverage(config, overrides)
-        print(f"{spec}: bounding radius {radius:.3g} m, k {k:.3g}, {100 * share:.2f} % of the image "
-              f"({share * args.resolution ** 2:.1f} px) at the desired point", flush=True)
+        print(
+            f"{spec}: bounding radius {radius:.3g} m, k {k:.3g}, {100 * share:.2f} % of the image "
+            f"({share * args.resolution**2:.1f} px) at the desired point",
+            flush=True,
+        )
         for name, policy in policies.items():
-            s = rollouts.evaluate_per_target(config, policy, jax.random.key(0), args.episodes,
-                                             {"max_steps": args.max_steps, **overrides})[spec]
-            print(f"  {name:6s} AEL {s.length_mean:6.1f} (min {s.length_min:4.0f})  AER {s.return_mean:7.1f}  "
-                  f"lost {s.lost_fraction:.2f}  error {s.error_mean:.3f}", flush=True)
+            s = rollouts.evaluate_per_target(
+                config, policy, jax.random.key(0), args.episodes, {"max_steps": args.max_steps, **overrides}
+            )[spec]
+            print(
+                f"  {name:6s} AEL {s.length_mean:6.1f} (min {s.length_min:4.0f})  AER {s.return_mean:7.1f}  "
+                f"lost {s.lost_fraction:.2f}  error {s.error_mean:.3f}",
+                flush=True,
+            )
 
 
 if __name__ == "__main__":

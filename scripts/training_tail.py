@@ -24,8 +24,11 @@ def tail_means(records: list[dict], fields: tuple[str, ...], from_chunk: int) ->
     """The mean of each field over the records of chunk >= from_chunk that hold a finite value of it (NaN if none)."""
     out = {}
     for field in fields:
-        values = [r[field] for r in records if r.get("chunk", 0) >= from_chunk
-                  and isinstance(r.get(field), (int, float)) and math.isfinite(r[field])]
+        values = [
+            r[field]
+            for r in records
+            if r.get("chunk", 0) >= from_chunk and isinstance(r.get(field), (int, float)) and math.isfinite(r[field])
+        ]
         out[field] = sum(values) / len(values) if values else math.nan
     return out
 

@@ -1,8 +1,34 @@
-"""Fixtures shared by several test modules."""
+"""Fixtures shared by several test modules, and the suite's compile cache.
 
+The suite compiles into a private, empty cache folder made for this run (shared by the xdist workers, removed at
+the end), never into a user's ``~/.cache`` or a fixed temporary folder: every run pays what a fresh machine pays,
+and its time is the time a newcomer sees.
+"""
+
+import os
+import shutil
+import tempfile
+
+import jax
 import pytest
 
 from ramavt_jax import cli
+
+
+def pytest_configure(config):
+    if not hasattr(config, "workerinput"):  # the controller (or a run without xdist): workers inherit its environment
+        folder = tempfile.mkdtemp(prefix="ramavt_test_cache_")
+        os.environ["RAMAVT_COMPILE_CACHE"] = folder
+        config._ramavt_cache = folder
+    jax.config.update("jax_compilation_cache_dir", os.environ["RAMAVT_COMPILE_CACHE"])
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.5)
+    jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
+
+
+def pytest_unconfigure(config):
+    folder = getattr(config, "_ramavt_cache", None)
+    if folder:
+        shutil.rmtree(folder, ignore_errors=True)
 
 
 @pytest.fixture(scope="package")
@@ -10,8 +36,23 @@ def every_chunk_run(tmp_path_factory):
     """A smoke run trained by `ramavt train` with a checkpoint (parameters only) after every one of its 4 chunks;
     read, never written, by the tests that use it."""
     out = tmp_path_factory.mktemp("every_chunk") / "smoke"
-    cli.main(["train", "--preset", "smoke", "--no-progress", "--out", str(out), "--run.eval-episodes", "0",
-              "--run.checkpoint-every-chunks", "1", "--run.keep-checkpoints", "100", "--run.no-checkpoint-replay"])
+    cli.main(
+        [
+            "train",
+            "--preset",
+            "smoke",
+            "--no-progress",
+            "--out",
+            str(out),
+            "--run.eval-episodes",
+            "0",
+            "--run.checkpoint-every-chunks",
+            "1",
+            "--run.keep-checkpoints",
+            "100",
+            "--run.no-checkpoint-replay",
+        ]
+    )
     return out
 
 
@@ -20,7 +61,25 @@ def averaged_run(tmp_path_factory):
     """A smoke run like ``every_chunk_run`` that keeps the policy's tail average over chunks 3-4 and acts with it
     (``--run.policy-average-from 2 --run.policy-params averaged``); read, never written."""
     out = tmp_path_factory.mktemp("averaged") / "smoke"
-    cli.main(["train", "--preset", "smoke", "--no-progress", "--out", str(out), "--run.eval-episodes", "0",
-              "--run.checkpoint-every-chunks", "1", "--run.keep-checkpoints", "100", "--run.no-checkpoint-replay",
-              "--run.policy-average-from", "2", "--run.policy-params", "averaged"])
+    cli.main(
+        [
+            "train",
+            "--preset",
+            "smoke",
+            "--no-progress",
+            "--out",
+            str(out),
+            "--run.eval-episodes",
+            "0",
+            "--run.checkpoint-every-chunks",
+            "1",
+            "--run.keep-checkpoints",
+            "100",
+            "--run.no-checkpoint-replay",
+            "--run.policy-average-from",
+            "2",
+            "--run.policy-params",
+            "averaged",
+        ]
+    )
     return out

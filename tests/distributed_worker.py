@@ -9,14 +9,16 @@ import numpy as np
 
 
 def _max_diff(a, b) -> float:
-    return max(float(np.max(np.abs(np.asarray(x, np.float64) - np.asarray(y, np.float64))))
-               for x, y in zip(jax.tree.leaves(a), jax.tree.leaves(b)))
+    return max(
+        float(np.max(np.abs(np.asarray(x, np.float64) - np.asarray(y, np.float64))))
+        for x, y in zip(jax.tree.leaves(a), jax.tree.leaves(b))
+    )
 
 
 def sharded_vs_unsharded(chunks: int) -> dict:
     from ramavt_jax import distributed
-    from ramavt_jax.training import program
     from ramavt_jax.presets import preset
+    from ramavt_jax.training import program
 
     cfg = preset("smoke")
     mesh = distributed.make_mesh()
@@ -32,11 +34,15 @@ def sharded_vs_unsharded(chunks: int) -> dict:
     sh = states["sharded"]
 
     def placement(x):
-        return {"devices": sorted(d.id for d in x.sharding.device_set),
-                "shard_shapes": sorted({tuple(s.data.shape) for s in x.addressable_shards}),
-                "distinct_shards": len({tuple((i.start, i.stop) for i in s.index if isinstance(i, slice))
-                                        for s in x.addressable_shards}),
-                "replicated": bool(x.sharding.is_fully_replicated), "shape": list(x.shape)}
+        return {
+            "devices": sorted(d.id for d in x.sharding.device_set),
+            "shard_shapes": sorted({tuple(s.data.shape) for s in x.addressable_shards}),
+            "distinct_shards": len(
+                {tuple((i.start, i.stop) for i in s.index if isinstance(i, slice)) for s in x.addressable_shards}
+            ),
+            "replicated": bool(x.sharding.is_fully_replicated),
+            "shape": list(x.shape),
+        }
 
     return {
         "device_count": jax.device_count(),
@@ -58,8 +64,8 @@ def sharded_vs_unsharded(chunks: int) -> dict:
 def seeds_over_devices() -> dict:
     """2 seeds in one program on 2 devices (one seed per device) vs the same program on one device."""
     from ramavt_jax import distributed
-    from ramavt_jax.training import program
     from ramavt_jax.presets import preset
+    from ramavt_jax.training import program
 
     cfg = preset("smoke")
     keys = np.stack([np.asarray(jax.random.PRNGKey(s)) for s in (3, 4)])
@@ -76,16 +82,18 @@ def seeds_over_devices() -> dict:
         error = None
     except distributed.ShardingError as e:
         error = str(e)
-    return {"params_max_diff": _max_diff(out["single"].learner.params, out["sharded"].learner.params),
-            "obs_devices": len(obs.sharding.device_set),
-            "obs_shard_shapes": sorted({tuple(s.data.shape) for s in obs.addressable_shards}),
-            "three_seeds_error": error}
+    return {
+        "params_max_diff": _max_diff(out["single"].learner.params, out["sharded"].learner.params),
+        "obs_devices": len(obs.sharding.device_set),
+        "obs_shard_shapes": sorted({tuple(s.data.shape) for s in obs.addressable_shards}),
+        "three_seeds_error": error,
+    }
 
 
 def indivisible() -> dict:
     from ramavt_jax import distributed
-    from ramavt_jax.training import program
     from ramavt_jax.presets import preset
+    from ramavt_jax.training import program
 
     cfg = preset("smoke")  # 8 envs; the test starts 3 devices
     try:

@@ -1,4 +1,4 @@
-"""The package's import layers (pyproject.toml [tool.importlinter]) hold, no module grows past 400 lines, and the
+"""The package's import layers (pyproject.toml [tool.importlinter]) hold, the code is formatted and linted (ruff), and the
 repository speaks of the project, not of who worked when."""
 
 import re
@@ -6,7 +6,6 @@ import shutil
 import subprocess
 import sys
 from pathlib import Path
-
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -28,17 +27,33 @@ def test_a_back_import_breaks_the_contracts(tmp_path):
     shutil.copy(ROOT / "pyproject.toml", tmp_path / "pyproject.toml")
     env_py = tmp_path / "ramavt_jax" / "env.py"
     env_py.write_text(env_py.read_text() + "\n\ndef _back():\n    from ramavt_jax import train  # noqa\n")
-    result = subprocess.run([sys.executable, "-c", "import sys; from importlinter.cli import lint_imports_command; "
-                             "sys.exit(lint_imports_command(['--no-cache']))"],
-                            cwd=tmp_path, capture_output=True, text=True, timeout=300,
-                            env={"PYTHONPATH": str(tmp_path), "PATH": ""})
+    result = subprocess.run(
+        [
+            sys.executable,
+            "-c",
+            "import sys; from importlinter.cli import lint_imports_command; "
+            "sys.exit(lint_imports_command(['--no-cache']))",
+        ],
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        timeout=300,
+        env={"PYTHONPATH": str(tmp_path), "PATH": ""},
+    )
     assert result.returncode != 0 and "ramavt_jax.env -> ramavt_jax.train" in result.stdout, result.stdout[-3000:]
 
 
-def test_no_module_over_400_lines():
-    long = {str(p.relative_to(ROOT)): n for p in (ROOT / "ramavt_jax").rglob("*.py")
-            if (n := len(p.read_text().splitlines())) > 400}
-    assert not long, long
+def _ruff(*args: str) -> subprocess.CompletedProcess:
+    exe = shutil.which("ruff") or str(Path(sys.executable).with_name("ruff"))
+    return subprocess.run([exe, *args], cwd=ROOT, capture_output=True, text=True, timeout=120)
+
+
+def test_code_is_formatted_and_linted():
+    """`ruff format` and `ruff check` (settings in pyproject.toml) pass on every Python file of the repository."""
+    formatted = _ruff("format", "--check", ".")
+    assert formatted.returncode == 0, formatted.stdout[-3000:] + formatted.stderr[-2000:]
+    linted = _ruff("check", ".")
+    assert linted.returncode == 0, linted.stdout[-3000:] + linted.stderr[-2000:]
 
 
 def test_every_module_has_a_layer():
@@ -77,8 +92,11 @@ def words_about_who_worked_when(root: Path) -> list[str]:
             text = path.read_text(encoding="utf-8")
         except (UnicodeDecodeError, OSError):
             continue  # binary files (parameters, figures)
-        hits += [f"{path.relative_to(root)}:{i}: {line.strip()[:100]}" for i, line in enumerate(text.splitlines(), 1)
-                 if _WHO_WORKED_WHEN.search(line)]
+        hits += [
+            f"{path.relative_to(root)}:{i}: {line.strip()[:100]}"
+            for i, line in enumerate(text.splitlines(), 1)
+            if _WHO_WORKED_WHEN.search(line)
+        ]
     return hits
 
 

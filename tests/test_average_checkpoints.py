@@ -47,8 +47,22 @@ def test_missing_chunk_is_refused(smoke_run, tmp_path):
 
 def test_a_run_that_checkpoints_its_replay_is_averaged_without_it(tmp_path):
     run = tmp_path / "with_replay"
-    cli.main(["train", "--preset", "smoke", "--no-progress", "--out", str(run), "--run.eval-episodes", "0",
-              "--run.checkpoint-every-chunks", "1", "--run.keep-checkpoints", "100"])
+    cli.main(
+        [
+            "train",
+            "--preset",
+            "smoke",
+            "--no-progress",
+            "--out",
+            str(run),
+            "--run.eval-episodes",
+            "0",
+            "--run.checkpoint-every-chunks",
+            "1",
+            "--run.keep-checkpoints",
+            "100",
+        ]
+    )
     out = tmp_path / "avg"
     average_checkpoints.main([str(run), "--chunks", "3", "4", "--out", str(out)])
     averaged = load_policy(out, log=lambda *_: None)

@@ -53,7 +53,8 @@ def test_quantise_velocity_picks_nearest_command():
 def test_depth_estimate_recovers_centred_sphere():
     # a sphere of radius 0.5 at 5 m on the boresight: centroid at the image centre, mean depth just under 5 m
     xml = """<mujoco><worldbody><body><freejoint/><geom type="sphere" size="0.5"/></body></worldbody></mujoco>"""
-    import tempfile, os
+    import os
+    import tempfile
 
     with tempfile.TemporaryDirectory() as d:
         path = os.path.join(d, "ball.xml")
@@ -89,8 +90,10 @@ def test_mpc_ceiling_beats_proportional_on_the_same_episodes():
     prop = evaluate.evaluate_per_target(config, baselines.make_policy("proportional", config.camera), key, 4, overrides)
     mpc = evaluate.evaluate_per_target(config, baselines.make_policy("mpc", config.camera), key, 4, overrides)
     for name in config.targets:
-        print(f"{name}: AER mpc {mpc[name].return_mean:.1f} proportional {prop[name].return_mean:.1f}; error (m) "
-              f"{mpc[name].error_mean:.2f} {prop[name].error_mean:.2f}")
+        print(
+            f"{name}: AER mpc {mpc[name].return_mean:.1f} proportional {prop[name].return_mean:.1f}; error (m) "
+            f"{mpc[name].error_mean:.2f} {prop[name].error_mean:.2f}"
+        )
         assert mpc[name].length_mean == 40  # it does not lose the target
         assert mpc[name].return_mean > prop[name].return_mean + 5.0
         assert mpc[name].error_mean < prop[name].error_mean

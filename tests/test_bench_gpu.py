@@ -26,9 +26,17 @@ def test_a_failing_item_is_recorded_and_late_items_are_skipped(tmp_path, monkeyp
             raise RuntimeError("RESOURCE_EXHAUSTED: out of memory\nallocator details")
         if item[0] == "env":
             return {"env_steps_per_s": 1e6 * item[3] / 65536, "compile_s": 3.0}
-        return {"num_envs": 64, "resolution": 32, "batch_size": 32, "env_steps_per_s": 9000.0,
-                "updates_per_s": 30.0, "trained_frames_per_s": 19200.0, "chunk_s": [3.5, 3.6], "compile_s": 40.0,
-                "projected_train_wall_s": 60.0}
+        return {
+            "num_envs": 64,
+            "resolution": 32,
+            "batch_size": 32,
+            "env_steps_per_s": 9000.0,
+            "updates_per_s": 30.0,
+            "trained_frames_per_s": 19200.0,
+            "chunk_s": [3.5, 3.6],
+            "compile_s": 40.0,
+            "projected_train_wall_s": 60.0,
+        }
 
     monkeypatch.setattr(bench_gpu, "_measure", fake_measure)
     result = bench_gpu.run(str(tmp_path), deadline_s=550.0, min_left_s=60.0, clock=lambda: now[0])

@@ -12,13 +12,19 @@ import blind_starts  # noqa: E402
 
 def test_summarise_counts_blind_starts_lost_per_policy_and_per_target():
     blind = {"a": np.array([True, False, False, True]), "b": np.array([False, True, False])}
-    lost = [{"a": np.array([True, True, False, False]), "b": np.array([False, True, True])},  # policy 0
-            {"a": np.array([False, False, False, False]), "b": np.array([False, True, False])}]  # policy 1
+    lost = [
+        {"a": np.array([True, True, False, False]), "b": np.array([False, True, True])},  # policy 0
+        {"a": np.array([False, False, False, False]), "b": np.array([False, True, False])},
+    ]  # policy 1
     action = {"a": np.array([[1, 2, 3, 4], [5, 6, 7, 8]]), "b": np.array([[0, 9, 10], [6, 6, 6]])}  # [S=2, N]
-    unseen = {"a": np.array([[True, False, False, True], [False, False, False, True]]),
-              "b": np.array([[False, True, False], [False, True, False]])}
-    flown = [{n: {"blind": blind[n], "lost": row[n], "action": action[n] + k, "unseen": unseen[n]} for n in blind}
-             for k, row in enumerate(lost)]
+    unseen = {
+        "a": np.array([[True, False, False, True], [False, False, False, True]]),
+        "b": np.array([[False, True, False], [False, True, False]]),
+    }
+    flown = [
+        {n: {"blind": blind[n], "lost": row[n], "action": action[n] + k, "unseen": unseen[n]} for n in blind}
+        for k, row in enumerate(lost)
+    ]
     s = blind_starts.summarise(flown, ("a", "b"))
     assert (s["episodes"], s["blind_starts"]) == (7, 3)
     assert s["blind_lost_per_policy"] == [2, 1] and s["seen_lost_per_policy"] == [2, 0]
@@ -29,8 +35,10 @@ def test_summarise_counts_blind_starts_lost_per_policy_and_per_target():
     assert s["per_target"]["b"] == {"blind_starts": 1, "blind_lost": [1, 1], "seen_lost": [1, 0]}
     assert s["blind_episodes"] == [0, 3, 5] and s["lost_episodes_per_policy"] == [[0, 1, 5, 6], [5]]
     # the unseen steps' commands: a 1, 4, 8 and b 9, 6 (policy 1 adds 1 to each)
-    assert s["actions_before_first_sight_per_policy"] == [[0, 1, 0, 0, 1, 0, 1, 0, 1, 1, 0],
-                                                           [0, 0, 1, 0, 0, 1, 0, 1, 0, 1, 1]]
+    assert s["actions_before_first_sight_per_policy"] == [
+        [0, 1, 0, 0, 1, 0, 1, 0, 1, 1, 0],
+        [0, 0, 1, 0, 0, 1, 0, 1, 0, 1, 1],
+    ]
 
 
 def test_compare_gives_the_paired_change_in_the_share_lost():
@@ -46,8 +54,13 @@ def test_compare_gives_the_paired_change_in_the_share_lost():
 
 
 def _record(flown, names, first=0):
-    return {"policies": [f"p{k}" for k in range(first, first + len(flown))], "targets": list(names),
-            "episodes_per_target": 0, "seed": 0, **blind_starts.summarise(flown, names)}
+    return {
+        "policies": [f"p{k}" for k in range(first, first + len(flown))],
+        "targets": list(names),
+        "episodes_per_target": 0,
+        "seed": 0,
+        **blind_starts.summarise(flown, names),
+    }
 
 
 def test_merge_of_two_records_is_the_record_of_all_their_policies_flown_at_once():
@@ -55,8 +68,18 @@ def test_merge_of_two_records_is_the_record_of_all_their_policies_flown_at_once(
     rng = np.random.default_rng(0)
     names = ("a", "b")
     blind = {n: rng.random(30) < 0.3 for n in names}
-    flown = [{n: {"blind": blind[n], "lost": rng.random(30) < 0.4, "action": rng.integers(0, 11, (3, 30)),
-                  "unseen": rng.random((3, 30)) < 0.5} for n in names} for _ in range(5)]
+    flown = [
+        {
+            n: {
+                "blind": blind[n],
+                "lost": rng.random(30) < 0.4,
+                "action": rng.integers(0, 11, (3, 30)),
+                "unseen": rng.random((3, 30)) < 0.5,
+            }
+            for n in names
+        }
+        for _ in range(5)
+    ]
     merged = blind_starts.merge([_record(flown[:2], names), _record(flown[2:], names, first=2)])
     together = _record(flown, names)
     assert merged.keys() == together.keys()

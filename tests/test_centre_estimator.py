@@ -96,8 +96,14 @@ def test_the_spin_input_reaches_the_estimate(episodes):
     net = centre_estimator.make_network(config)
     obs, reset, actions = episodes.obs[:1, :3], np.zeros((1, 3), bool), episodes.action[:1, :3]
     state = centre_estimator.initial_state(config, 1, obs.shape[2:])
-    params = net.init(jax.random.PRNGKey(0), obs.astype(np.float32), reset, state, actions=actions,
-                      true_state=np.zeros((1, 3, 6), np.float32))["params"]
+    params = net.init(
+        jax.random.PRNGKey(0),
+        obs.astype(np.float32),
+        reset,
+        state,
+        actions=actions,
+        true_state=np.zeros((1, 3, 6), np.float32),
+    )["params"]
     motion = np.asarray(episodes.motion[:1, :3])
     still, _ = centre_estimator._aux_pass(net, params, obs, reset, state, actions, motion * [0, 0, 0, 1, 1, 1])
     turning, _ = centre_estimator._aux_pass(net, params, obs, reset, state, actions, motion)
@@ -106,6 +112,7 @@ def test_the_spin_input_reaches_the_estimate(episodes):
     np.testing.assert_allclose(drifting, turning, atol=1e-6)  # the velocity entries are masked out
     short = jax.tree.map(lambda x: x[:1, :20] if x.ndim > 1 else x[:1], episodes)  # estimate() hands the spin on
     spun = centre_estimator.estimate(params, short, chunk=20, config=config)
-    unspun = centre_estimator.estimate(params, short.replace(motion=np.zeros_like(short.motion)), chunk=20,
-                                       config=config)
+    unspun = centre_estimator.estimate(
+        params, short.replace(motion=np.zeros_like(short.motion)), chunk=20, config=config
+    )
     assert not np.allclose(spun, unspun)

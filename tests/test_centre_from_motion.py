@@ -56,6 +56,7 @@ def test_dead_reckoning_is_the_envs_chaser():
     def chaser_positions(state):  # the env's physics alone, no frames: [T, 3] camera frame, at each obs
         def body(state, action):
             return env.transition(jax.random.PRNGKey(1), state, action, params), state.chaser_pos
+
         return jax.lax.scan(body, state, actions)[1] @ env_lib.HILL_FROM_CAM
 
     positions = chaser_positions(env.initial_state(jax.random.PRNGKey(0), params))
@@ -86,7 +87,7 @@ def test_centre_from_flow_solves_exact_motions():
 
 def test_fitted_track_follows_a_drift_and_averages_a_turning_offset():
     t = np.arange(400) * 0.1
-    drift = np.stack([0.2 * t, -0.1 * t + 0.002 * t ** 2, 5.0 + 0 * t], -1)
+    drift = np.stack([0.2 * t, -0.1 * t + 0.002 * t**2, 5.0 + 0 * t], -1)
     np.testing.assert_allclose(cfm.fitted_track(drift, window=50, degree=2)[3:], drift[3:], atol=1e-9)
     line = drift.copy()
     line[:, 1] = -0.1 * t

@@ -54,8 +54,9 @@ def test_shifted_bounds_enclose_what_is_rendered():
 # ------------------------------------------------------------------------------------------------ the env's draw
 @pytest.fixture(scope="module")
 def offset_env():
-    return env.TrackingEnv(env.EnvConfig(camera=render.CameraConfig(resolution=16),
-                                         targets=("Satellite-v0", "Asteroid-v0")))
+    return env.TrackingEnv(
+        env.EnvConfig(camera=render.CameraConfig(resolution=16), targets=("Satellite-v0", "Asteroid-v0"))
+    )
 
 
 def _params(tracking_env, **overrides):
@@ -116,6 +117,11 @@ def test_offsets_are_uniform_in_their_ball_with_directions_and_lengths_drawn_apa
 
 def test_each_randomisation_folds_in_data_of_its_own():
     """The episode's draws fold distinct data into its key, none below 7 (env.initial_state's split(key, 7))."""
-    data = [randomisation.SIZE_KEY, randomisation.SIZE_KEY + 1, randomisation.STRETCH_KEY,
-            randomisation.STRETCH_KEY + 1, randomisation.PERTURB_KEY] + [randomisation.OFFSET_KEY + i for i in range(3)]
+    data = [
+        randomisation.SIZE_KEY,
+        randomisation.SIZE_KEY + 1,
+        randomisation.STRETCH_KEY,
+        randomisation.STRETCH_KEY + 1,
+        randomisation.PERTURB_KEY,
+    ] + [randomisation.OFFSET_KEY + i for i in range(3)]
     assert len(set(data)) == len(data) and min(data) >= 7

@@ -42,13 +42,15 @@ def test_the_visible_arms_tell_the_surface_centroid_on_their_axes_only(capsule):
     assert np.linalg.norm(seen - true) > 0.1  # the capsule's seen surface lies in front of its centre
     for axes in centre_precision.VISIBLE_AXES.values():
         told = env_lib.relative_position(
-            centre_precision.told_centre(state, centre_precision.visible_offset(state, params, CAMERA, axes)))
+            centre_precision.told_centre(state, centre_precision.visible_offset(state, params, CAMERA, axes))
+        )
         np.testing.assert_allclose(told, np.where(np.asarray(axes) > 0, seen, true), atol=1e-4)
 
 
 def test_a_wrong_centre_costs_the_ceiling_about_its_size_per_step():
-    table = centre_precision.precision_table(("Asteroid-v0",), episodes=2, offsets=[0.0, 0.5], visible=False,
-                                             overrides={"max_steps": 200})
+    table = centre_precision.precision_table(
+        ("Asteroid-v0",), episodes=2, offsets=[0.0, 0.5], visible=False, overrides={"max_steps": 200}
+    )
     exact, none, half = (table[name]["aer"] for name in ("exact", "offset 0", "offset 0.5"))
     assert none == exact  # the same episodes, the same plans
     # the reward's distance term is 1 per metre: held 0.5 m off for most of 200 steps costs on the order of 50

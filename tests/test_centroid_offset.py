@@ -11,8 +11,9 @@ from ramavt_jax import render, targets
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts"))
 import centroid_offset  # noqa: E402
 
-SPHERE = ('<mujoco><worldbody><body name="target"><freejoint/><geom type="sphere" size="0.6"/></body></worldbody>'
-          '</mujoco>')
+SPHERE = (
+    '<mujoco><worldbody><body name="target"><freejoint/><geom type="sphere" size="0.6"/></body></worldbody></mujoco>'
+)
 
 
 def test_a_sphere_is_seen_centred_and_a_moved_one_to_the_side(tmp_path):

@@ -13,9 +13,8 @@ import numpy as np
 import pytest
 from flax import struct
 
+from ramavt_jax import presets, train_state
 from ramavt_jax import train as T
-from ramavt_jax import train_state
-from ramavt_jax import presets
 from ramavt_jax.experiment import train_and_evaluate
 from ramavt_jax.training import driver, metrics, run_folder
 from ramavt_jax.training.checkpoint import CheckpointNotFoundError, CheckpointStore, has_checkpoint
@@ -41,10 +40,16 @@ def _assert_trees_equal(x, y):
 
 
 def test_store_round_trip_is_exact(tmp_path):
-    tree = _Tree(a=jax.random.normal(jax.random.PRNGKey(0), (3, 4)), flags=jnp.array([True, False]),
-                 nested={"key": jax.random.PRNGKey(5), "img": jnp.arange(16, dtype=jnp.uint8).reshape(4, 4),
-                         "step": jnp.int32(7)},
-                 empty=jnp.zeros((0, 3, 2)))  # orbax cannot store zero-size arrays; the store skips them
+    tree = _Tree(
+        a=jax.random.normal(jax.random.PRNGKey(0), (3, 4)),
+        flags=jnp.array([True, False]),
+        nested={
+            "key": jax.random.PRNGKey(5),
+            "img": jnp.arange(16, dtype=jnp.uint8).reshape(4, 4),
+            "step": jnp.int32(7),
+        },
+        empty=jnp.zeros((0, 3, 2)),
+    )  # orbax cannot store zero-size arrays; the store skips them
     store = CheckpointStore(tmp_path / "ck", keep=2)
     for step in (1, 2, 3):
         store.save(step, tree, {"step": step, "note": "hello"})
@@ -195,8 +200,15 @@ def full_run(tmp_path_factory):
 
 
 def _rows(path):
-    skip = {"wall_s", "env_steps_per_s", "updates_per_s", "trained_frames_per_s", "compile_s", "since_start_s",
-            "started_at"}
+    skip = {
+        "wall_s",
+        "env_steps_per_s",
+        "updates_per_s",
+        "trained_frames_per_s",
+        "compile_s",
+        "since_start_s",
+        "started_at",
+    }
     return [{k: v for k, v in r.items() if k not in skip} for r in run_folder.read_metrics(path)]
 
 
@@ -212,12 +224,13 @@ def test_metrics_are_strict_json(full_run):
 def test_the_process_clock_counts_from_the_start_and_through_a_re_execution():
     """process_start_time counts from the process's start, not the module's import, and a process that re-executes
     itself (as the ramavt launcher does) keeps its first start."""
-    report = ("import time; from ramavt_jax.training.metrics import process_start_time; "
-              "print(time.time() - process_start_time())")
+    report = (
+        "import time; from ramavt_jax.training.metrics import process_start_time; "
+        "print(time.time() - process_start_time())"
+    )
     reexec = f"import os, sys, time; time.sleep(0.6); os.execv(sys.executable, [sys.executable, '-c', {report!r}])"
     for code in (f"import time; time.sleep(0.6); {report}", reexec):
-        elapsed = float(subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
-                                       check=True).stdout)
+        elapsed = float(subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout)
         assert 0.6 <= elapsed < 60, (code, elapsed)
 
 
@@ -228,11 +241,19 @@ def test_the_loss_is_split_where_there_is_an_auxiliary_head(full_run):
     assert metrics.split_loss(record, 0.0) == {"loss": 0.5} and record == {"loss": 0.5, "aux_loss": 0.1}
     margin = {"loss": 0.5, "aux_loss": 0.1, "margin_loss": 0.05, "expert_agreement": 0.4}
     assert metrics.split_loss(margin, 3.0, 2.0) == dict(margin, td_loss=pytest.approx(0.1))
-    assert metrics.split_loss(margin, 0.0, 2.0) == {"loss": 0.5, "margin_loss": 0.05, "expert_agreement": 0.4,
-                                                    "td_loss": pytest.approx(0.4)}
+    assert metrics.split_loss(margin, 0.0, 2.0) == {
+        "loss": 0.5,
+        "margin_loss": 0.05,
+        "expert_agreement": 0.4,
+        "td_loss": pytest.approx(0.4),
+    }
     policy = {"loss": 0.5, "aux_loss": 0.0, "margin_loss": 0.05, "expert_agreement": 0.4, "policy_loss": 0.1}
-    assert metrics.split_loss(policy, 0.0, 0.0, 2.0) == {"loss": 0.5, "expert_agreement": 0.4, "policy_loss": 0.1,
-                                                         "td_loss": pytest.approx(0.3)}
+    assert metrics.split_loss(policy, 0.0, 0.0, 2.0) == {
+        "loss": 0.5,
+        "expert_agreement": 0.4,
+        "policy_loss": 0.1,
+        "td_loss": pytest.approx(0.3),
+    }
     assert metrics.split_loss(policy, 0.0, 2.0, 2.0)["td_loss"] == pytest.approx(0.2)
 
 
@@ -240,8 +261,9 @@ def test_other_config_is_refused_before_writing_and_a_run_can_be_extended(tmp_pa
     out = tmp_path / "run"
     driver.run(SMOKE, out, seed=3, progress=False, max_chunks=2)
     before = (out / "config.json").read_bytes()
-    with pytest.raises(run_folder.RunFolderError, match=r"another config: learner.lr 0.0005 -> 0.001.*--no-resume") \
-            as e:
+    with pytest.raises(
+        run_folder.RunFolderError, match=r"another config: learner.lr 0.0005 -> 0.001.*--no-resume"
+    ) as e:
         driver.run(SMOKE.override(lr=1e-3), out, seed=3, progress=False)
     assert len(str(e.value).splitlines()) == 1
     assert (out / "config.json").read_bytes() == before  # nothing was overwritten
@@ -252,7 +274,7 @@ def test_other_config_is_refused_before_writing_and_a_run_can_be_extended(tmp_pa
     rows = _rows(out / "metrics.jsonl")
     assert [r["chunk"] for r in rows] == list(range(1, 2 * SMOKE.num_chunks + 1))
     ref = _rows(Path(full_run["out_dir"]) / "metrics.jsonl")
-    assert json.dumps(rows[:SMOKE.num_chunks]) == json.dumps(ref)  # the first half is the reference run
+    assert json.dumps(rows[: SMOKE.num_chunks]) == json.dumps(ref)  # the first half is the reference run
 
 
 @pytest.mark.filterwarnings("ignore::pytest.PytestUnraisableExceptionWarning")
@@ -290,10 +312,18 @@ def test_second_process_on_a_locked_folder_gets_a_clear_error(tmp_path):
 
     out = tmp_path / "run"
     out.mkdir()
-    holder = subprocess.Popen([sys.executable, "-c", "import sys, time; from pathlib import Path; "
-                               "from ramavt_jax.training.run_folder import RunLock; lock = RunLock(Path(sys.argv[1])); "
-                               "print('locked', flush=True); time.sleep(120)", str(out)],
-                              stdout=subprocess.PIPE, text=True)
+    holder = subprocess.Popen(
+        [
+            sys.executable,
+            "-c",
+            "import sys, time; from pathlib import Path; "
+            "from ramavt_jax.training.run_folder import RunLock; lock = RunLock(Path(sys.argv[1])); "
+            "print('locked', flush=True); time.sleep(120)",
+            str(out),
+        ],
+        stdout=subprocess.PIPE,
+        text=True,
+    )
     try:
         assert holder.stdout.readline().strip() == "locked"
         with pytest.raises(run_folder.RunFolderError, match=f"in use by process {holder.pid} on"):

@@ -20,8 +20,23 @@ def test_targets_lists_catalogue(capsys):
 
 def test_render_writes_gif(tmp_path, capsys):
     out = tmp_path / "episode.gif"
-    cli.main(["render", "--target", "Capsule-v0", "--policy", "proportional", "--steps", "6", "--resolution", "16",
-              "--size", "64", "--out", str(out)])
+    cli.main(
+        [
+            "render",
+            "--target",
+            "Capsule-v0",
+            "--policy",
+            "proportional",
+            "--steps",
+            "6",
+            "--resolution",
+            "16",
+            "--size",
+            "64",
+            "--out",
+            str(out),
+        ]
+    )
     assert out.is_file() and out.stat().st_size > 1000
     import imageio.v2 as imageio
 
@@ -56,8 +71,17 @@ def test_bench_scaling_offered_and_splits_envs_over_two_forced_cpu_devices(tmp_p
     bench = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(bench)
     out = tmp_path / "scaling.json"
-    result = bench.run(out=out, devices=(2,), envs_per_device=(2,), train_envs_per_device=0, real_devices=False,
-                       resolution=16, budget_s=0.05, env_partitions=("shard_map",), timeout_s=150)
+    result = bench.run(
+        out=out,
+        devices=(2,),
+        envs_per_device=(2,),
+        train_envs_per_device=0,
+        real_devices=False,
+        resolution=16,
+        budget_s=0.05,
+        env_partitions=("shard_map",),
+        timeout_s=150,
+    )
     (point,) = result["points"]
     assert point["devices"] == 2 and point["state_devices"] == 2 and point["rows_per_shard"] == [2]
     assert point["env_steps_per_s"] > 0 and point["partition"] == "shard_map"
@@ -74,8 +98,12 @@ TRUNCATED_XML = '<mujoco><worldbody><body><geom type="sphere" size="1"'
 
 
 def _files(tmp_path):
-    for name, text in (("mesh.xml", MESH_XML), ("plane.xml", PLANE_XML), ("empty.xml", EMPTY_XML),
-                       ("truncated.xml", TRUNCATED_XML)):
+    for name, text in (
+        ("mesh.xml", MESH_XML),
+        ("plane.xml", PLANE_XML),
+        ("empty.xml", EMPTY_XML),
+        ("truncated.xml", TRUNCATED_XML),
+    ):
         (tmp_path / name).write_text(text)
     (tmp_path / "a_file").write_text("x")
     (tmp_path / "a_folder").mkdir()
@@ -103,8 +131,10 @@ BAD_INPUTS = {  # id: (arguments, {tmp} filled in, what the one-line message mus
     "unknown preset": (["train", "--preset", "fast"], "unknown preset 'fast'"),
     "eval episodes zero": (["eval", "--policy", "random", "--episodes", "0"], "--episodes must be an integer >= 1"),
     "eval run missing": (["eval", "--run", "{tmp}/no_run"], "config.json not found"),
-    "eval speed power": (["eval", "--policy", "random", "--speed-standoff-power", "2"],
-                         "--speed-standoff-power must be in [0, 1]"),
+    "eval speed power": (
+        ["eval", "--policy", "random", "--speed-standoff-power", "2"],
+        "--speed-standoff-power must be in [0, 1]",
+    ),
     "eval out is a file": (["eval", "--policy", "random", "--out", "{tmp}/a_file"], "is a file"),
     "plot run missing": (["plot", "--run", "{tmp}/no_run", "--out", "{tmp}/fig"], "config.json not found"),
 }
@@ -153,17 +183,45 @@ def test_every_training_field_is_a_flag_and_preset_picks_the_defaults(monkeypatc
 
     monkeypatch.setattr(cli_train, "train_and_evaluate", fake)
     with pytest.raises(SystemExit):
-        cli.main(["train", "--preset", "smoke", "--learner.lr", "3e-4", "--network.lstm", "48",
-                  "--env.camera.resolution", "24", "--learner.gamma", "0.9", "--network.variant", "drlavt",
-                  "--env.obs-mode", "rgbd", "--learner.augment", "--learner.augment-config.crop",
-                  "--learner.no-double-q", "--run.total-env-steps", "2560", "--env-params", "dist_weight=0.5",
-                  "lost_patience=10", "--replay.capacity-steps=1600",
-                  "--out", "somewhere"])
+        cli.main(
+            [
+                "train",
+                "--preset",
+                "smoke",
+                "--learner.lr",
+                "3e-4",
+                "--network.lstm",
+                "48",
+                "--env.camera.resolution",
+                "24",
+                "--learner.gamma",
+                "0.9",
+                "--network.variant",
+                "drlavt",
+                "--env.obs-mode",
+                "rgbd",
+                "--learner.augment",
+                "--learner.augment-config.crop",
+                "--learner.no-double-q",
+                "--run.total-env-steps",
+                "2560",
+                "--env-params",
+                "dist_weight=0.5",
+                "lost_patience=10",
+                "--replay.capacity-steps=1600",
+                "--out",
+                "somewhere",
+            ]
+        )
     cfg = seen["config"]
     smoke = preset("smoke")
     assert (cfg.learner.lr, cfg.network.lstm, cfg.env.camera.resolution, cfg.learner.gamma) == (3e-4, 48, 24, 0.9)
-    assert (cfg.network.variant, cfg.env.obs_mode, cfg.learner.augment, cfg.learner.double_q) == ("drlavt", "rgbd",
-                                                                                                 True, False)
+    assert (cfg.network.variant, cfg.env.obs_mode, cfg.learner.augment, cfg.learner.double_q) == (
+        "drlavt",
+        "rgbd",
+        True,
+        False,
+    )
     assert cfg.learner.augment_config.crop and not smoke.learner.augment_config.crop
     assert cfg.run.total_env_steps == 2560 and cfg.replay.capacity_steps == 1600 and str(seen["out"]) == "somewhere"
     assert dict(cfg.env_params) == {"dist_weight": 0.5, "lost_patience": 10}
@@ -206,8 +264,21 @@ def test_sigterm_to_ramavt_train_exits_143_and_the_rerun_resumes(tmp_path):
     import time
 
     out = tmp_path / "run"
-    cmd = [sys.executable, "-m", "ramavt_jax.cli", "train", "--preset", "smoke", "--out", str(out), "--no-progress",
-           "--run.eval-episodes", "0", "--run.checkpoint-every-chunks", "0"]
+    cmd = [
+        sys.executable,
+        "-m",
+        "ramavt_jax.cli",
+        "train",
+        "--preset",
+        "smoke",
+        "--out",
+        str(out),
+        "--no-progress",
+        "--run.eval-episodes",
+        "0",
+        "--run.checkpoint-every-chunks",
+        "0",
+    ]
     env = {**__import__("os").environ, "RAMAVT_COMPILE_CACHE": str(tmp_path / "cache")}
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
     metrics = out / "metrics.jsonl"
@@ -257,7 +328,7 @@ def test_console_re_executes_with_the_tunable_and_runs_the_cli_when_it_cannot(mo
     monkeypatch.setattr(sys, "argv", ["ramavt", "targets", "list"])
     launch.console()
     if sys.platform.startswith("linux"):
-        (exe, args, env), = calls
+        ((exe, args, env),) = calls
         assert exe == sys.executable and args == [sys.executable, "ramavt", "targets", "list"]
         assert env["GLIBC_TUNABLES"] == launch.TUNABLE
     assert ran == [True]
@@ -275,23 +346,29 @@ def test_final_evaluation_acts_with_the_configured_params(tmp_path, monkeypatch,
     import numpy as np
 
     from ramavt_jax import experiment
-    from ramavt_jax.train_state import LearnerState
     from ramavt_jax.presets import preset
+    from ramavt_jax.train_state import LearnerState
     from ramavt_jax.training import driver
 
     def fake_run(config, out, **kwargs):
         summary = driver.RunSummary(seed=0, out_dir=str(out), last=None, finished=True)
-        summary.state = SimpleNamespace(learner=LearnerState(params={"w": np.ones(2)},
-                                                             target_params={"w": np.full(2, 7.0)},
-                                                             opt_state=None, updates=0,
-                                                             averaged_params={"w": np.full(2, 3.0)}))
+        summary.state = SimpleNamespace(
+            learner=LearnerState(
+                params={"w": np.ones(2)},
+                target_params={"w": np.full(2, 7.0)},
+                opt_state=None,
+                updates=0,
+                averaged_params={"w": np.full(2, 3.0)},
+            )
+        )
         return summary
 
     seen = {}
     monkeypatch.setattr(experiment.driver, "run", fake_run)
     monkeypatch.setattr(experiment, "evaluate_run", lambda config, d, seed, params, log: seen.update(params=params))
-    experiment.train_and_evaluate(preset("smoke", policy_params=which, policy_average_from=2), tmp_path, seed=0,
-                                  progress=False)
+    experiment.train_and_evaluate(
+        preset("smoke", policy_params=which, policy_average_from=2), tmp_path, seed=0, progress=False
+    )
     expected = {"online": 1.0, "target": 7.0, "averaged": 3.0}[which]
     np.testing.assert_array_equal(seen["params"]["w"], np.full(2, expected))
 
@@ -305,8 +382,12 @@ def test_env_params_add_to_a_presets_pairs(monkeypatch):
     monkeypatch.setattr(cli_train, "train_and_evaluate", lambda config, out, **kw: seen.update(config=config))
     monkeypatch.setattr(cli_train, "_print_summary", lambda *a: None)
     cli.main(["train", "--preset", "sizes", "--env-params", "stretch_max=1.5", "size_scale_max=0.8", "--out", "x"])
-    assert dict(seen["config"].env_params) == {"size_scale_min": 0.15, "size_scale_max": 0.8, "stretch_max": 1.5,
-                                               "init_xy_std": 3.0}
+    assert dict(seen["config"].env_params) == {
+        "size_scale_min": 0.15,
+        "size_scale_max": 0.8,
+        "stretch_max": 1.5,
+        "init_xy_std": 3.0,
+    }
     cli.main(["train", "--preset", "sizes", "--out", "x"])
     assert dict(seen["config"].env_params) == {"size_scale_min": 0.15, "size_scale_max": 1.0, "init_xy_std": 3.0}
 
@@ -320,10 +401,29 @@ def test_repeated_env_params_add_up_and_a_default_undoes_a_presets_pair(monkeypa
     seen = {}
     monkeypatch.setattr(cli_train, "train_and_evaluate", lambda config, out, **kw: seen.update(config=config))
     monkeypatch.setattr(cli_train, "_print_summary", lambda *a: None)
-    cli.main(["train", "--preset", "sizes", "--env-params", "init_xy_std=1", "stretch_max=2", "--seeds", "1",
-              "--env-params=stretch_max=1.5", "--env-params", "dist_weight=0.5", "--out", "x"])
-    assert dict(seen["config"].env_params) == {"size_scale_min": 0.15, "size_scale_max": 1.0, "stretch_max": 1.5,
-                                               "dist_weight": 0.5}
+    cli.main(
+        [
+            "train",
+            "--preset",
+            "sizes",
+            "--env-params",
+            "init_xy_std=1",
+            "stretch_max=2",
+            "--seeds",
+            "1",
+            "--env-params=stretch_max=1.5",
+            "--env-params",
+            "dist_weight=0.5",
+            "--out",
+            "x",
+        ]
+    )
+    assert dict(seen["config"].env_params) == {
+        "size_scale_min": 0.15,
+        "size_scale_max": 1.0,
+        "stretch_max": 1.5,
+        "dist_weight": 0.5,
+    }
     cli.main(["train", "--preset", "sizes", "--env-params", "init_xy_std=1", "--out", "x"])
     assert seen["config"] == preset("sizes").override(env_params={"size_scale_min": 0.15, "size_scale_max": 1.0})
     assert cli_train.joined_env_params(["train", "--seeds", "2"]) == ["train", "--seeds", "2"]

@@ -6,8 +6,8 @@ import json
 import numpy as np
 import pytest
 
-from ramavt_jax.cli import evaluate as cli_eval
 from ramavt_jax import cli
+from ramavt_jax.cli import evaluate as cli_eval
 from ramavt_jax.evaluation import curve
 from ramavt_jax.training import run_folder
 from ramavt_jax.training.checkpoint import CheckpointNotFoundError
@@ -31,9 +31,11 @@ def curve_out(smoke_run, tmp_path_factory):
 
 
 def test_clock_adds_each_process_compile_once(tmp_path):
-    records = [{"chunk": 1, "env_steps": 10, "wall_s": 1.0, "compile_s": 30.0},
-               {"chunk": 2, "env_steps": 20, "wall_s": 2.0, "compile_s": 30.0},
-               {"chunk": 3, "env_steps": 30, "wall_s": 4.0, "compile_s": 5.0}]  # resumed: a second compile
+    records = [
+        {"chunk": 1, "env_steps": 10, "wall_s": 1.0, "compile_s": 30.0},
+        {"chunk": 2, "env_steps": 20, "wall_s": 2.0, "compile_s": 30.0},
+        {"chunk": 3, "env_steps": 30, "wall_s": 4.0, "compile_s": 5.0},
+    ]  # resumed: a second compile
     run_folder.write_metrics(tmp_path / run_folder.METRICS_FILE, records)
     clock = curve.training_clock(tmp_path)
     assert [clock[c]["wall_s"] for c in (1, 2, 3)] == [31.0, 33.0, 42.0]
@@ -43,10 +45,12 @@ def test_clock_adds_each_process_compile_once(tmp_path):
 def test_clock_counts_from_each_process_start(tmp_path):
     """Records with since_start_s: the process's own clock, a resumed process's added to the earlier total."""
     first, resumed = {"compile_s": 30.0, "started_at": 1e9}, {"compile_s": 30.0, "started_at": 1e9 + 100}
-    records = [{"chunk": 1, "env_steps": 10, "wall_s": 1.0, "since_start_s": 40.0, **first},
-               {"chunk": 2, "env_steps": 20, "wall_s": 2.0, "since_start_s": 43.0, **first},
-               {"chunk": 3, "env_steps": 30, "wall_s": 4.0, "since_start_s": 45.0, **resumed},  # a slower start
-               {"chunk": 4, "env_steps": 40, "wall_s": 4.0, "since_start_s": 50.0, **resumed}]
+    records = [
+        {"chunk": 1, "env_steps": 10, "wall_s": 1.0, "since_start_s": 40.0, **first},
+        {"chunk": 2, "env_steps": 20, "wall_s": 2.0, "since_start_s": 43.0, **first},
+        {"chunk": 3, "env_steps": 30, "wall_s": 4.0, "since_start_s": 45.0, **resumed},  # a slower start
+        {"chunk": 4, "env_steps": 40, "wall_s": 4.0, "since_start_s": 50.0, **resumed},
+    ]
     run_folder.write_metrics(tmp_path / run_folder.METRICS_FILE, records)
     clock = curve.training_clock(tmp_path)
     assert [clock[c]["wall_s"] for c in (1, 2, 3, 4)] == [40.0, 43.0, 88.0, 93.0]
@@ -86,8 +90,18 @@ def test_checkpoint_aer_equals_ramavt_eval_on_the_same_episodes(smoke_run, curve
     """The newest checkpoint scored by `ramavt eval` (a greedy policy with its parameters built into the program,
     its own env and keys) gives the curve's number."""
     result = json.loads((curve_out / "curve.json").read_text())
-    res = cli_eval.eval_cmd(policy="checkpoint", run=(smoke_run,), baselines=False, targets="Satellite-val0",
-                            episodes=2, max_steps=30, seed=3, tables=(1,), speed_steps=0, out=tmp_path / "ckpt")
+    res = cli_eval.eval_cmd(
+        policy="checkpoint",
+        run=(smoke_run,),
+        baselines=False,
+        targets="Satellite-val0",
+        episodes=2,
+        max_steps=30,
+        seed=3,
+        tables=(1,),
+        speed_steps=0,
+        out=tmp_path / "ckpt",
+    )
     assert res["rows"][0]["info"]["step"] == 4
     eval_aer = res["rows"][0]["settings"]["none"]["overall"]["return_mean"]
     assert result["runs"][0]["points"][-1]["aer"] == pytest.approx(eval_aer, rel=1e-6)
@@ -97,23 +111,42 @@ def test_checkpoint_aer_equals_ramavt_eval_on_the_same_episodes(smoke_run, curve
 def test_baselines_equal_ramavt_eval_on_the_same_episodes(smoke_run, tmp_path):
     """With the baselines: the depth tracker's and the ceiling's AER are `ramavt eval`'s on the same episodes, and
     the first checkpoint above the tracker is found on them."""
-    cli.main(["curve", "--run", str(smoke_run), *EPISODES, "--resolution", "16", "--no-progress", "--out",
-              str(tmp_path / "curve")])
+    cli.main(
+        [
+            "curve",
+            "--run",
+            str(smoke_run),
+            *EPISODES,
+            "--resolution",
+            "16",
+            "--no-progress",
+            "--out",
+            str(tmp_path / "curve"),
+        ]
+    )
     result = json.loads((tmp_path / "curve" / "curve.json").read_text())
     assert set(result["baselines"]) == {"depth", "mpc"}
     run = result["runs"][0]
     assert run["above_depth"] == curve.first_above(run["points"], result["baselines"]["depth"]["aer"])
     for policy in ("depth", "mpc"):
-        res = cli_eval.eval_cmd(policy=policy, targets="Satellite-val0", episodes=2, max_steps=30, seed=3,
-                                tables=(1,), resolution=16, speed_steps=0, out=tmp_path / policy)
+        res = cli_eval.eval_cmd(
+            policy=policy,
+            targets="Satellite-val0",
+            episodes=2,
+            max_steps=30,
+            seed=3,
+            tables=(1,),
+            resolution=16,
+            speed_steps=0,
+            out=tmp_path / policy,
+        )
         aer = res["rows"][0]["settings"]["none"]["overall"]["return_mean"]
         assert result["baselines"][policy]["aer"] == pytest.approx(aer, rel=1e-6)
 
 
 def test_the_printed_table(smoke_run, tmp_path, capsys):
     """A second command flies the same episodes (the numbers of the first) and prints one row per checkpoint."""
-    cli.main(["curve", "--run", str(smoke_run), *EPISODES, "--no-baselines", "--no-progress", "--out",
-              str(tmp_path)])
+    cli.main(["curve", "--run", str(smoke_run), *EPISODES, "--no-baselines", "--no-progress", "--out", str(tmp_path)])
     text = capsys.readouterr().out
     rows = [line.split() for line in text.splitlines() if line.strip()[:1].isdigit()]
     assert [r[0] for r in rows] == ["1", "2", "3", "4"] and "AER" in text and "wrote" in text
@@ -127,8 +160,10 @@ def test_a_run_without_checkpoints_is_a_one_line_error(smoke_run, tmp_path, caps
     (empty / run_folder.CONFIG_FILE).write_bytes((smoke_run / run_folder.CONFIG_FILE).read_bytes())
     with pytest.raises(CheckpointNotFoundError, match="no checkpoints.*--run.checkpoint-every-chunks 1"):
         curve.checkpoint_steps(empty)
-    for run, expected in ((empty, "has no checkpoints; train it with --run.checkpoint-every-chunks 1"),
-                          (tmp_path / "missing", "config.json not found")):
+    for run, expected in (
+        (empty, "has no checkpoints; train it with --run.checkpoint-every-chunks 1"),
+        (tmp_path / "missing", "config.json not found"),
+    ):
         with pytest.raises(SystemExit) as e:
             cli.main(["curve", "--run", str(run), "--out", str(tmp_path / "out")])
         assert e.value.code == 2
@@ -139,8 +174,21 @@ def test_a_run_without_checkpoints_is_a_one_line_error(smoke_run, tmp_path, caps
 def test_chunks_pick_checkpoints_and_a_missing_one_is_a_one_line_error(smoke_run, tmp_path, capsys):
     assert curve.chosen_steps(smoke_run, (3, 1, 3)) == [1, 3] and curve.chosen_steps(smoke_run) == [1, 2, 3, 4]
     out = tmp_path / "two"
-    cli.main(["curve", "--run", str(smoke_run), *EPISODES, "--no-baselines", "--no-progress", "--chunks", "2", "4",
-              "--out", str(out)])
+    cli.main(
+        [
+            "curve",
+            "--run",
+            str(smoke_run),
+            *EPISODES,
+            "--no-baselines",
+            "--no-progress",
+            "--chunks",
+            "2",
+            "4",
+            "--out",
+            str(out),
+        ]
+    )
     assert [p["step"] for p in json.loads((out / "curve.json").read_text())["runs"][0]["points"]] == [2, 4]
     capsys.readouterr()
     with pytest.raises(SystemExit) as e:

@@ -14,8 +14,8 @@ import numpy as np
 import pytest
 
 from ramavt_jax import distributed
-from ramavt_jax.training import driver as train_log
 from ramavt_jax.presets import preset
+from ramavt_jax.training import driver as train_log
 
 ROOT = Path(__file__).resolve().parents[1]
 SMOKE = preset("smoke", eval_episodes=0, checkpoint_every_chunks=1)
@@ -31,11 +31,16 @@ def _env(devices: int) -> dict:
 
 
 def _worker(*args, devices=4, timeout=900) -> dict:  # compiles from scratch: minutes on a loaded 2-core machine
-    proc = subprocess.run([sys.executable, str(ROOT / "tests" / "distributed_worker.py"), *map(str, args)],
-                          env=_env(devices), capture_output=True, text=True, timeout=timeout)
+    proc = subprocess.run(
+        [sys.executable, str(ROOT / "tests" / "distributed_worker.py"), *map(str, args)],
+        env=_env(devices),
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+    )
     lines = [ln for ln in proc.stdout.splitlines() if ln.startswith("RESULT ")]
     assert proc.returncode == 0 and lines, f"worker failed ({proc.returncode}):\n{proc.stderr[-3000:]}"
-    return json.loads(lines[-1][len("RESULT "):])
+    return json.loads(lines[-1][len("RESULT ") :])
 
 
 # ============================================================================================ devices
@@ -49,8 +54,12 @@ def test_sharded_run_equals_unsharded_run_and_uses_every_device():
     assert r["params_max_diff"] < 1e-4 * max(1.0, r["params_max_abs"]), r["params_max_diff"]
     np.testing.assert_allclose(r["loss_sharded"], r["loss_single"], rtol=1e-4)
     # envs (observation, env state, LSTM carry) and replay rows are split 4 ways along the env axis (8 envs)
-    for name, shard in (("obs", [2, 16, 16, 1]), ("env_pos", [2, 3]), ("lstm_h", [1, 2, 32]),
-                        ("replay_obs", [2, 100, 16, 16, 1])):
+    for name, shard in (
+        ("obs", [2, 16, 16, 1]),
+        ("env_pos", [2, 3]),
+        ("lstm_h", [1, 2, 32]),
+        ("replay_obs", [2, 100, 16, 16, 1]),
+    ):
         p = r[name]
         assert p["devices"] == [0, 1, 2, 3] and p["distinct_shards"] == 4 and not p["replicated"], (name, p)
         assert p["shard_shapes"] == [shard], (name, p)
@@ -122,8 +131,10 @@ def test_vmapped_seeds_equal_single_seed_runs_and_write_per_seed_folders(tmp_pat
         assert json.loads((run_dir / "config.json").read_text())["seed"] == 3 + k
         assert (run_dir / "checkpoints" / str(SMOKE.num_chunks)).is_dir()
     # the seeds really differ (own keys, own envs, own replay)
-    diff = max(float(np.abs(np.asarray(a) - np.asarray(b)).max())
-               for a, b in zip(jax.tree.leaves(_params(both, 0)), jax.tree.leaves(_params(both, 1))))
+    diff = max(
+        float(np.abs(np.asarray(a) - np.asarray(b)).max())
+        for a, b in zip(jax.tree.leaves(_params(both, 0)), jax.tree.leaves(_params(both, 1)))
+    )
     assert diff > 1e-3
     mem = both["memory"]
     assert mem["replay_bytes_per_seed"] > 0 and mem["state_bytes_per_seed"] > mem["replay_bytes_per_seed"]
@@ -148,10 +159,29 @@ def test_two_process_run_on_loopback_matches_a_single_process_run(tmp_path):
     if port is None:
         pytest.skip("cannot open a loopback port here")
     out = tmp_path / "multihost"
-    cmd = [sys.executable, "-m", "ramavt_jax.cli", "train", "--preset", "smoke", "--out", str(out), "--no-progress",
-           "--run.eval-episodes", "0", "--coordinator-address", f"127.0.0.1:{port}", "--num-processes", "2"]
-    procs = [subprocess.Popen(cmd + ["--process-id", str(i)], env=_env(2), stdout=subprocess.PIPE,
-                              stderr=subprocess.STDOUT, text=True) for i in range(2)]
+    cmd = [
+        sys.executable,
+        "-m",
+        "ramavt_jax.cli",
+        "train",
+        "--preset",
+        "smoke",
+        "--out",
+        str(out),
+        "--no-progress",
+        "--run.eval-episodes",
+        "0",
+        "--coordinator-address",
+        f"127.0.0.1:{port}",
+        "--num-processes",
+        "2",
+    ]
+    procs = [
+        subprocess.Popen(
+            cmd + ["--process-id", str(i)], env=_env(2), stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True
+        )
+        for i in range(2)
+    ]
     logs = []
     try:
         for p in procs:

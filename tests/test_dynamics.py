@@ -306,8 +306,13 @@ def test_cw_float32_single_step_accuracy():
     f = jax.jit(jax.vmap(D.cw_step, (0, 0, 0, None, 0)))
     p32, v32 = f(p0, v0, acc, np.float32(N_LEO), dts.astype(np.float32))
     with jax.enable_x64(True):
-        p64, v64 = f(p0.astype(np.float64), v0.astype(np.float64), acc.astype(np.float64), N_LEO,
-                     dts.astype(np.float32).astype(np.float64))
+        p64, v64 = f(
+            p0.astype(np.float64),
+            v0.astype(np.float64),
+            acc.astype(np.float64),
+            N_LEO,
+            dts.astype(np.float32).astype(np.float64),
+        )
         p64, v64 = np.asarray(p64), np.asarray(v64)
     ep = np.linalg.norm(np.asarray(p32, np.float64) - p64, axis=1) / np.linalg.norm(p64, axis=1)
     ev = np.linalg.norm(np.asarray(v32, np.float64) - v64, axis=1) / np.linalg.norm(v64, axis=1)

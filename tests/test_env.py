@@ -1,7 +1,5 @@
 """Env contract: jit/vmap/determinism, keys, termination vs truncation, auto-reset, reward, perturbations."""
 
-import dataclasses
-
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -14,7 +12,9 @@ RES = 16
 
 @pytest.fixture(scope="module")
 def small_env():
-    return env.TrackingEnv(env.EnvConfig(camera=render.CameraConfig(resolution=RES), targets=("Satellite-v0", "Rocket-v0")))
+    return env.TrackingEnv(
+        env.EnvConfig(camera=render.CameraConfig(resolution=RES), targets=("Satellite-v0", "Rocket-v0"))
+    )
 
 
 @pytest.fixture(scope="module")
@@ -67,8 +67,9 @@ def test_shapes_and_ranges(fast, params):
 
 @pytest.mark.parametrize("mode,channels", [("depth", 1), ("color", 3), ("rgbd", 4)])
 def test_observation_modes(mode, channels):
-    tracking_env = env.TrackingEnv(env.EnvConfig(camera=render.CameraConfig(resolution=RES), obs_mode=mode,
-                                                 targets=("Capsule-v0",)))
+    tracking_env = env.TrackingEnv(
+        env.EnvConfig(camera=render.CameraConfig(resolution=RES), obs_mode=mode, targets=("Capsule-v0",))
+    )
     p = tracking_env.default_params(init_z_min=4.0, init_z_max=4.5, init_xy_std=0.0)
     obs, _ = tracking_env.reset(jax.random.key(0), p)
     assert obs.shape == (RES, RES, channels)
@@ -179,8 +180,9 @@ def test_same_step_autoreset_keeps_final_observation(small_env, fast):
 
 
 def test_next_step_autoreset():
-    tracking_env = env.TrackingEnv(env.EnvConfig(camera=render.CameraConfig(resolution=RES), targets=("Satellite-v0",),
-                                                 autoreset="next_step"))
+    tracking_env = env.TrackingEnv(
+        env.EnvConfig(camera=render.CameraConfig(resolution=RES), targets=("Satellite-v0",), autoreset="next_step")
+    )
     p = tracking_env.default_params(max_steps=2)
     step = jax.jit(tracking_env.step)
     _, state = tracking_env.reset(jax.random.key(0), p)
@@ -215,8 +217,13 @@ def test_each_perturbation_changes_only_what_it_should(override, changes, unchan
     key = jax.random.key(9)
     ref = _state_after(tracking_env, base, key)
     out = _state_after(tracking_env, base.replace(**{k: jnp.asarray(v) for k, v in override.items()}), key)
-    values = lambda o: {"obs": o[0], "chaser_pos": o[1].chaser_pos, "target_pos": o[1].target_pos,
-                        "target_quat": o[1].target_quat, "sim_time": o[1].sim_time}
+    values = lambda o: {
+        "obs": o[0],
+        "chaser_pos": o[1].chaser_pos,
+        "target_pos": o[1].target_pos,
+        "target_quat": o[1].target_quat,
+        "sim_time": o[1].sim_time,
+    }
     a, b = values(ref), values(out)
     for name in changes:
         assert not np.allclose(np.asarray(a[name]), np.asarray(b[name])), f"{override} should change {name}"
@@ -225,8 +232,9 @@ def test_each_perturbation_changes_only_what_it_should(override, changes, unchan
 
 
 def test_frame_average_blur_uses_history():
-    tracking_env = env.TrackingEnv(env.EnvConfig(camera=render.CameraConfig(resolution=RES), targets=("Satellite-v0",),
-                                                 frame_history=3))
+    tracking_env = env.TrackingEnv(
+        env.EnvConfig(camera=render.CameraConfig(resolution=RES), targets=("Satellite-v0",), frame_history=3)
+    )
     p = tracking_env.default_params(blur_frames=3, init_z_min=4.0, init_z_max=4.5)
     _, state = tracking_env.reset(jax.random.key(0), p)
     for k in jax.random.split(jax.random.key(1), 3):
@@ -244,8 +252,9 @@ def test_frame_drop_repeats_previous_frame():
 
 
 def test_kinematic_mode_is_constant_velocity():
-    tracking_env = env.TrackingEnv(env.EnvConfig(camera=render.CameraConfig(resolution=RES), dynamics="kinematic",
-                                                 targets=("Satellite-v0",)))
+    tracking_env = env.TrackingEnv(
+        env.EnvConfig(camera=render.CameraConfig(resolution=RES), dynamics="kinematic", targets=("Satellite-v0",))
+    )
     p = tracking_env.default_params()
     _, s0 = tracking_env.reset(jax.random.key(0), p)
     _, s1, *_ = tracking_env.step_env(jax.random.key(1), s0, jnp.asarray(0), p)
@@ -273,8 +282,9 @@ def test_bad_config(kwargs, match):
         env.EnvConfig(**kwargs)
 
 
-@pytest.mark.parametrize("kwargs,match", [(dict(resolution=3), "resolution"), (dict(fov_deg=190.0), "fov"),
-                                          (dict(fov_deg=0.0), "fov")])
+@pytest.mark.parametrize(
+    "kwargs,match", [(dict(resolution=3), "resolution"), (dict(fov_deg=190.0), "fov"), (dict(fov_deg=0.0), "fov")]
+)
 def test_bad_camera(kwargs, match):
     with pytest.raises(ValueError, match=match):
         render.CameraConfig(**kwargs)
@@ -309,9 +319,13 @@ def _enlarged_satellite(tmp_path, factor: float):
 
 
 def test_catalogue_targets_keep_the_nominal_stand_off():
-    tracking_env = env.TrackingEnv(env.EnvConfig(camera=render.CameraConfig(resolution=RES), targets=targets.ALL_TARGETS))
+    tracking_env = env.TrackingEnv(
+        env.EnvConfig(camera=render.CameraConfig(resolution=RES), targets=targets.ALL_TARGETS)
+    )
     p = tracking_env.default_params()
-    scales = jax.vmap(lambda i: env.standoff_scale(targets.select(p.catalogue, i), p))(jnp.arange(len(targets.ALL_TARGETS)))
+    scales = jax.vmap(lambda i: env.standoff_scale(targets.select(p.catalogue, i), p))(
+        jnp.arange(len(targets.ALL_TARGETS))
+    )
     np.testing.assert_array_equal(np.asarray(scales), 1.0)
 
 
@@ -339,8 +353,9 @@ def test_large_user_target_is_seen_as_the_small_one_at_a_scaled_stand_off(tmp_pa
 def test_proportional_holds_a_large_user_target_at_its_stand_off(tmp_path):
     from ramavt_jax import baselines
 
-    big = env.TrackingEnv(env.EnvConfig(camera=render.CameraConfig(resolution=16),
-                                        targets=(str(_enlarged_satellite(tmp_path, 5.0)),)))
+    big = env.TrackingEnv(
+        env.EnvConfig(camera=render.CameraConfig(resolution=16), targets=(str(_enlarged_satellite(tmp_path, 5.0)),))
+    )
     p = big.eval_params(max_steps=150)
     policy = baselines.proportional_policy()
     step = jax.jit(big.step_env)

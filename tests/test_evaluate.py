@@ -30,14 +30,20 @@ PROBE_XML = """<mujoco model="probe"><worldbody>
 def _stats(length, ret, term, trunc=None, target=None):
     n = len(length)
     return rollouts.EpisodeStats(
-        length=jnp.array(length, jnp.int32), episode_return=jnp.array(ret, jnp.float32),
-        terminated=jnp.array(term, bool), target_index=jnp.array(target or [0] * n, jnp.int32),
-        truncated=None if trunc is None else jnp.array(trunc, bool))
+        length=jnp.array(length, jnp.int32),
+        episode_return=jnp.array(ret, jnp.float32),
+        terminated=jnp.array(term, bool),
+        target_index=jnp.array(target or [0] * n, jnp.int32),
+        truncated=None if trunc is None else jnp.array(trunc, bool),
+    )
 
 
 def test_summary_matches_hand_computation():
-    s = rollouts.summarise(_stats([10, 1000, 500, 21], [-50.0, 300.0, 20.5, -80.0], [True, False, False, True],
-                                  [False, True, False, False]))
+    s = rollouts.summarise(
+        _stats(
+            [10, 1000, 500, 21], [-50.0, 300.0, 20.5, -80.0], [True, False, False, True], [False, True, False, False]
+        )
+    )
     assert s.episodes == 4
     assert s.length_mean == pytest.approx((10 + 1000 + 500 + 21) / 4)
     assert (s.length_min, s.length_max) == (10, 1000)
@@ -51,8 +57,9 @@ def test_summary_matches_hand_computation():
     # without truncation flags every episode not lost counts as truncated (the old EpisodeStats)
     old = rollouts.summarise(_stats([5, 1000], [1.0, 2.0], [True, False]))
     assert (old.lost_fraction, old.truncated_fraction) == (0.5, 0.5)
-    both = rollouts.concat_stats([_stats([5], [1.0], [True], [False]), _stats([7, 9], [2.0, 3.0], [False, False],
-                                                                              [True, False])])
+    both = rollouts.concat_stats(
+        [_stats([5], [1.0], [True], [False]), _stats([7, 9], [2.0, 3.0], [False, False], [True, False])]
+    )
     np.testing.assert_array_equal(both.length, [5, 7, 9])
     np.testing.assert_array_equal(both.truncated, [False, True, False])
     assert rollouts.summarise(both).length_mean == pytest.approx(7.0)
@@ -88,8 +95,9 @@ def test_early_exit_runner_matches_recorded_scan():
     for a, b in zip(jax.tree.leaves(fast), jax.tree.leaves(full)):
         np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-6)
     np.testing.assert_array_equal(np.asarray(rec.alive).sum(0), np.asarray(fast.length))
-    np.testing.assert_allclose((np.asarray(rec.reward) * np.asarray(rec.alive)).sum(0), fast.episode_return,
-                               rtol=1e-5, atol=1e-4)
+    np.testing.assert_allclose(
+        (np.asarray(rec.reward) * np.asarray(rec.alive)).sum(0), fast.episode_return, rtol=1e-5, atol=1e-4
+    )
     assert bool(jnp.all(fast.terminated ^ fast.truncated))  # every episode ended exactly one way
     # the tracking sums against the recorded positions (a catalogue target: stand-off scale 1, so metres)
     alive = np.asarray(rec.alive)
@@ -108,8 +116,9 @@ def test_a_settings_episodes_do_not_depend_on_the_other_settings_requested():
     changed with the request would show too. Both calls build equal envs, so the rollout compiles once."""
     camera = render.CameraConfig(resolution=8)
     entry = tables_lib.Entry("depth", "baseline", baselines.make_policy("depth", camera), env_lib.EnvConfig(camera))
-    run = lambda tables, targets: tables_lib.run_suite([entry], targets, 2, 15, seed=0, tables=tables,
-                                                       speed_steps=0, log=lambda _: None)["rows"][0]["settings"]
+    run = lambda tables, targets: tables_lib.run_suite(
+        [entry], targets, 2, 15, seed=0, tables=tables, speed_steps=0, log=lambda _: None
+    )["rows"][0]["settings"]
     alone = run((1,), ("Satellite-v2", "Asteroid-v4"))
     together = run((1, 2), ("Satellite-v2", "Asteroid-v4"))
     assert set(together) == set(rollouts.PERTURBATIONS)
@@ -135,8 +144,7 @@ def test_target_specs_and_unknown_target(tmp_path):
     path = tmp_path / "probe.xml"
     path.write_text(PROBE_XML)
     assert rollouts.resolve_targets(f"Capsule-v2,{path}") == ("Capsule-v2", str(path))
-    with pytest.raises(ValueError, match="unknown target 'Sputnik-v9': not in the catalogue .*splits train, val, "
-                                         "test"):
+    with pytest.raises(ValueError, match="unknown target 'Sputnik-v9': not in the catalogue .*splits train, val, test"):
         rollouts.resolve_targets("Satellite-v2,Sputnik-v9")
     with pytest.raises(ValueError, match="Did you mean Satellite-v1"):
         rollouts.resolve_targets("Satelite-v1")
@@ -150,8 +158,16 @@ def test_target_specs_and_unknown_target(tmp_path):
 
 def test_eval_random_writes_tables(tmp_path):
     out = tmp_path / "eval"
-    result = cli_eval.eval_cmd(policy="random", baselines=False, targets="Satellite-v2,Asteroid-v4", episodes=3,
-                               max_steps=15, tables=(1,), out=out, **TINY)
+    result = cli_eval.eval_cmd(
+        policy="random",
+        baselines=False,
+        targets="Satellite-v2,Asteroid-v4",
+        episodes=3,
+        max_steps=15,
+        tables=(1,),
+        out=out,
+        **TINY,
+    )
     md, js = (out / "tables.md").read_text(), json.loads((out / "results.json").read_text())
     assert "## Table I" in md and "## Table II" not in md and "| random |" in md
     assert js["settings"]["episodes_per_target"] == 3 and js["settings"]["seed"] == 0
@@ -160,8 +176,9 @@ def test_eval_random_writes_tables(tmp_path):
     overall = row["settings"]["none"]["overall"]
     assert overall["episodes"] == 6 and overall["length_max"] <= 15
     per = row["settings"]["none"]["per_target"]
-    assert overall["length_mean"] == pytest.approx((per["Satellite-v2"]["length_mean"] +
-                                                    per["Asteroid-v4"]["length_mean"]) / 2)
+    assert overall["length_mean"] == pytest.approx(
+        (per["Satellite-v2"]["length_mean"] + per["Asteroid-v4"]["length_mean"]) / 2
+    )
     assert row["speed_hz"] > 0
     assert result["rows"][0]["name"] == "random"
 
@@ -170,8 +187,18 @@ def test_eval_mpc_perturbations_custom_target_and_figures(tmp_path):
     path = tmp_path / "probe.xml"
     path.write_text(PROBE_XML)
     out = tmp_path / "eval"
-    cli_eval.eval_cmd(policy="mpc", baselines=False, targets=f"Satellite-v2,{path}", episodes=2, max_steps=12,
-                      tables=(1, 2), out=out, figures=True, resolution=16, speed_steps=0)
+    cli_eval.eval_cmd(
+        policy="mpc",
+        baselines=False,
+        targets=f"Satellite-v2,{path}",
+        episodes=2,
+        max_steps=12,
+        tables=(1, 2),
+        out=out,
+        figures=True,
+        resolution=16,
+        speed_steps=0,
+    )
     js = json.loads((out / "results.json").read_text())
     (row,) = js["rows"]
     assert set(row["settings"]) == set(rollouts.PERTURBATIONS)
@@ -197,9 +224,8 @@ def _fake_run(run_dir, seed=0):
     """A run folder in driver.run's layout (config.json, checkpoints/<step>, metrics.jsonl) without training:
     the initial RunnerState with perturbed params, saved by the trainer's CheckpointStore. Seconds, not minutes."""
     from ramavt_jax import presets, train
-    from ramavt_jax.training.checkpoint import CheckpointStore
-
     from ramavt_jax.network import init_params
+    from ramavt_jax.training.checkpoint import CheckpointStore
 
     cfg = presets.preset("smoke", eval_episodes=0)
     # the RunnerState's structure without compiling the trainer: zeros everywhere but the network parameters
@@ -215,8 +241,19 @@ def _fake_run(run_dir, seed=0):
     store = CheckpointStore(run_dir / "checkpoints")
     store.save(3, state, json.loads(json.dumps(meta, default=str)))
     store.close()
-    lines = [json.dumps({"chunk": c, "env_steps": 320 * c, "episode_length": 10.0 * c, "episode_return": -c,
-                         "loss": 1.0 / c, "q_mean": 0.1 * c}) for c in (1, 2, 3)]
+    lines = [
+        json.dumps(
+            {
+                "chunk": c,
+                "env_steps": 320 * c,
+                "episode_length": 10.0 * c,
+                "episode_return": -c,
+                "loss": 1.0 / c,
+                "q_mean": 0.1 * c,
+            }
+        )
+        for c in (1, 2, 3)
+    ]
     (run_dir / "metrics.jsonl").write_text("\n".join(lines) + "\n")
     return run_dir, params
 
@@ -228,8 +265,18 @@ def test_eval_checkpoint_run(tmp_path):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
     assert loaded.step == 3 and loaded.config.network.variant == "origin" and loaded.meta["env_steps"] == 960
     out = tmp_path / "eval"
-    cli_eval.eval_cmd(policy="checkpoint", run=(run_dir,), baselines=False, targets="Satellite-v2", episodes=1,
-                      max_steps=8, tables=(1, 3), out=out, speed_steps=0, blind_search="retreat")
+    cli_eval.eval_cmd(
+        policy="checkpoint",
+        run=(run_dir,),
+        baselines=False,
+        targets="Satellite-v2",
+        episodes=1,
+        max_steps=8,
+        tables=(1, 3),
+        out=out,
+        speed_steps=0,
+        blind_search="retreat",
+    )
     js = json.loads((out / "results.json").read_text())
     assert js["rows"][0]["info"]["variant"] == "origin" and js["rows"][0]["speed_hz"] is None
     assert js["rows"][0]["info"]["blind_search"] == "retreat"
@@ -244,8 +291,18 @@ def test_an_ensemble_row_flies_the_runs_together_and_of_one_run_twice_equals_it(
     first, _ = _fake_run(tmp_path / "runs" / "a" / "seed_0")
     copy, _ = _fake_run(tmp_path / "runs" / "b" / "seed_0")
     out = tmp_path / "eval"
-    cli_eval.eval_cmd(policy="checkpoint", run=(first, copy), ensemble=True, baselines=False, targets="Satellite-v2",
-                      episodes=2, max_steps=30, tables=(1,), out=out, speed_steps=0)
+    cli_eval.eval_cmd(
+        policy="checkpoint",
+        run=(first, copy),
+        ensemble=True,
+        baselines=False,
+        targets="Satellite-v2",
+        episodes=2,
+        max_steps=30,
+        tables=(1,),
+        out=out,
+        speed_steps=0,
+    )
     rows = json.loads((out / "results.json").read_text())["rows"]
     assert [r["name"] for r in rows] == ["a/seed_0", "b/seed_0", "ensemble of 2: a, b"]
     single, together = rows[0]["settings"]["none"]["overall"], rows[2]["settings"]["none"]["overall"]
@@ -264,8 +321,10 @@ def test_load_policy_reads_the_parameter_set_the_config_or_the_caller_names(tmp_
     run_dir, online = _fake_run(tmp_path / "run")
     target = runs.load_policy(run_dir, policy_params="target")
     assert target.config.run.policy_params == "target"  # the returned config records the set that was read
-    assert any(not np.array_equal(np.asarray(a), np.asarray(b))
-               for a, b in zip(jax.tree.leaves(target.params), jax.tree.leaves(online)))
+    assert any(
+        not np.array_equal(np.asarray(a), np.asarray(b))
+        for a, b in zip(jax.tree.leaves(target.params), jax.tree.leaves(online))
+    )
     # a run whose config says 'target' gets the same set by default
     saved = json.loads((run_dir / "config.json").read_text())
     saved["config"]["run"]["policy_params"] = "target"
@@ -288,8 +347,18 @@ def test_load_policy_of_a_real_training_run(tmp_path):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
     assert loaded.step == summary["chunks_done"]
     out = tmp_path / "eval"
-    cli_eval.eval_cmd(policy="checkpoint", run=(tmp_path / "smoke_s0",), baselines=False, targets="Satellite-v2",
-                      episodes=1, max_steps=8, tables=(1, 3), out=out, figures=True, speed_steps=0)
+    cli_eval.eval_cmd(
+        policy="checkpoint",
+        run=(tmp_path / "smoke_s0",),
+        baselines=False,
+        targets="Satellite-v2",
+        episodes=1,
+        max_steps=8,
+        tables=(1, 3),
+        out=out,
+        figures=True,
+        speed_steps=0,
+    )
     figures = json.loads((out / "results.json").read_text())["figures"]
     assert any(k.endswith("attention") for k in figures) and "training_curves" in figures
     for p in figures.values():
@@ -302,9 +371,20 @@ def test_missing_run_is_a_clear_error(tmp_path):
 
 
 def test_markdown_handles_skipped_tables():
-    result = {"settings": {"seed": 1, "episodes_per_target": 1, "targets": ["X"], "max_steps": 5,
-                           "perturbation_values": rollouts.PERTURBATION_VALUES, "speed_steps": 0, "tables": [1]},
-              "machine": tables_lib.machine_info(), "rows": [], "wall_s": 1.0}
+    result = {
+        "settings": {
+            "seed": 1,
+            "episodes_per_target": 1,
+            "targets": ["X"],
+            "max_steps": 5,
+            "perturbation_values": rollouts.PERTURBATION_VALUES,
+            "speed_steps": 0,
+            "tables": [1],
+        },
+        "machine": tables_lib.machine_info(),
+        "rows": [],
+        "wall_s": 1.0,
+    }
     md = tables_lib.to_markdown(result)
     assert "Table I" in md and "959.1" in md  # the paper's numbers are always shown for comparison
 
@@ -314,11 +394,28 @@ def test_the_shipped_agents_row_names_how_it_was_trained():
     from ramavt_jax.cli import evaluate as cli_eval
 
     entry = cli_eval._pretrained_entry(pretrained.DEFAULT_AGENT)
-    row = {"name": entry.name, "kind": entry.kind, "info": entry.info, "resolution": 32, "obs_mode": "depth",
-           "settings": {}}
-    result = {"settings": {"seed": 1, "episodes_per_target": 1, "targets": ["X"], "max_steps": 5,
-                           "perturbation_values": rollouts.PERTURBATION_VALUES, "speed_steps": 0, "tables": []},
-              "machine": tables_lib.machine_info(), "rows": [row], "wall_s": 1.0}
+    row = {
+        "name": entry.name,
+        "kind": entry.kind,
+        "info": entry.info,
+        "resolution": 32,
+        "obs_mode": "depth",
+        "settings": {},
+    }
+    result = {
+        "settings": {
+            "seed": 1,
+            "episodes_per_target": 1,
+            "targets": ["X"],
+            "max_steps": 5,
+            "perturbation_values": rollouts.PERTURBATION_VALUES,
+            "speed_steps": 0,
+            "tables": [],
+        },
+        "machine": tables_lib.machine_info(),
+        "rows": [row],
+        "wall_s": 1.0,
+    }
     line = next(x for x in tables_lib.to_markdown(result).splitlines() if x.startswith(f"- {entry.name}"))
     agent = pretrained.load()
     assert "None" not in line and f"`{agent.info['command']}`" in line
@@ -355,8 +452,17 @@ def test_eval_hands_the_blind_search_to_the_shipped_agent(tmp_path, monkeypatch)
 
     monkeypatch.setattr(cli_eval, "_pretrained_entry", entry)
     with pytest.raises(Built):
-        cli_eval.eval_cmd(policy="pretrained", baselines=False, targets="Satellite-v2", episodes=1, max_steps=8,
-                          tables=(1,), out=tmp_path / "eval", speed_steps=0, blind_search="retreat")
+        cli_eval.eval_cmd(
+            policy="pretrained",
+            baselines=False,
+            targets="Satellite-v2",
+            episodes=1,
+            max_steps=8,
+            tables=(1,),
+            out=tmp_path / "eval",
+            speed_steps=0,
+            blind_search="retreat",
+        )
     assert asked == [(pretrained.DEFAULT_AGENT, "retreat")]
 
 
@@ -366,8 +472,13 @@ def test_config_json_round_trips_to_the_same_train_config(name):
     from ramavt_jax.presets import preset
     from ramavt_jax.train_config import TrainConfig
 
-    cfg = preset(name, env_params=(("dist_weight", 0.5), ("lost_patience", 10)), augment=True,
-                 augment_config=AugmentConfig(crop=True, flip=False, rot90=False), state_dtype="bfloat16")
+    cfg = preset(
+        name,
+        env_params=(("dist_weight", 0.5), ("lost_patience", 10)),
+        augment=True,
+        augment_config=AugmentConfig(crop=True, flip=False, rot90=False),
+        state_dtype="bfloat16",
+    )
     text = json.dumps({"seed": 0, "config": cfg.to_dict()}, default=str)
     loaded = TrainConfig.from_dict(json.loads(text)["config"])
     assert loaded == cfg and type(loaded.learner.augment_config) is AugmentConfig
@@ -387,9 +498,15 @@ def test_the_shipped_config_jsons_load_as_the_presets_they_were_trained_with():
         return TrainConfig.from_dict(record["config"])
 
     assert shipped(pretrained.DEFAULT_AGENT) == preset("quick", eval_episodes=0)
-    assert shipped("ramavt_depth_clip1152k") == preset("quick", eval_episodes=0, bootstrap_from="target",
-                                                       policy_params="target", policy_average_from=None,
-                                                       total_env_steps=1_152_000, expert_margin_weight=0.0)
+    assert shipped("ramavt_depth_clip1152k") == preset(
+        "quick",
+        eval_episodes=0,
+        bootstrap_from="target",
+        policy_params="target",
+        policy_average_from=None,
+        total_env_steps=1_152_000,
+        expert_margin_weight=0.0,
+    )
 
 
 def test_seed_params_picks_one_seed_of_the_named_set():
@@ -430,15 +547,18 @@ def test_final_evaluation_draws_only_each_splits_targets_with_one_rollout_progra
     splits = [cfg.env.targets] * 3 + [targets_lib.VAL_TARGETS] * 3 + [targets_lib.TEST_TARGETS] * 3
     for (_, _, _, probs, _), members in zip(calls, splits, strict=True):
         np.testing.assert_allclose(probs, [1 / len(members) if n in members else 0.0 for n in names], rtol=1e-6)
-    assert {s: sorted(r) for s, r in results.items()} == {s: ["greedy", "mpc", "random"]
-                                                         for s in ("train", "val", "test")}
+    assert {s: sorted(r) for s, r in results.items()} == {
+        s: ["greedy", "mpc", "random"] for s in ("train", "val", "test")
+    }
     for split, first in (("train", 0), ("val", 3), ("test", 6)):  # the ceiling flies the greedy policy's episodes
         np.testing.assert_array_equal(calls[first][4], calls[first + 2][4])
         assert results[split]["greedy"]["ceiling_fraction"] == pytest.approx(0.75)
     keys = [tuple(np.asarray(k).ravel()) for *_, k in calls]
     assert len({k for i, k in enumerate(keys) if i % 3 != 2}) == 6  # greedy and random: no two splits share a key
     root = jax.random.PRNGKey(1)
-    assert keys[6] == tuple(np.asarray(jax.random.key_data(jax.random.fold_in(final.split_key(root, "test"), 0))).ravel())
+    assert keys[6] == tuple(
+        np.asarray(jax.random.key_data(jax.random.fold_in(final.split_key(root, "test"), 0))).ravel()
+    )
     assert final.split_key(root, "val").tolist() != final.split_key(root, "test").tolist()
 
 
@@ -467,22 +587,38 @@ def test_statistics_intervals_iqm_and_probability_of_improvement():
 
 
 def _suite_row(name, returns_per_target, kind="checkpoint", run_dir=None, variant="ramavt"):
-    per_target = {t: {"return_mean": r, "length_mean": 1000.0, "error_mean": 0.5, "lost_fraction": 0.0,
-                      "within_half_fraction": 0.5} for t, r in returns_per_target.items()}
+    per_target = {
+        t: {
+            "return_mean": r,
+            "length_mean": 1000.0,
+            "error_mean": 0.5,
+            "lost_fraction": 0.0,
+            "within_half_fraction": 0.5,
+        }
+        for t, r in returns_per_target.items()
+    }
     overall = {k: float(np.mean([o[k] for o in per_target.values()])) for k in next(iter(per_target.values()))}
-    return {"name": name, "kind": kind, "info": {"run_dir": run_dir, "variant": variant},
-            "settings": {"none": {"overall": overall, "per_target": per_target}}}
+    return {
+        "name": name,
+        "kind": kind,
+        "info": {"run_dir": run_dir, "variant": variant},
+        "settings": {"none": {"overall": overall, "per_target": per_target}},
+    }
 
 
 def test_seed_folders_of_a_sweep_are_one_arm_compared_with_every_other():
     from ramavt_jax.evaluation import seeds
 
     targets = ["A", "B"]
-    rows = [_suite_row(f"sweep/seed_{k}", {"A": 100.0 + k, "B": 200.0 + k}, run_dir=f"runs/sweep/seed_{k}")
-            for k in range(3)]
-    rows += [_suite_row("other/seed_0", {"A": 0.0, "B": 0.0}, run_dir="runs/other/seed_0"),
-             _suite_row("solo", {"A": 50.0, "B": 50.0}, run_dir="runs/solo"),
-             _suite_row("mpc ceiling", {"A": 400.0, "B": 400.0}, kind="baseline", variant="mpc")]
+    rows = [
+        _suite_row(f"sweep/seed_{k}", {"A": 100.0 + k, "B": 200.0 + k}, run_dir=f"runs/sweep/seed_{k}")
+        for k in range(3)
+    ]
+    rows += [
+        _suite_row("other/seed_0", {"A": 0.0, "B": 0.0}, run_dir="runs/other/seed_0"),
+        _suite_row("solo", {"A": 50.0, "B": 50.0}, run_dir="runs/solo"),
+        _suite_row("mpc ceiling", {"A": 400.0, "B": 400.0}, kind="baseline", variant="mpc"),
+    ]
     result = {"settings": {"targets": targets}, "rows": rows}
     assert list(seeds.arms(result)) == ["sweep (seeds)", "other (seeds)", "solo", "mpc ceiling"]
     summary = seeds.summarise_arms(result)

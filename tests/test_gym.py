@@ -57,8 +57,9 @@ def test_registered_id_makes_the_env_and_the_vector_env():
     assert gym_env.spec is not None and gym_env.spec.id == "ramavt_jax/Tracking-v0"
     obs, _ = gym_env.reset(seed=1)
     assert obs.shape == (16, 16, 1)
-    vec = gymnasium.make_vec("ramavt_jax/Tracking-v0", num_envs=2, vectorization_mode="vector_entry_point",
-                             config=CONFIG)
+    vec = gymnasium.make_vec(
+        "ramavt_jax/Tracking-v0", num_envs=2, vectorization_mode="vector_entry_point", config=CONFIG
+    )
     assert vec.reset(seed=0)[0].shape == (2, 16, 16, 1)
     with pytest.raises(ValueError, match="integers"):
         vec.step(np.array([0.5, 1.0]))

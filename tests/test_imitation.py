@@ -54,8 +54,12 @@ def test_teacher_envs_fly_the_look_ahead_and_with_the_margin_every_env_stores_it
     look-ahead's action; without it no label is stored and the look-ahead acts for the teacher envs only. Checked
     against the look-ahead run env by env, outside the trainer. Episodes of one step, so that every env ends one in
     the step: the training statistics count the agent's envs only."""
-    cfg = SMOKE.override(teacher_envs=3, expert_margin_weight=1.0, env_params=(("max_steps", 1),),
-                         network=dataclasses.replace(SMOKE.network, prev_action=True))
+    cfg = SMOKE.override(
+        teacher_envs=3,
+        expert_margin_weight=1.0,
+        env_params=(("max_steps", 1),),
+        network=dataclasses.replace(SMOKE.network, prev_action=True),
+    )
     trainer, k, n = T.Trainer(cfg), cfg.acting.teacher_envs, cfg.acting.num_envs
     state = trainer.init(jax.random.PRNGKey(3))
     step = jax.jit(lambda key: trainer.act_step(state.learner.params, state.actor, jnp.asarray(1.0), key))
@@ -79,8 +83,11 @@ def test_teacher_envs_fly_the_look_ahead_and_with_the_margin_every_env_stores_it
 
 def _blind_geometry(env_state) -> np.ndarray:
     """[N] bool, by hand: the target centre outside the 60-degree view (or behind) and lost at every step so far."""
-    rel = np.einsum("ji,nj->ni", np.asarray(env_lib.HILL_FROM_CAM),
-                    np.asarray(env_state.target_pos) - np.asarray(env_state.chaser_pos))  # [N, 3] camera frame
+    rel = np.einsum(
+        "ji,nj->ni",
+        np.asarray(env_lib.HILL_FROM_CAM),
+        np.asarray(env_state.target_pos) - np.asarray(env_state.chaser_pos),
+    )  # [N, 3] camera frame
     x, y, z = rel.T
     outside = (z <= 0) | (np.abs(x) > np.tan(np.pi / 6) * np.abs(z)) | (np.abs(y) > np.tan(np.pi / 6) * np.abs(z))
     return outside & (np.asarray(env_state.lost_steps) == np.asarray(env_state.steps))
@@ -98,8 +105,9 @@ def test_unseen_yet_is_out_of_view_with_every_step_so_far_lost():
     taught = jnp.arange(64, dtype=jnp.int32) % 11
     np.testing.assert_array_equal(imitation.stored_labels(taught, states, SMOKE.env.camera, "teacher"), taught)
     for blind_label, replaced in (("none", imitation.NO_LABEL), ("retreat", env_lib.RETREAT)):
-        np.testing.assert_array_equal(imitation.stored_labels(taught, states, SMOKE.env.camera, blind_label),
-                                      np.where(got, replaced, taught))
+        np.testing.assert_array_equal(
+            imitation.stored_labels(taught, states, SMOKE.env.camera, blind_label), np.where(got, replaced, taught)
+        )
 
 
 def test_margin_terms_skip_the_steps_without_a_label():
@@ -121,8 +129,9 @@ def test_the_blind_label_replaces_the_look_aheads_at_blind_starts_only():
     for blind_label in ("teacher", "retreat"):  # 'none': the same replacement (stored_labels, above)
         trainer = T.Trainer(cfg.override(blind_label=blind_label))
         state = trainer.init(jax.random.PRNGKey(4))
-        _, transition, _ = jax.jit(trainer.act_step)(state.learner.params, state.actor, jnp.asarray(0.0),
-                                                    jax.random.PRNGKey(5))
+        _, transition, _ = jax.jit(trainer.act_step)(
+            state.learner.params, state.actor, jnp.asarray(0.0), jax.random.PRNGKey(5)
+        )
         labels[blind_label], blind = np.asarray(transition.expert_action), _blind_geometry(state.actor.env_state)
     assert 0 < blind.sum() < blind.size and (labels["teacher"] >= 0).all()
     np.testing.assert_array_equal(labels["retreat"], np.where(blind, env_lib.RETREAT, labels["teacher"]))
@@ -133,14 +142,22 @@ def _window(cfg, key):
     """Hand-made sampled windows [B, L, ...] with labels, as the replay stores them, episodes starting at random."""
     B, L, n = cfg.replay.batch_size, cfg.sequence_length, cfg.network
     ks = jax.random.split(key, 7)
-    state = RecurrentState(h=0.5 * jax.random.normal(ks[3], (B, L, n.lstm_layers, n.lstm)),
-                           c=0.5 * jax.random.normal(ks[4], (B, L, n.lstm_layers, n.lstm)), frames=None)
+    state = RecurrentState(
+        h=0.5 * jax.random.normal(ks[3], (B, L, n.lstm_layers, n.lstm)),
+        c=0.5 * jax.random.normal(ks[4], (B, L, n.lstm_layers, n.lstm)),
+        frames=None,
+    )
     z, is_first = jnp.zeros((B, L), bool), (jax.random.uniform(ks[6], (B, L)) < 0.15).at[0, L - 3].set(True)
-    return replay_lib.Transition(obs=jax.random.uniform(ks[0], (B, L, *cfg.env.obs_shape)),
-                                 action=jax.random.randint(ks[1], (B, L), 0, 11),
-                                 reward=jax.random.normal(ks[2], (B, L)), terminated=z, truncated=z,
-                                 is_first=is_first, recurrent_state=state,
-                                 expert_action=jax.random.randint(ks[5], (B, L), 0, 11))
+    return replay_lib.Transition(
+        obs=jax.random.uniform(ks[0], (B, L, *cfg.env.obs_shape)),
+        action=jax.random.randint(ks[1], (B, L), 0, 11),
+        reward=jax.random.normal(ks[2], (B, L)),
+        terminated=z,
+        truncated=z,
+        is_first=is_first,
+        recurrent_state=state,
+        expert_action=jax.random.randint(ks[5], (B, L), 0, 11),
+    )
 
 
 def test_the_trainers_loss_adds_the_weighted_margin_loss_of_the_trained_steps():
@@ -183,8 +200,9 @@ def test_policy_terms_are_the_step_by_step_cross_entropy_of_the_labelled_steps()
     nll = [np.log(np.exp(logits[b, t]).sum()) - logits[b, t, expert[b, t]] for b, t in zip(*np.nonzero(labelled))]
     np.testing.assert_allclose(float(loss), np.mean(nll), rtol=1e-5)
     np.testing.assert_allclose(float(agreement), (logits.argmax(-1) == expert)[labelled].mean(), rtol=1e-5)
-    grad = np.asarray(jax.grad(lambda x: imitation.policy_terms(x, jnp.asarray(expert), jnp.ones((3, 5)))[0])(
-        jnp.asarray(logits)))
+    grad = np.asarray(
+        jax.grad(lambda x: imitation.policy_terms(x, jnp.asarray(expert), jnp.ones((3, 5)))[0])(jnp.asarray(logits))
+    )
     assert (grad[0, 1:3] == 0).all() and grad[0, 0, expert[0, 0]] < 0  # unlabelled: no pull; labelled: raised
 
 
@@ -199,11 +217,13 @@ def test_a_policy_head_acts_and_its_cross_entropy_joins_the_loss_while_q_trains_
     params = trainer.init(jax.random.PRNGKey(0)).learner.params
     q_params = {k: v for k, v in params.items() if k != "policy"}
     assert set(params) - set(q_params) == {"policy"}
-    prepared = trainer.prepare(params, params, replay_lib.sequence_batch(_window(cfg, jax.random.PRNGKey(1)), burn),
-                               jax.random.PRNGKey(2))
+    prepared = trainer.prepare(
+        params, params, replay_lib.sequence_batch(_window(cfg, jax.random.PRNGKey(1)), burn), jax.random.PRNGKey(2)
+    )
     q_trainer = T.Trainer(base)
-    q_prepared = q_trainer.prepare(q_params, q_params, replay_lib.sequence_batch(_window(cfg, jax.random.PRNGKey(1)),
-                                                                                 burn), jax.random.PRNGKey(2))
+    q_prepared = q_trainer.prepare(
+        q_params, q_params, replay_lib.sequence_batch(_window(cfg, jax.random.PRNGKey(1)), burn), jax.random.PRNGKey(2)
+    )
     np.testing.assert_allclose(prepared.td.q_target, q_prepared.td.q_target, rtol=1e-5)  # targets from Q, not logits
 
     @jax.jit
@@ -224,26 +244,38 @@ def test_a_policy_head_acts_and_its_cross_entropy_joins_the_loss_while_q_trains_
     no_margin = cfg.override(expert_margin_weight=0.0)
     acting = T.Trainer(no_margin)
     state = acting.init(jax.random.PRNGKey(4))
-    _, transition, _ = jax.jit(acting.act_step)(state.learner.params, state.actor, jnp.asarray(0.0),
-                                               jax.random.PRNGKey(5))
+    _, transition, _ = jax.jit(acting.act_step)(
+        state.learner.params, state.actor, jnp.asarray(0.0), jax.random.PRNGKey(5)
+    )
     assert transition.expert_action is not None and (np.asarray(transition.expert_action) >= 0).all()
     a = state.actor
     logits = acting.q_values(state.learner.params, a.obs[:, None], a.is_first[:, None], a.net_state)[0][:, 0]
     np.testing.assert_array_equal(np.asarray(transition.action), np.asarray(logits.argmax(-1)))  # epsilon 0
 
 
-@pytest.mark.parametrize("build, message", [
-    (lambda: LearnerConfig(expert_margin_weight=-1.0),
-     r"^LearnerConfig: expert_margin_weight must be >= 0 \(0 = no margin loss\), got -1.0$"),
-    (lambda: LearnerConfig(expert_margin=0.0), r"^LearnerConfig: expert_margin must be > 0, got 0.0$"),
-    (lambda: LearnerConfig(policy_weight=0.0), r"^LearnerConfig: policy_weight must be > 0, got 0.0$"),
-    (lambda: dataclasses.replace(SMOKE.network, policy_head=True, quantiles=8),
-     r"^NetworkConfig: policy_head needs a recurrent variant \(the head reads the LSTM output\) and no quantiles$"),
-    (lambda: dataclasses.replace(SMOKE.network, policy_head=True, variant="drlavt"),
-     r"^NetworkConfig: policy_head needs a recurrent variant \(the head reads the LSTM output\) and no quantiles$"),
-    (lambda: LearnerConfig(blind_label="search"),
-     r"^LearnerConfig: blind_label must be one of \('teacher', 'none', 'retreat'\), got 'search'$"),
-])
+@pytest.mark.parametrize(
+    "build, message",
+    [
+        (
+            lambda: LearnerConfig(expert_margin_weight=-1.0),
+            r"^LearnerConfig: expert_margin_weight must be >= 0 \(0 = no margin loss\), got -1.0$",
+        ),
+        (lambda: LearnerConfig(expert_margin=0.0), r"^LearnerConfig: expert_margin must be > 0, got 0.0$"),
+        (lambda: LearnerConfig(policy_weight=0.0), r"^LearnerConfig: policy_weight must be > 0, got 0.0$"),
+        (
+            lambda: dataclasses.replace(SMOKE.network, policy_head=True, quantiles=8),
+            r"^NetworkConfig: policy_head needs a recurrent variant \(the head reads the LSTM output\) and no quantiles$",
+        ),
+        (
+            lambda: dataclasses.replace(SMOKE.network, policy_head=True, variant="drlavt"),
+            r"^NetworkConfig: policy_head needs a recurrent variant \(the head reads the LSTM output\) and no quantiles$",
+        ),
+        (
+            lambda: LearnerConfig(blind_label="search"),
+            r"^LearnerConfig: blind_label must be one of \('teacher', 'none', 'retreat'\), got 'search'$",
+        ),
+    ],
+)
 def test_bad_margin_settings_fail_in_one_line(build, message):
     with pytest.raises(ValueError, match=message):
         build()

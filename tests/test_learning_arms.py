@@ -40,8 +40,11 @@ def _changes(arm: str, reference: str) -> dict:
         ("q-mha", "aux-lr2", {"network.variant": "mha"}),
         ("q-aug", "q-origin", {"learner.augment": True}),
         ("aux-lr2", "prev-aux", {"learner.lr": 2 * learning_arms._LR}),
-        ("patch", "aux-lr2", {"network.kernels": (4, 2, 3), "network.strides": (4, 2, 1),
-                              "network.pools": (False, False, False)}),  # one change: the stem
+        (
+            "patch",
+            "aux-lr2",
+            {"network.kernels": (4, 2, 3), "network.strides": (4, 2, 1), "network.pools": (False, False, False)},
+        ),  # one change: the stem
         ("patch-768k", "patch", {"run.total_env_steps": 768_000}),
         ("replay-256k", "patch-768k", {"replay.capacity_steps": 256_000}),
         ("eps-100k", "patch-768k", {"acting.eps_decay_steps": 100_000}),
@@ -80,10 +83,19 @@ def _changes(arm: str, reference: str) -> dict:
         ("batch-64", "avg-12", {"replay.batch_size": 64, "learner.replay_ratio": 4.0}),
         ("fresh-replay", "avg-12", {"replay.capacity_steps": 2560, "learner.learning_starts": 2560}),
         ("eps-100k-polyak-002", "avg-eps-100k", {"learner.polyak_tau": 0.02}),
-        ("perturb-05", "avg-12", {"env.frame_history": 3, "env_params": (
-            ("actuator_noise", 0.3), ("blur_frames", 3), ("delay_max", 0.5), ("perturb_prob", 0.5))}),
-        ("perturb-1", "perturb-05", {"env_params": (
-            ("actuator_noise", 0.3), ("blur_frames", 3), ("delay_max", 0.5), ("perturb_prob", 1.0))}),
+        (
+            "perturb-05",
+            "avg-12",
+            {
+                "env.frame_history": 3,
+                "env_params": (("actuator_noise", 0.3), ("blur_frames", 3), ("delay_max", 0.5), ("perturb_prob", 0.5)),
+            },
+        ),
+        (
+            "perturb-1",
+            "perturb-05",
+            {"env_params": (("actuator_noise", 0.3), ("blur_frames", 3), ("delay_max", 0.5), ("perturb_prob", 1.0))},
+        ),
         ("avg-2304k", "avg-12", {"run.total_env_steps": 2_304_000, "run.policy_average_from": 60}),
         ("dueling", "avg-12", {"network.dueling": True}),
         ("offset-04", "avg-12", {"env_params": (("offset_max", 0.4),)}),
@@ -115,33 +127,71 @@ def _changes(arm: str, reference: str) -> dict:
         ("state-error-margin", "state-input-gain10-margin", {"network.state_input_entries": (0, 1, 2)}),
         ("state-velocity-margin", "state-input-gain10-margin", {"network.state_input_entries": (3, 4, 5)}),
         ("state-visible-margin", "state-error-margin", {"network.state_input_point": "visible"}),
-        ("centroid-input-margin", "expert-margin", {"network.state_input": True, "network.state_input_gain": 10.0,
-                                                    "network.state_input_entries": (0, 1, 2),
-                                                    "network.state_input_point": "image"}),
+        (
+            "centroid-input-margin",
+            "expert-margin",
+            {
+                "network.state_input": True,
+                "network.state_input_gain": 10.0,
+                "network.state_input_entries": (0, 1, 2),
+                "network.state_input_point": "image",
+            },
+        ),
         ("size-margin", "size-1536k", {"learner.expert_margin_weight": 1.0}),
         ("long-margin", "avg-2304k", {"learner.expert_margin_weight": 1.0}),
-        ("size-wide-starts", "size-margin", {"env_params": (("init_xy_std", 2.0), ("size_scale_max", 1.0),
-                                                            ("size_scale_min", 0.15))}),
+        (
+            "size-wide-starts",
+            "size-margin",
+            {"env_params": (("init_xy_std", 2.0), ("size_scale_max", 1.0), ("size_scale_min", 0.15))},
+        ),
         ("size-wide-search", "size-wide-starts", {"learner.blind_label": "none"}),
         ("size-wide-retreat", "size-wide-starts", {"learner.blind_label": "retreat"}),
         ("size-retreat", "size-margin", {"learner.blind_label": "retreat"}),
-        ("size-wider-retreat", "size-wide-retreat", {"env_params": (("init_xy_std", 3.0), ("size_scale_max", 1.0),
-                                                                    ("size_scale_min", 0.15))}),
-        ("perturb-05-margin", "expert-margin", {"env.frame_history": 3, "env_params": (
-            ("actuator_noise", 0.3), ("blur_frames", 3), ("delay_max", 0.5), ("perturb_prob", 0.5))}),
+        (
+            "size-wider-retreat",
+            "size-wide-retreat",
+            {"env_params": (("init_xy_std", 3.0), ("size_scale_max", 1.0), ("size_scale_min", 0.15))},
+        ),
+        (
+            "perturb-05-margin",
+            "expert-margin",
+            {
+                "env.frame_history": 3,
+                "env_params": (("actuator_noise", 0.3), ("blur_frames", 3), ("delay_max", 0.5), ("perturb_prob", 0.5)),
+            },
+        ),
         ("size-1536k", "size-res64", {"run.total_env_steps": 1_536_000, "run.policy_average_from": 36}),
         ("avg-1536k", "avg-12", {"run.total_env_steps": 1_536_000, "run.policy_average_from": 36}),
         ("size-quick", "avg-12", {"env_params": (("size_scale_max", 1.0), ("size_scale_min", 0.15))}),
-        ("size-res64", "size-quick", {"env.camera.resolution": 64, "network.kernels": (8, 2, 3),
-                                      "network.strides": (8, 2, 1)}),
-        ("size-stretch", "size-small-1152k", {"env_params": (("size_scale_max", 1.0), ("size_scale_min", 0.15),
-                                                             ("stretch_max", 1.5), ("stretch_prob", 0.5))}),
+        (
+            "size-res64",
+            "size-quick",
+            {"env.camera.resolution": 64, "network.kernels": (8, 2, 3), "network.strides": (8, 2, 1)},
+        ),
+        (
+            "size-stretch",
+            "size-small-1152k",
+            {
+                "env_params": (
+                    ("size_scale_max", 1.0),
+                    ("size_scale_min", 0.15),
+                    ("stretch_max", 1.5),
+                    ("stretch_prob", 0.5),
+                )
+            },
+        ),
         ("clip-1536k", "clip-1152k", {"run.total_env_steps": 1_536_000}),
-        ("clip-res64", "clip-1152k", {"env.camera.resolution": 64, "network.kernels": (8, 2, 3),
-                                      "network.strides": (8, 2, 1)}),
+        (
+            "clip-res64",
+            "clip-1152k",
+            {"env.camera.resolution": 64, "network.kernels": (8, 2, 3), "network.strides": (8, 2, 1)},
+        ),
         ("polyak-sched", "patch-768k", {"learner.polyak_tau_start": 0.02}),  # the decay steps: defaults
-        ("res64", "patch-768k", {"env.camera.resolution": 64, "network.kernels": (8, 2, 3),
-                                 "network.strides": (8, 2, 1)}),  # one change: the image, its patch kept 4x4 tokens
+        (
+            "res64",
+            "patch-768k",
+            {"env.camera.resolution": 64, "network.kernels": (8, 2, 3), "network.strides": (8, 2, 1)},
+        ),  # one change: the image, its patch kept 4x4 tokens
     ],
 )
 def test_each_table_arm_is_one_change(arm, reference, change):
@@ -263,12 +313,24 @@ def test_reproduce_flags_give_the_blind_start_arms(monkeypatch):
 
 def test_report_prints_the_seeds(tmp_path, capsys):
     names = list(learning_arms.targets_lib.TEST_TARGETS)
-    seeds = [{"AEL": ael, "AER": aer, "lost": 0.0, "per_target": {n: {"AEL": ael, "AER": aer} for n in names}}
-             for ael, aer in ((1000.0, 412.0), (980.0, -35.0))]
+    seeds = [
+        {"AEL": ael, "AER": aer, "lost": 0.0, "per_target": {n: {"AEL": ael, "AER": aer} for n in names}}
+        for ael, aer in ((1000.0, 412.0), (980.0, -35.0))
+    ]
     (tmp_path / "x").mkdir()
-    (tmp_path / "x" / "heldout.json").write_text(json.dumps(
-        {"arm": "x", "policy_params": "target", "seeds": seeds, "AEL_mean": 990.0, "AEL_std": 10.0,
-         "AER_mean": 188.5, "AER_std": 223.5}))
+    (tmp_path / "x" / "heldout.json").write_text(
+        json.dumps(
+            {
+                "arm": "x",
+                "policy_params": "target",
+                "seeds": seeds,
+                "AEL_mean": 990.0,
+                "AEL_std": 10.0,
+                "AER_mean": 188.5,
+                "AER_std": 223.5,
+            }
+        )
+    )
     learning_arms.report(tmp_path)
     out = capsys.readouterr().out
     assert "| x [target params] | 990.0 ± 10.0 | 188.5 ± 223.5 | 0 | 1000, 980 | +412, -35 |" in out
@@ -286,9 +348,14 @@ def test_arm_table_refuses_arms_flown_under_other_speed_rules(capsys):
         arm_table.main([arm, "--ceiling", str(sizes / "baselines" / "results.json")])
     arm_table.main([arm, "--ceiling", str(sizes / "fixed-speed" / "baselines" / "results.json")])
     arms = ROOT / "results" / "val" / "arms"
-    arm_table.main([f"{arms / 'patch-768k' / 'results.json'}:patch2_768k",
-                    f"{arms / 'size-small-1152k' / 'results.json'}:size_small_1152k",
-                    "--ceiling", str(ROOT / "results" / "val" / "mpc_h12" / "results.json")])
+    arm_table.main(
+        [
+            f"{arms / 'patch-768k' / 'results.json'}:patch2_768k",
+            f"{arms / 'size-small-1152k' / 'results.json'}:size_small_1152k",
+            "--ceiling",
+            str(ROOT / "results" / "val" / "mpc_h12" / "results.json"),
+        ]
+    )
     rows = [line for line in capsys.readouterr().out.splitlines() if line.startswith("| ") and "| seeds |" not in line]
     assert [r.split(" | ")[0] for r in rows] == ["| quick_now", "| patch2_768k", "| size_small_1152k"]
 

@@ -7,8 +7,14 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from ramavt_jax.losses import (TDConfig, lambda_targets, n_step_targets, sequence_td_loss, signed_hyperbolic,
-                               signed_parabolic)
+from ramavt_jax.losses import (
+    TDConfig,
+    lambda_targets,
+    n_step_targets,
+    sequence_td_loss,
+    signed_hyperbolic,
+    signed_parabolic,
+)
 
 
 def _loss(jit, q_online, q_target, actions, rewards, terminated, truncated, mask, cfg):
@@ -80,8 +86,11 @@ def test_mask_zeroes_transitions():
     loss, _ = _loss(False, Q_ONLINE, Q_TARGET, ACTIONS, REWARDS, FALSE2, FALSE2, np.zeros((1, 2)), cfg)
     assert float(loss) == 0.0
     # masked transition gets no gradient
-    grad = jax.grad(lambda q: sequence_td_loss(q, jnp.asarray(Q_TARGET), ACTIONS, REWARDS, FALSE2, FALSE2,
-                                               jnp.array([[1.0, 0.0]]), cfg)[0])(jnp.asarray(Q_ONLINE))
+    grad = jax.grad(
+        lambda q: sequence_td_loss(
+            q, jnp.asarray(Q_TARGET), ACTIONS, REWARDS, FALSE2, FALSE2, jnp.array([[1.0, 0.0]]), cfg
+        )[0]
+    )(jnp.asarray(Q_ONLINE))
     np.testing.assert_allclose(grad, [[[-2.5, 0.0], [0.0, 0.0], [0.0, 0.0]]])
 
 
@@ -162,8 +171,17 @@ def test_n_step_loss_terminal_in_middle():
     q_online = np.zeros((1, 6, 1), np.float32)
     terminated = np.array([[False, False, True, False, False]])
     cfg = TDConfig(gamma=0.5, n_step=3, double_q=True)
-    loss, aux = _loss(True, q_online, q_target, np.zeros((1, 5), np.int32), np.array([[1.0, 2, 3, 4, 5]]),
-                      terminated, np.zeros((1, 5), bool), np.ones((1, 5)), cfg)
+    loss, aux = _loss(
+        True,
+        q_online,
+        q_target,
+        np.zeros((1, 5), np.int32),
+        np.array([[1.0, 2, 3, 4, 5]]),
+        terminated,
+        np.zeros((1, 5), bool),
+        np.ones((1, 5)),
+        cfg,
+    )
     np.testing.assert_allclose(aux["target"], [[2.75, 3.5, 3.0, 19.0, 30.0]], rtol=1e-6)
     # loss = mean(0.5 * target^2) since q_taken = 0
     expected = 0.5 * (2.75**2 + 3.5**2 + 9 + 19**2 + 30**2) / 5
@@ -209,8 +227,17 @@ def test_rescaled_target():
     # target = h(1 + 0.5 * h^-1(2.008)) = h(1 + 4) = h(5) = sqrt(6) - 1 + 0.005
     q_target = np.array([[[0.0], [2.008]]], np.float32)
     cfg = TDConfig(gamma=0.5, n_step=1, value_rescale=True)
-    _, aux = _loss(False, np.zeros((1, 2, 1), np.float32), q_target, np.zeros((1, 1), np.int32),
-                   np.ones((1, 1), np.float32), np.zeros((1, 1), bool), np.zeros((1, 1), bool), np.ones((1, 1)), cfg)
+    _, aux = _loss(
+        False,
+        np.zeros((1, 2, 1), np.float32),
+        q_target,
+        np.zeros((1, 1), np.int32),
+        np.ones((1, 1), np.float32),
+        np.zeros((1, 1), bool),
+        np.zeros((1, 1), bool),
+        np.ones((1, 1)),
+        cfg,
+    )
     np.testing.assert_allclose(aux["target"], [[math.sqrt(6.0) - 1.0 + 0.005]], rtol=1e-5)
 
 
@@ -218,8 +245,17 @@ def test_batch_rows_independent():
     # Two rows: row 1 = the double-Q case, row 0 = the same with its mask zeroed -> loss = row 1 only: 2.3125
     cfg = TDConfig(gamma=0.5, double_q=True)
     cat = lambda x: np.concatenate([x, x])  # noqa: E731
-    loss, aux = _loss(False, cat(Q_ONLINE), cat(Q_TARGET), cat(ACTIONS), cat(REWARDS), cat(FALSE2), cat(FALSE2),
-                      np.array([[0.0, 0.0], [1.0, 1.0]]), cfg)
+    loss, aux = _loss(
+        False,
+        cat(Q_ONLINE),
+        cat(Q_TARGET),
+        cat(ACTIONS),
+        cat(REWARDS),
+        cat(FALSE2),
+        cat(FALSE2),
+        np.array([[0.0, 0.0], [1.0, 1.0]]),
+        cfg,
+    )
     np.testing.assert_allclose(loss, 2.3125, rtol=1e-6)
     np.testing.assert_allclose(aux["target"], [[1.5, 0.0], [1.5, 0.0]])
 

@@ -26,7 +26,9 @@ def test_describe_reports_start_drift_closest_approach_and_first_step_out_of_vie
     assert "closest 0.36 m at step 3" in line  # row 2, |(0.3, 0, 0.2)|; row 5 lies after the episode's end
     assert line.endswith("first out of view: step 5, out for good from step 5")
     view[:, 1] = [True, False, True, True, False, False]
-    assert lost_episodes.describe(rec, stats, 1, dt, 1.0).endswith("first out of view: step 2, out for good from step 5")
+    assert lost_episodes.describe(rec, stats, 1, dt, 1.0).endswith(
+        "first out of view: step 2, out for good from step 5"
+    )
     view[:, 1] = [True, False, True, True, True, False]  # row 5 lies after the end: in view at step 5, the last
     assert lost_episodes.describe(rec, stats, 1, dt, 1.0).endswith("first out of view: step 2, in view at the end")
     view[:, 1] = True

@@ -14,13 +14,23 @@ from ramavt_jax.evaluation import seeds  # noqa: E402
 
 
 def _result(folder: str, training_seeds, aer: float, seed: int = 0, eval_params=None) -> dict:
-    rows = [{"name": f"{folder}/seed_{s}", "kind": "checkpoint",
-             "info": {"run_dir": f"runs/{folder}/seed_{s}", "seed": s},
-             "settings": {"none": {"per_target": {"A": {"return_mean": aer + s}}, "overall": {"return_mean": aer + s}}}}
-            for s in training_seeds]
+    rows = [
+        {
+            "name": f"{folder}/seed_{s}",
+            "kind": "checkpoint",
+            "info": {"run_dir": f"runs/{folder}/seed_{s}", "seed": s},
+            "settings": {"none": {"per_target": {"A": {"return_mean": aer + s}}, "overall": {"return_mean": aer + s}}},
+        }
+        for s in training_seeds
+    ]
     rows.append({"name": "depth", "kind": "baseline", "info": {}, "settings": {}})
-    settings = {"seed": seed, "episodes_per_target": 2, "targets": ["A"], "max_steps": 10,
-                "eval_params": eval_params or {"dist_weight": 1.0}}
+    settings = {
+        "seed": seed,
+        "episodes_per_target": 2,
+        "targets": ["A"],
+        "max_steps": 10,
+        "eval_params": eval_params or {"dist_weight": 1.0},
+    }
     return {"settings": settings, "rows": rows, "arms": {"stale": 1}, "command": f"ramavt eval {folder}"}
 
 

@@ -9,11 +9,6 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-# Compilation (mostly of the random initialisers) dominates this file's run time on a 2-core CPU;
-# a persistent cache makes re-runs fast.
-jax.config.update("jax_compilation_cache_dir", "/tmp/ramavt_jax_test_cache")
-jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.5)
-
 from ramavt_jax.layers import CONV_FUNCTIONS, HYBRID_MIN_CHANNELS, PaddedConv, conv2d_patches
 from ramavt_jax.network import (
     VARIANTS,
@@ -75,9 +70,7 @@ def test_default_config_params_and_shapes(variant):
         counts[res] = count_params(shapes)
         net = make_network(cfg)
         state = initial_state(cfg, 2, (res, res, 1))
-        q, _ = jax.eval_shape(
-            net.apply, shapes, jnp.zeros((2, 5, res, res, 1)), jnp.zeros((2, 5), bool), state
-        )
+        q, _ = jax.eval_shape(net.apply, shapes, jnp.zeros((2, 5, res, res, 1)), jnp.zeros((2, 5), bool), state)
         assert q.shape == (2, 5, 11)
     print(variant, counts)  # parameter counts, reported with -s
     if variant == "ramavt":
@@ -169,8 +162,11 @@ def test_dueling_head_adds_a_value_to_mean_centred_advantages(variant):
     params = variables["params"]
     assert params["value"]["kernel"].shape[-1] == 1 and params["q"]["kernel"].shape[-1] == cfg.num_actions
     q, _ = _apply(cfg, variables, obs, reset, state)
-    moved = {**params, "value": {**params["value"], "bias": params["value"]["bias"] + 2.0},
-             "q": {**params["q"], "bias": params["q"]["bias"] + 5.0}}
+    moved = {
+        **params,
+        "value": {**params["value"], "bias": params["value"]["bias"] + 2.0},
+        "q": {**params["q"], "bias": params["q"]["bias"] + 5.0},
+    }
     q_moved, _ = _apply(cfg, {"params": moved}, obs, reset, state)
     np.testing.assert_allclose(q_moved, q + 2.0, atol=1e-5)
     a_only = {**params, "q": {**params["q"], "bias": params["q"]["bias"].at[0].add(1.0)}}
@@ -189,13 +185,17 @@ def test_conv_impls_equal_flax_conv(k, s, size, c):
     kernel = jax.random.normal(kk, (k, k, c, 5))
     p = k // 2
     conv = nn.Conv(5, (k, k), strides=(s, s), padding=((p, p), (p, p)), use_bias=False)
-    impls = {"flax": lambda x, w: conv.apply({"params": {"kernel": w}}, x),
-             **{name: functools.partial(CONV_FUNCTIONS[name], stride=s) for name in ("im2col", "hybrid", "lax")}}
+    impls = {
+        "flax": lambda x, w: conv.apply({"params": {"kernel": w}}, x),
+        **{name: functools.partial(CONV_FUNCTIONS[name], stride=s) for name in ("im2col", "hybrid", "lax")},
+    }
 
     @jax.jit  # one program for all outputs and gradients (eager: dozens of small compiles)
     def outputs_and_grads(x, w, g):
-        return {name: (f(x, w), jax.grad(lambda x, w, f=f: jnp.sum(f(x, w) * g), argnums=(0, 1))(x, w))
-                for name, f in impls.items()}
+        return {
+            name: (f(x, w), jax.grad(lambda x, w, f=f: jnp.sum(f(x, w) * g), argnums=(0, 1))(x, w))
+            for name, f in impls.items()
+        }
 
     shape = jax.eval_shape(impls["flax"], x, kernel).shape
     assert jax.eval_shape(impls["im2col"], x, kernel).shape == shape
@@ -223,8 +223,10 @@ def test_patch_layer_equals_flax_conv(k, size):
 
     @jax.jit
     def outputs_and_grads(x, w):
-        return {name: (f(x, w), jax.grad(lambda x, w, f=f: jnp.sum(f(x, w) * g), argnums=(0, 1))(x, w))
-                for name, f in (("flax", flax_conv), ("patches", conv2d_patches))}
+        return {
+            name: (f(x, w), jax.grad(lambda x, w, f=f: jnp.sum(f(x, w) * g), argnums=(0, 1))(x, w))
+            for name, f in (("flax", flax_conv), ("patches", conv2d_patches))
+        }
 
     res = outputs_and_grads(x, kernel)
     np.testing.assert_allclose(res["patches"][0], res["flax"][0], atol=1e-4, rtol=1e-4)
@@ -419,7 +421,9 @@ def test_coordinate_encoder_equals_plain_encoder_on_appended_channels():
 
     cfg = small("ramavt", coord_channels=True, pooled_skip=True)
     plain = dataclasses.replace(cfg, coord_channels=False)
-    obs = jax.random.uniform(jax.random.key(2), (3, 32, 32, 1)) * (jax.random.uniform(jax.random.key(3), (3, 32, 32, 1)) > 0.7)
+    obs = jax.random.uniform(jax.random.key(2), (3, 32, 32, 1)) * (
+        jax.random.uniform(jax.random.key(3), (3, 32, 32, 1)) > 0.7
+    )
     params = init_params(cfg, jax.random.key(0), obs.shape[1:])["params"]["encoder"]
     folded = jax.jit(Encoder(cfg).apply)({"params": params}, obs)
     appended = jax.jit(Encoder(plain).apply)({"params": params}, with_coordinates(obs))
@@ -459,11 +463,14 @@ def test_rescaled_depth_makes_a_small_range_change_visible_before_the_norm():
     assert change(rescaled) > 10 * change(cfg), (change(rescaled), change(cfg))
 
 
-@pytest.mark.parametrize("kw, message", [
-    (dict(depth_gain=0.0), "depth_gain must be > 0"),
-    (dict(depth_centre=float("nan")), "depth_centre must be a finite number"),
-    (dict(depth_centre=0.25, coord_channels=False), "need coord_channels=True"),
-])
+@pytest.mark.parametrize(
+    "kw, message",
+    [
+        (dict(depth_gain=0.0), "depth_gain must be > 0"),
+        (dict(depth_centre=float("nan")), "depth_centre must be a finite number"),
+        (dict(depth_centre=0.25, coord_channels=False), "need coord_channels=True"),
+    ],
+)
 def test_depth_rescaling_config_is_validated(kw, message):
     with pytest.raises(ValueError, match=message):
         small("ramavt", **{"coord_channels": True, **kw})
@@ -490,7 +497,11 @@ def test_hybrid_conv_vmapped_over_kernels_equals_each_kernel(backend, monkeypatc
 
     @jax.jit
     def batched_and_looped(x, kernels):
-        batched = jax.vmap(conv)(x, kernels), jax.vmap(jax.grad(loss))(kernels, x), jax.vmap(conv, (0, None))(x, kernels[0])
+        batched = (
+            jax.vmap(conv)(x, kernels),
+            jax.vmap(jax.grad(loss))(kernels, x),
+            jax.vmap(conv, (0, None))(x, kernels[0]),
+        )
         looped = [(conv(x[i], kernels[i]), jax.grad(loss)(kernels[i], x[i]), conv(x[i], kernels[0])) for i in range(3)]
         return batched, looped
 
@@ -509,8 +520,18 @@ def _stats_by_hand(frame: np.ndarray) -> np.ndarray:
     col_px = (-1 + 2 * cols / (w - 1)) * w / 2  # the coordinate planes' [-1, 1], scaled to pixels
     row_px = (-1 + 2 * rows / (h - 1)) * h / 2
     metres = (frame[rows, cols, -1] - 0.25) * 20.0
-    return np.array([np.sqrt(rows.size), col_px.mean(), row_px.mean(), col_px.std(), row_px.std(), metres.mean(),
-                     metres.min(), metres.std()])
+    return np.array(
+        [
+            np.sqrt(rows.size),
+            col_px.mean(),
+            row_px.mean(),
+            col_px.std(),
+            row_px.std(),
+            metres.mean(),
+            metres.min(),
+            metres.std(),
+        ]
+    )
 
 
 def test_silhouette_stats_match_a_by_hand_reference():
@@ -610,7 +631,9 @@ def test_frame_difference_channel_follows_the_hit_mask_and_is_taken_on_the_raw_f
 
     cfg = small("ramavt", frame_difference=True, coord_channels=True, depth_centre=0.25, depth_gain=20.0)
     plain = small("ramavt")
-    obs = jax.random.uniform(jax.random.key(2), (3, 32, 32, 1)) * (jax.random.uniform(jax.random.key(3), (3, 32, 32, 1)) > 0.7)
+    obs = jax.random.uniform(jax.random.key(2), (3, 32, 32, 1)) * (
+        jax.random.uniform(jax.random.key(3), (3, 32, 32, 1)) > 0.7
+    )
     changes = jax.random.normal(jax.random.key(4), obs.shape)
     params = init_params(cfg, jax.random.key(0), obs.shape[1:])["params"]["encoder"]
     assert params["conv0"]["kernel"].shape[-2] == 5
@@ -644,9 +667,12 @@ def test_state_input_gain_scales_the_true_state_at_the_input():
     reset, state = jnp.zeros((2, 3), bool), initial_state(cfg, 2)
     true_state = 0.01 * jax.random.normal(jax.random.key(5), (2, 3, 6))
     q = make_network(cfg).apply(variables, obs, reset, state, true_state=true_state)[0]
-    np.testing.assert_allclose(q, make_network(plain).apply(variables, obs, reset, state, true_state=10.0 * true_state)[0],
-                               atol=1e-5)
-    assert not np.allclose(q, make_network(plain).apply(variables, obs, reset, state, true_state=true_state)[0], atol=1e-5)
+    np.testing.assert_allclose(
+        q, make_network(plain).apply(variables, obs, reset, state, true_state=10.0 * true_state)[0], atol=1e-5
+    )
+    assert not np.allclose(
+        q, make_network(plain).apply(variables, obs, reset, state, true_state=true_state)[0], atol=1e-5
+    )
     with pytest.raises(ValueError, match="needs state_input=True"):
         small("ramavt", state_input_gain=10.0)
     with pytest.raises(ValueError, match="state_input_gain must be a finite number > 0"):

@@ -16,8 +16,9 @@ TABLE2 = dict(actuator_noise=0.3, delay_max=0.5, blur_frames=3)
 
 @pytest.fixture(scope="module")
 def blur_env():
-    return env.TrackingEnv(env.EnvConfig(camera=render.CameraConfig(resolution=RES), targets=("Satellite-v0",),
-                                         frame_history=3))
+    return env.TrackingEnv(
+        env.EnvConfig(camera=render.CameraConfig(resolution=RES), targets=("Satellite-v0",), frame_history=3)
+    )
 
 
 @pytest.fixture(scope="module")
@@ -51,8 +52,9 @@ def test_draws_are_independent_per_perturbation_at_the_asked_share(blur_env):
     assert abs(flags.all(1).mean() - 0.125) < 0.02  # all three in an eighth: independent, not one switch
     assert abs((~flags.any(1).astype(bool)).mean() - 0.125) < 0.02
     for share in (0.0, 1.0):
-        at = jax.vmap(randomisation.perturbed, in_axes=(0, None))(jax.random.split(jax.random.key(1), 64),
-                                                                 params.replace(perturb_prob=jnp.asarray(share)))
+        at = jax.vmap(randomisation.perturbed, in_axes=(0, None))(
+            jax.random.split(jax.random.key(1), 64), params.replace(perturb_prob=jnp.asarray(share))
+        )
         np.testing.assert_array_equal(np.asarray(at), share)
 
 
@@ -117,8 +119,10 @@ def test_evaluation_sets_the_perturbations_itself(blur_env):
     assert rollouts.run_env_overrides(trained) == {"target_spin_std": 0.2}
     for setting, expected in (("none", (0.0, 0.0, 1, 1.0)), ("all", (0.3, 0.5, 3, 1.0))):
         params = blur_env.eval_params(**rollouts.run_env_overrides(trained), **rollouts.perturbation_overrides(setting))
-        got = tuple(np.asarray(getattr(params, f)).item() for f in ("actuator_noise", "delay_max", "blur_frames",
-                                                                     "perturb_prob"))
+        got = tuple(
+            np.asarray(getattr(params, f)).item()
+            for f in ("actuator_noise", "delay_max", "blur_frames", "perturb_prob")
+        )
         np.testing.assert_allclose(got, expected, rtol=1e-6, err_msg=setting)
         assert float(params.target_spin_std) == pytest.approx(0.2)
 

@@ -48,8 +48,9 @@ def test_averaged_params_are_the_mean_of_the_last_chunks_target_params(chunk_by_
 def test_averaging_changes_no_training_step(chunk_by_chunk):
     averaged, plain = chunk_by_chunk
     assert plain[-1].learner.averaged_params is None
-    for a, b in zip(_leaves(averaged[-1].replace(learner=averaged[-1].learner.replace(averaged_params=None))),
-                    _leaves(plain[-1])):
+    for a, b in zip(
+        _leaves(averaged[-1].replace(learner=averaged[-1].learner.replace(averaged_params=None))), _leaves(plain[-1])
+    ):
         np.testing.assert_array_equal(a, b)
 
 
@@ -67,12 +68,15 @@ def test_the_compiled_chunk_is_shared_across_run_lengths_unless_the_learning_rat
 def test_an_extended_run_keeps_averaging_the_same_window(tmp_path):
     """Trained for 3 chunks, then resumed with a length of 5: the mean of chunks 3-5, as a 5-chunk run has."""
     from ramavt_jax.training import driver
+
     short = AVERAGED.override(total_env_steps=3 * AVERAGED.env_steps_per_chunk, eval_episodes=0)
     driver.run(short, tmp_path / "ext", progress=False)
-    extended = driver.run(short.override(total_env_steps=5 * AVERAGED.env_steps_per_chunk), tmp_path / "ext",
-                          progress=False)
-    whole = driver.run(short.override(total_env_steps=5 * AVERAGED.env_steps_per_chunk), tmp_path / "whole",
-                       progress=False)
+    extended = driver.run(
+        short.override(total_env_steps=5 * AVERAGED.env_steps_per_chunk), tmp_path / "ext", progress=False
+    )
+    whole = driver.run(
+        short.override(total_env_steps=5 * AVERAGED.env_steps_per_chunk), tmp_path / "whole", progress=False
+    )
     for a, b in zip(_leaves(extended.state.learner.averaged_params), _leaves(whole.state.learner.averaged_params)):
         np.testing.assert_array_equal(a, b)
 
@@ -82,14 +86,18 @@ def test_a_run_folder_serves_its_averaged_params(averaged_run, every_chunk_run):
     assert run.config.run.policy_params == "averaged"
     target = load_policy(averaged_run, policy_params="target", log=lambda *_: None)
     assert any(not np.allclose(a, b) for a, b in zip(_leaves(run.params), _leaves(target.params)))
-    with pytest.raises(ValueError, match="keeps no averaged params: .* needs a run trained with "
-                                         r"--run.policy-average-from S \(or use the 'target' params\)$"):
+    with pytest.raises(
+        ValueError,
+        match="keeps no averaged params: .* needs a run trained with "
+        r"--run.policy-average-from S \(or use the 'target' params\)$",
+    ):
         load_policy(every_chunk_run, policy_params="averaged", log=lambda *_: None)  # conftest.py: trained without
 
 
 @pytest.mark.parametrize("command", ["eval", "curve"])
-def test_asking_a_run_without_an_average_for_it_is_one_line_before_any_compile(command, every_chunk_run, tmp_path,
-                                                                               capsys):
+def test_asking_a_run_without_an_average_for_it_is_one_line_before_any_compile(
+    command, every_chunk_run, tmp_path, capsys
+):
     args = {"eval": ["eval", "--policy", "checkpoint", "--no-baselines"], "curve": ["curve", "--no-baselines"]}[command]
     with pytest.raises(SystemExit) as e:
         cli.main([*args, "--run", str(every_chunk_run), "--policy-params", "averaged", "--out", str(tmp_path / "o")])

@@ -33,8 +33,11 @@ def test_shipped_agent_was_trained_on_the_training_split_and_tracks_a_held_out_t
     trained_on = set(agent.config.env.targets)
     assert trained_on <= set(targets.TRAIN_TARGETS) and not trained_on & set(targets.TEST_TARGETS)
     assert agent.info.get("command", "").startswith("ramavt train")
-    tracking_env = rollouts.env_lib.TrackingEnv(agent.config.env.__class__(
-        camera=agent.config.env.camera, obs_mode=agent.config.env.obs_mode, targets=("Capsule-v2",)))
+    tracking_env = rollouts.env_lib.TrackingEnv(
+        agent.config.env.__class__(
+            camera=agent.config.env.camera, obs_mode=agent.config.env.obs_mode, targets=("Capsule-v2",)
+        )
+    )
     params = tracking_env.eval_params(max_steps=200)
     stats, _ = rollouts.run_episodes(tracking_env, agent.policy, params, jax.random.PRNGKey(0), 4, 200)
     assert float(np.mean(stats.length)) >= 150, np.asarray(stats.length)

@@ -66,13 +66,15 @@ def _written(target, folder: Path) -> Path:
     return path
 
 
-@pytest.mark.parametrize("arm, reference", [("procedural-48", "avg-1536k"), ("size-procedural-48", "size-1536k"),
-                                            ("procedural-48-margin", "expert-margin")])
+@pytest.mark.parametrize(
+    "arm, reference",
+    [("procedural-48", "avg-1536k"), ("size-procedural-48", "size-1536k"), ("procedural-48-margin", "expert-margin")],
+)
 def test_the_arm_adds_the_models_to_the_training_targets_only(arm, reference, tmp_path, monkeypatch):
     monkeypatch.setattr(learning_arms, "PROCEDURAL_DIR", tmp_path)
     arm, reference = learning_arms.arm_config(arm), learning_arms.arm_config(reference)
-    assert arm.env.targets[:len(targets.TRAIN_TARGETS)] == targets.TRAIN_TARGETS
-    added = arm.env.targets[len(targets.TRAIN_TARGETS):]
+    assert arm.env.targets[: len(targets.TRAIN_TARGETS)] == targets.TRAIN_TARGETS
+    added = arm.env.targets[len(targets.TRAIN_TARGETS) :]
     assert len(added) == 48 and all(Path(p).parent == tmp_path and Path(p).is_file() for p in added)
     assert dataclasses.replace(arm, env=dataclasses.replace(arm.env, targets=targets.TRAIN_TARGETS)) == reference
 
@@ -102,5 +104,6 @@ def test_too_many_geoms_is_an_error(monkeypatch):
 
 
 def _script(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, str(ROOT / "scripts" / "procedural_targets.py"), *args],
-                          capture_output=True, text=True)
+    return subprocess.run(
+        [sys.executable, str(ROOT / "scripts" / "procedural_targets.py"), *args], capture_output=True, text=True
+    )

@@ -9,9 +9,8 @@ import numpy as np
 import optax
 import pytest
 
-from ramavt_jax import losses
+from ramavt_jax import losses, presets
 from ramavt_jax import train as T
-from ramavt_jax import presets
 from ramavt_jax.network import NetworkConfig, init_params, initial_state, make_network
 
 SMOKE = presets.preset("smoke")
@@ -33,6 +32,7 @@ def test_quantile_huber_is_minimised_at_the_quantiles():
             th, st = carry
             upd, st = opt.update(jax.grad(loss)(th), st)
             return (optax.apply_updates(th, upd), st), None
+
         return jax.lax.scan(step, (theta, opt.init(theta)), None, length=1500)[0][0]
 
     theta = fit(jnp.full((n,), float(samples.mean())))
@@ -64,8 +64,9 @@ def test_quantile_targets_average_to_the_expected_value_targets(double_q):
         np.testing.assert_allclose(np.asarray(got[name]), np.asarray(expected[name]), atol=1e-5)
     assert np.isfinite(float(loss)) and float(loss) > 0
     # the dispatch by the targets' rank
-    batch = losses.TDBatch(q_target=z_target, action=actions, reward=rewards, terminated=terminated,
-                           truncated=truncated, mask=mask)
+    batch = losses.TDBatch(
+        q_target=z_target, action=actions, reward=rewards, terminated=terminated, truncated=truncated, mask=mask
+    )
     np.testing.assert_allclose(float(losses.td_loss(z_online, batch, cfg)[0]), float(loss), rtol=1e-6)
 
 
@@ -74,8 +75,9 @@ def test_masked_transitions_do_not_count():
     z_online, z_target = q_online[..., None] + jnp.arange(4.0), q_target[..., None] + jnp.arange(4.0)
     cfg = losses.TDConfig(gamma=0.9, n_step=2)
     mask = jnp.zeros(actions.shape, bool).at[:, 2].set(True)
-    grad = jax.grad(lambda z: losses.sequence_quantile_loss(z, z_target, actions, rewards, terminated, truncated,
-                                                             mask, cfg)[0])(z_online)
+    grad = jax.grad(
+        lambda z: losses.sequence_quantile_loss(z, z_target, actions, rewards, terminated, truncated, mask, cfg)[0]
+    )(z_online)
     moved = np.abs(np.asarray(grad)).sum(axis=(2, 3))  # [B, T+1]
     assert (moved[:, 2] > 0).all() and moved[:, [0, 1, 3, 4, 5, 6]].sum() == 0
 
@@ -122,9 +124,18 @@ def test_the_threshold_is_the_configs_quantile_kappa():
     q_online, q_target, actions, rewards, terminated, truncated = _window_values(jax.random.PRNGKey(3))
     z_online, z_target = q_online[..., None] + jnp.arange(4.0), q_target[..., None] + jnp.arange(4.0)
     mask = jnp.ones(actions.shape, bool)
-    loss = lambda kappa: float(losses.sequence_quantile_loss(  # noqa: E731
-        z_online, z_target, actions, rewards, terminated, truncated, mask,
-        QCFG.override(quantile_kappa=kappa).learner.td)[0])
+    loss = lambda kappa: float(
+        losses.sequence_quantile_loss(  # noqa: E731
+            z_online,
+            z_target,
+            actions,
+            rewards,
+            terminated,
+            truncated,
+            mask,
+            QCFG.override(quantile_kappa=kappa).learner.td,
+        )[0]
+    )
     assert QCFG.learner.td.quantile_kappa == 0.05
     small, large = loss(1e-4), loss(1e3)
     assert 1e-4 < large < small * 1e-2  # quadratic over a huge threshold: tiny

@@ -18,8 +18,8 @@ import numpy as np
 import pytest
 
 from ramavt_jax import cli
-from ramavt_jax.train import Trainer
 from ramavt_jax.presets import preset
+from ramavt_jax.train import Trainer
 from ramavt_jax.train_config import TrainConfig
 from ramavt_jax.training import memory, run_folder
 from ramavt_jax.training.checkpoint import CheckpointError, CheckpointStore
@@ -156,8 +156,10 @@ def test_an_incomplete_config_json_is_refused_naming_the_field(tmp_path, capsys)
     (run / "checkpoints" / "2").mkdir(parents=True)  # resume is attempted: a step folder is there
     (run / "config.json").write_text(json.dumps({"seed": 0, "config": _without(config_json, "network", "lstm")}))
     before = (run / "config.json").read_bytes()
-    for args in (["eval", "--run", str(run), "--no-baselines", "--out", str(tmp_path / "eval")],
-                 TRAIN + ["--out", str(run)]):
+    for args in (
+        ["eval", "--run", str(run), "--no-baselines", "--out", str(tmp_path / "eval")],
+        TRAIN + ["--out", str(run)],
+    ):
         err = _refused(args, capsys)
         assert "lacks network.lstm" in err and "config.json" in err, err
     assert (run / "config.json").read_bytes() == before
@@ -204,8 +206,9 @@ class _Compiled:
     """What episodes_that_fit reads of a compiled runner: XLA's memory analysis."""
 
     def __init__(self, temp, output=0, argument=0):
-        self.stats = type("Stats", (), dict(temp_size_in_bytes=temp, output_size_in_bytes=output,
-                                            argument_size_in_bytes=argument))
+        self.stats = type(
+            "Stats", (), dict(temp_size_in_bytes=temp, output_size_in_bytes=output, argument_size_in_bytes=argument)
+        )
 
     def memory_analysis(self):
         return self.stats
@@ -225,11 +228,13 @@ def test_the_episodes_run_side_by_side_are_as_many_as_fit(monkeypatch):
 
 @pytest.mark.slow  # two compiles of the episode runner (about 15 s on 2 busy cores)
 def test_episodes_that_do_not_fit_run_in_batches(monkeypatch):
-    from ramavt_jax import baselines, env as env_lib, render
+    from ramavt_jax import baselines, render
+    from ramavt_jax import env as env_lib
     from ramavt_jax.evaluation import rollouts
 
-    tracking_env = env_lib.TrackingEnv(env_lib.EnvConfig(camera=render.CameraConfig(resolution=8),
-                                                         targets=("Capsule-v0",)))
+    tracking_env = env_lib.TrackingEnv(
+        env_lib.EnvConfig(camera=render.CameraConfig(resolution=8), targets=("Capsule-v0",))
+    )
     params, key, n = tracking_env.eval_params(max_steps=4), jax.random.PRNGKey(1), 12
     policy = baselines.random_policy()
     fn = rollouts._episode_runner(tracking_env, policy, 4, False)
@@ -291,8 +296,13 @@ def test_a_second_command_on_the_same_out_is_refused(tmp_path, capsys):
 @pytest.mark.slow  # a fresh interpreter imports JAX and starts compiling (about 15 s on 2 busy cores)
 def test_sigterm_while_compiling_exits_at_once(tmp_path):
     env = dict(os.environ, RAMAVT_COMPILE_CACHE="off", PYTHONPATH=str(Path(cli.__file__).resolve().parents[2]))
-    proc = subprocess.Popen([sys.executable, "-m", "ramavt_jax.cli", *TRAIN[:3], "--out", str(tmp_path / "run")],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "ramavt_jax.cli", *TRAIN[:3], "--out", str(tmp_path / "run")],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=env,
+    )
     try:
         for line in proc.stdout:
             if line.startswith("compiling the training chunk"):
@@ -315,8 +325,16 @@ def test_the_video_trajectory_view_holds_a_far_target():
 
     def frames(rel_pos):
         t = len(rel_pos)
-        return EpisodeFrames(obs=None, rgb=None, rel_pos=np.asarray(rel_pos, float), chaser_pos=None, target_pos=None,
-                             reward=np.zeros(t), action=np.zeros(t, int), alive=np.ones(t, bool))
+        return EpisodeFrames(
+            obs=None,
+            rgb=None,
+            rel_pos=np.asarray(rel_pos, float),
+            chaser_pos=None,
+            target_pos=None,
+            reward=np.zeros(t),
+            action=np.zeros(t, int),
+            alive=np.ones(t, bool),
+        )
 
     assert view_limits(frames([[0.5, 0, 5], [-1, 0, 7]])) == (6.0, 15.0, 6.0)  # the usual view
     half, far, err = view_limits(frames([[0, 0, 5], [30, 0, 100]]))

@@ -79,7 +79,9 @@ def _world_from_body(path):
     rot = xmat[0] @ arrays["geom_mat"][0].astype(np.float64).T
     pos = data.geom_xpos[0] - rot @ arrays["geom_pos"][0]
     # The loader's geoms must be a rigid transform of MuJoCo's.
-    np.testing.assert_allclose(data.geom_xpos, arrays["geom_pos"][:n] @ rot.T + pos, atol=2e-4 * (1 + np.abs(pos).max()))
+    np.testing.assert_allclose(
+        data.geom_xpos, arrays["geom_pos"][:n] @ rot.T + pos, atol=2e-4 * (1 + np.abs(pos).max())
+    )
     np.testing.assert_allclose(xmat, np.einsum("ij,gjk->gik", rot, arrays["geom_mat"][:n]), atol=1e-4)
     return model, data, rot, pos
 
@@ -172,7 +174,9 @@ def _check_against_mujoco(path, seed=0, n_poses=8, res=40):
         ref_rgb = albedo[ref_geom] * (amb + (1 - amb) * np.maximum(ref_normal @ sun, 0.0))[..., None]
         interior = both & ~_edge_pixels(np.where(ref_hit, ref_geom, -1))
         cerr = np.abs(np.asarray(frames.rgb[i]) - ref_rgb)[interior]
-        assert cerr.size == 0 or np.quantile(cerr.max(-1), 0.99) < 2e-3, f"{path} pose {i}: colour error {cerr.max():.2e}"
+        assert cerr.size == 0 or np.quantile(cerr.max(-1), 0.99) < 2e-3, (
+            f"{path} pose {i}: colour error {cerr.max():.2e}"
+        )
         assert not np.asarray(frames.rgb[i])[~hit].any(), "sky must be black"
         total_hits += ref_hit.sum()
     assert total_hits > 0, f"{path}: no pose saw the target"
@@ -225,8 +229,15 @@ def test_camera_config_validation():
     cam = R.CameraConfig()
     assert cam.resolution == 64 and np.isclose(cam.focal(), 32 / np.tan(np.radians(30)))
     hash(cam)
-    for kwargs in [dict(resolution=4), dict(resolution=2048), dict(resolution=64.0), dict(fov_deg=0.0),
-                   dict(fov_deg=180.0), dict(near=0.0), dict(far=0.01)]:
+    for kwargs in [
+        dict(resolution=4),
+        dict(resolution=2048),
+        dict(resolution=64.0),
+        dict(fov_deg=0.0),
+        dict(fov_deg=180.0),
+        dict(near=0.0),
+        dict(far=0.01),
+    ]:
         with pytest.raises(ValueError):
             R.CameraConfig(**kwargs)
 
@@ -323,14 +334,17 @@ def test_vmapped_render_uses_batch_rule_with_per_env_lighting():
     rot = jnp.broadcast_to(jnp.eye(3), (2, 3, 3))
     light = R.default_lighting()
     flipped = jax.vmap(lambda s: R.Lighting(sun_dir=s, ambient=jnp.float32(0.2)))(
-        jnp.stack([light.sun_dir, -light.sun_dir]))
+        jnp.stack([light.sun_dir, -light.sun_dir])
+    )
     out = jax.jit(jax.vmap(lambda t, p, r, l: R.render(t, p, r, cam, l, True)))(tg, pos, rot, flipped)
     for i, lit in enumerate([light, R.Lighting(sun_dir=-light.sun_dir, ambient=jnp.float32(0.2))]):
         one = R.render(jax.tree.map(lambda x: x[i], tg), pos[i], rot[i], cam, lit, True)
         np.testing.assert_allclose(out.depth[i], one.depth, atol=1e-6)
         np.testing.assert_allclose(out.rgb[i], one.rgb, atol=1e-6)
-    nested = jax.vmap(jax.vmap(lambda p, r: R.render(jax.tree.map(lambda x: x[0], tg), p, r, cam, light, False),
-                               in_axes=(0, None)), in_axes=(None, 0))(pos, rot)
+    nested = jax.vmap(
+        jax.vmap(lambda p, r: R.render(jax.tree.map(lambda x: x[0], tg), p, r, cam, light, False), in_axes=(0, None)),
+        in_axes=(None, 0),
+    )(pos, rot)
     assert nested.depth.shape == (2, 2, 24, 24)
     single = R.render(jax.tree.map(lambda x: x[0], tg), pos[1], rot[0], cam, light, False)
     np.testing.assert_allclose(nested.depth[0, 1], single.depth, atol=1e-6)
@@ -347,16 +361,25 @@ def test_specialised_kernels_match_general_cast():
     cam = R.CameraConfig(resolution=32)
     jitted = {}  # kernel -> its jitted cast (every type has the same shapes: the general one compiles once)
     cast = lambda kernel: jitted.setdefault(kernel, jax.jit(lambda cols, x, y: kernel(cols, x, y, cam.near)))
-    for gtype, kernel in [(targets.SPHERE, intersect.cast_ellipsoid), (targets.ELLIPSOID, intersect.cast_ellipsoid),
-                          (targets.BOX, intersect.cast_box), (targets.CYLINDER, intersect.cast_cylinder)]:
+    for gtype, kernel in [
+        (targets.SPHERE, intersect.cast_ellipsoid),
+        (targets.ELLIPSOID, intersect.cast_ellipsoid),
+        (targets.BOX, intersect.cast_box),
+        (targets.CYLINDER, intersect.cast_cylinder),
+    ]:
         g = 16
         model = targets.TargetModel(
             geom_type=jnp.full((1, g), gtype, jnp.int32),
             geom_size=jnp.asarray(rng.uniform(0.1, 1.0, (1, g, 3)), jnp.float32),
             geom_pos=jnp.asarray(rng.normal(0, 0.5, (1, g, 3)), jnp.float32),
             geom_mat=jnp.asarray(np.stack([_random_rotation(rng) for _ in range(g)])[None], jnp.float32),
-            geom_rgb=jnp.ones((1, g, 3)), geom_rbound=jnp.ones((1, g)), geom_mask=jnp.ones((1, g), bool),
-            bound_radius=jnp.ones((1,)), inertia=jnp.ones((1, 3)), mass=jnp.ones((1,)))
+            geom_rgb=jnp.ones((1, g, 3)),
+            geom_rbound=jnp.ones((1, g)),
+            geom_mask=jnp.ones((1, g), bool),
+            bound_radius=jnp.ones((1,)),
+            inertia=jnp.ones((1, 3)),
+            mass=jnp.ones((1,)),
+        )
         pos = jnp.array([[0.2, -0.1, 3.0]])
         p, r = geometry.geom_frames(model, pos, jnp.asarray(_random_rotation(rng), jnp.float32)[None])
         table = geometry.cast_table(model, *geometry.unit_frames(model, p, r))  # [G, F]
@@ -396,10 +419,17 @@ def test_no_work_shortcut_keeps_geoms_far_from_the_centre_of_mass(com_z, offset_
 
     cam = R.CameraConfig(resolution=16)
     sphere = targets.TargetModel(
-        geom_type=jnp.full((1, 1), targets.SPHERE, jnp.int32), geom_size=jnp.full((1, 1, 3), 2.0),
-        geom_pos=jnp.array([[[0.0, 0.0, offset_z]]]), geom_mat=jnp.eye(3)[None, None], geom_rgb=jnp.ones((1, 1, 3)),
-        geom_rbound=jnp.full((1, 1), 2.0), geom_mask=jnp.ones((1, 1), bool), bound_radius=jnp.full((1,), 7.0),
-        inertia=jnp.ones((1, 3)), mass=jnp.ones((1,)))
+        geom_type=jnp.full((1, 1), targets.SPHERE, jnp.int32),
+        geom_size=jnp.full((1, 1, 3), 2.0),
+        geom_pos=jnp.array([[[0.0, 0.0, offset_z]]]),
+        geom_mat=jnp.eye(3)[None, None],
+        geom_rgb=jnp.ones((1, 1, 3)),
+        geom_rbound=jnp.full((1, 1), 2.0),
+        geom_mask=jnp.ones((1, 1), bool),
+        bound_radius=jnp.full((1,), 7.0),
+        inertia=jnp.ones((1, 3)),
+        mass=jnp.ones((1,)),
+    )
     pos, rot, light = jnp.array([[0.0, 0.0, com_z]]), jnp.eye(3)[None], R.default_lighting()
     frame = R.render_batch(sphere, pos, rot, cam, light)
     assert np.asarray(frame.hit).any()

@@ -160,8 +160,13 @@ def test_sample_is_a_typed_sequence_batch():
     assert isinstance(batch, SequenceBatch) and batch.burn_in == burn_in
     assert batch.obs.shape == (B, L, H, W, C) and batch.obs.dtype == jnp.float32
     assert batch.reset.shape == (B, L) and batch.reset.dtype == jnp.bool_
-    for x, dtype in ((batch.action, jnp.int32), (batch.reward, jnp.float32), (batch.terminated, jnp.bool_),
-                     (batch.truncated, jnp.bool_), (batch.loss_mask, jnp.bool_)):
+    for x, dtype in (
+        (batch.action, jnp.int32),
+        (batch.reward, jnp.float32),
+        (batch.terminated, jnp.bool_),
+        (batch.truncated, jnp.bool_),
+        (batch.loss_mask, jnp.bool_),
+    ):
         assert x.shape == (B, L - 1) and x.dtype == dtype
     assert batch.start_state.h.shape == batch.start_state.c.shape == (LAYERS, B, UNITS)
     assert not batch.loss_mask[:, :burn_in].any() and batch.loss_mask[:, burn_in:].any()
@@ -251,8 +256,9 @@ def decode_jnp(batch):
 
 @pytest.mark.parametrize("obs_dtype, state_dtype, tol", [("float16", "bfloat16", 1e-3), ("float32", "float32", 0.0)])
 def test_other_storage_dtypes(obs_dtype, state_dtype, tol):
-    cfg = ReplayConfig(capacity_steps=N_ENVS * 16, burn_in=0, train_len=3, batch_size=32, obs_dtype=obs_dtype,
-                       state_dtype=state_dtype)
+    cfg = ReplayConfig(
+        capacity_steps=N_ENVS * 16, burn_in=0, train_len=3, batch_size=32, obs_dtype=obs_dtype, state_dtype=state_dtype
+    )
     replay = make_replay(cfg, N_ENVS, EXAMPLE)
     state = replay.init()
     assert state.experience.obs.dtype == jnp.dtype(obs_dtype)
@@ -284,31 +290,37 @@ def test_memory_bytes():
 
 
 def test_loss_mask_around_episode_boundary():
-    is_first = jnp.array([
-        [False, False, False, True, False, False],  # a new episode starts at obs 3
-        [True, False, False, False, False, False],  # window starts on a first obs
-    ])
+    is_first = jnp.array(
+        [
+            [False, False, False, True, False, False],  # a new episode starts at obs 3
+            [True, False, False, False, False, False],  # window starts on a first obs
+        ]
+    )
     # loss_mask[t]: t >= 2 and obs t+1 is not first. Row 0: transition 2 (obs 2 -> obs 3) crosses -> masked.
-    np.testing.assert_array_equal(loss_mask(is_first, burn_in=2), [[False, False, False, True, True],
-                                                                   [False, False, True, True, True]])
+    np.testing.assert_array_equal(
+        loss_mask(is_first, burn_in=2), [[False, False, False, True, True], [False, False, True, True, True]]
+    )
     np.testing.assert_array_equal(loss_mask(is_first, burn_in=0), [[True, True, False, True, True], [True] * 5])
     with pytest.raises(ValueError, match="burn_in"):
         loss_mask(is_first, burn_in=5)
 
 
-@pytest.mark.parametrize("kwargs, num_envs, match", [
-    (dict(capacity_steps=50_000), 64, "divisible by num_envs"),
-    (dict(capacity_steps=60, burn_in=0, train_len=30), 3, "fewer than sequence_length"),
-    (dict(train_len=0), 1, "train_len must be >= 1"),
-    (dict(period=0), 1, "period"),
-    (dict(burn_in=0, train_len=9, period=11), 1, "period"),
-    (dict(batch_size=0), 1, "batch_size"),
+@pytest.mark.parametrize(
+    "kwargs, num_envs, match",
+    [
+        (dict(capacity_steps=50_000), 64, "divisible by num_envs"),
+        (dict(capacity_steps=60, burn_in=0, train_len=30), 3, "fewer than sequence_length"),
+        (dict(train_len=0), 1, "train_len must be >= 1"),
+        (dict(period=0), 1, "period"),
+        (dict(burn_in=0, train_len=9, period=11), 1, "period"),
+        (dict(batch_size=0), 1, "batch_size"),
         (dict(burn_in=-1), 1, "burn_in"),
-    (dict(obs_dtype="int8"), 1, "obs_dtype"),
-    (dict(state_dtype="float64"), 1, "state_dtype"),
-    (dict(capacity_steps=-5), 1, "capacity_steps"),
-    (dict(capacity_steps=100, min_fill_steps=200), 1, "min_fill_steps"),
-])
+        (dict(obs_dtype="int8"), 1, "obs_dtype"),
+        (dict(state_dtype="float64"), 1, "state_dtype"),
+        (dict(capacity_steps=-5), 1, "capacity_steps"),
+        (dict(capacity_steps=100, min_fill_steps=200), 1, "min_fill_steps"),
+    ],
+)
 def test_bad_config(kwargs, num_envs, match):
     with pytest.raises(ValueError, match=match):
         make_replay(ReplayConfig(**kwargs), num_envs, EXAMPLE)
@@ -333,8 +345,9 @@ def test_min_fill_steps():
 # ------------------------------------------------------------------------------------------- prioritised sequences
 def _prioritised(**kw):
     """A prioritised buffer of 3 envs x 60 steps holding 40 steps per env (windows of 6 steps)."""
-    cfg = ReplayConfig(capacity_steps=N_ENVS * 60, burn_in=0, train_len=5, period=1, batch_size=64,
-                       priority_exponent=0.9, **kw)
+    cfg = ReplayConfig(
+        capacity_steps=N_ENVS * 60, burn_in=0, train_len=5, period=1, batch_size=64, priority_exponent=0.9, **kw
+    )
     replay = make_replay(cfg, N_ENVS, EXAMPLE)
     return replay, fill(replay, replay.init(), num_chunks=2, t_chunk=20)  # 40 steps per env, no wrap
 
@@ -371,7 +384,9 @@ def test_set_priorities_steer_sampling_and_weights():
     state = replay.set_priorities(state, picked, jnp.asarray(prios, jnp.float32))
     stored = np.asarray(jax.vmap(lambda i: sum_tree.get(state.sum_tree_state, i))(jnp.asarray(items)))
     np.testing.assert_allclose(stored, prios**0.9, rtol=1e-5)  # flashbax raises them to the exponent, once
-    draws = np.concatenate([np.asarray(replay.sample(state, k).indices) for k in jax.random.split(jax.random.key(3), 40)])
+    draws = np.concatenate(
+        [np.asarray(replay.sample(state, k).indices) for k in jax.random.split(jax.random.key(3), 40)]
+    )
     share = np.mean(draws == hot)
     others = np.mean(draws == items[1])
     assert share > 20 * max(others, 1 / len(draws)), (share, others)
@@ -391,8 +406,15 @@ def test_sequence_priority_mixes_max_and_mean():
     np.testing.assert_allclose(got, [0.9 * 3 + 0.1 * 2.0, 0.9 * 0.5 + 0.1 * 0.375, 0.0], rtol=1e-6)
 
 
-@pytest.mark.parametrize("kwargs", [dict(priority_exponent=1.5), dict(importance_exponent=-0.1),
-                                    dict(priority_max_share=2.0), dict(priority_exponent=True)])
+@pytest.mark.parametrize(
+    "kwargs",
+    [
+        dict(priority_exponent=1.5),
+        dict(importance_exponent=-0.1),
+        dict(priority_max_share=2.0),
+        dict(priority_exponent=True),
+    ],
+)
 def test_bad_priority_config(kwargs):
     name = next(iter(kwargs))
     with pytest.raises(ValueError, match=f"ReplayConfig.{name} must be a number in \\[0, 1\\]"):
@@ -423,7 +445,8 @@ def test_windows_of_priority_zero_get_weight_zero_and_stay_at_zero():
     zeroed = replay.buffer.set_priorities(state, batch.indices[:1], jnp.zeros(1))  # as the drifted tree had it
     assert float(sum_tree.get(zeroed.sum_tree_state, lone)) == 0.0
     others = batch.indices != lone
-    after = replay.set_priorities(zeroed, batch.replace(weights=jnp.where(others, batch.weights, 0.0)),
-                                  jnp.full(batch.indices.shape, 3.0))
+    after = replay.set_priorities(
+        zeroed, batch.replace(weights=jnp.where(others, batch.weights, 0.0)), jnp.full(batch.indices.shape, 3.0)
+    )
     assert float(sum_tree.get(after.sum_tree_state, lone)) == 0.0
     assert float(sum_tree.get(after.sum_tree_state, int(batch.indices[others][0]))) == pytest.approx(3.0**0.9)

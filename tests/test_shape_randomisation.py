@@ -27,16 +27,22 @@ def _symmetric_body(s=(1.0, 1.0, 1.0)) -> str:
     length stretched by s, as a by-hand reference: its spheres (one turned, which changes only its geom frame) are
     written as ellipsoids once stretched, and a box turned about z stretches its own x by s_y."""
     sx, sy, sz = s
-    sphere = ('<geom type="sphere" size="0.2" pos="{x} 0 0" euler="30 50 70"/>' if s == (1.0, 1.0, 1.0) else
-              f'<geom type="ellipsoid" size="{0.2 * sx} {0.2 * sy} {0.2 * sz}" pos="{{x}} 0 0"/>')
-    return "".join([
-        f'<geom type="box" size="{0.3 * sx} {0.2 * sy} {0.15 * sz}" density="300"/>',
-        sphere.format(x=0.9 * sx), sphere.format(x=-0.9 * sx),
-        f'<geom type="ellipsoid" size="{0.1 * sx} {0.2 * sy} {0.15 * sz}" pos="0 {0.5 * sy} 0"/>',
-        f'<geom type="ellipsoid" size="{0.1 * sx} {0.2 * sy} {0.15 * sz}" pos="0 {-0.5 * sy} 0"/>',
-        f'<geom type="box" size="{0.04 * sy} {0.3 * sx} {0.05 * sz}" pos="0 0 {0.3 * sz}"{TURN_Z}/>',
-        f'<geom type="box" size="{0.04 * sy} {0.3 * sx} {0.05 * sz}" pos="0 0 {-0.3 * sz}"{TURN_Z}/>',
-    ])
+    sphere = (
+        '<geom type="sphere" size="0.2" pos="{x} 0 0" euler="30 50 70"/>'
+        if s == (1.0, 1.0, 1.0)
+        else f'<geom type="ellipsoid" size="{0.2 * sx} {0.2 * sy} {0.2 * sz}" pos="{{x}} 0 0"/>'
+    )
+    return "".join(
+        [
+            f'<geom type="box" size="{0.3 * sx} {0.2 * sy} {0.15 * sz}" density="300"/>',
+            sphere.format(x=0.9 * sx),
+            sphere.format(x=-0.9 * sx),
+            f'<geom type="ellipsoid" size="{0.1 * sx} {0.2 * sy} {0.15 * sz}" pos="0 {0.5 * sy} 0"/>',
+            f'<geom type="ellipsoid" size="{0.1 * sx} {0.2 * sy} {0.15 * sz}" pos="0 {-0.5 * sy} 0"/>',
+            f'<geom type="box" size="{0.04 * sy} {0.3 * sx} {0.05 * sz}" pos="0 0 {0.3 * sz}"{TURN_Z}/>',
+            f'<geom type="box" size="{0.04 * sy} {0.3 * sx} {0.05 * sz}" pos="0 0 {-0.3 * sz}"{TURN_Z}/>',
+        ]
+    )
 
 
 def _round_body(s=(1.0, 1.0, 1.0)) -> str:
@@ -44,8 +50,10 @@ def _round_body(s=(1.0, 1.0, 1.0)) -> str:
     by hand; the bar and the capsules put the principal moments in the file's axis order."""
     sx, _, sz = s
     caps = "".join(f'<geom type="capsule" size="{0.1 * sx} {0.3 * sz}" pos="0 {y * sx} 0"/>' for y in (0.7, -0.7))
-    return (f'<geom type="cylinder" size="{0.3 * sx} {0.05 * sz}" density="300"/>'
-            f'<geom type="box" size="{0.8 * sx} {0.05 * sx} {0.05 * sz}" density="20000"/>' + caps)
+    return (
+        f'<geom type="cylinder" size="{0.3 * sx} {0.05 * sz}" density="300"/>'
+        f'<geom type="box" size="{0.8 * sx} {0.05 * sx} {0.05 * sz}" density="20000"/>' + caps
+    )
 
 
 @pytest.fixture(scope="module")
@@ -65,11 +73,13 @@ def _load(folder, name: str, body: str) -> targets.TargetModel:
 def _assert_same_target(got, want):
     np.testing.assert_array_equal(np.asarray(got.geom_type), np.asarray(want.geom_type))
     for name in ("geom_size", "geom_rbound", "bound_radius", "inertia", "mass"):
-        np.testing.assert_allclose(np.asarray(getattr(got, name)), np.asarray(getattr(want, name)), rtol=2e-5,
-                                   atol=1e-6, err_msg=name)
+        np.testing.assert_allclose(
+            np.asarray(getattr(got, name)), np.asarray(getattr(want, name)), rtol=2e-5, atol=1e-6, err_msg=name
+        )
     for name in ("geom_pos", "geom_mat"):  # the principal axes' signs are MuJoCo's eigensolver's choice
-        np.testing.assert_allclose(np.abs(np.asarray(getattr(got, name))), np.abs(np.asarray(getattr(want, name))),
-                                   atol=1e-6, err_msg=name)
+        np.testing.assert_allclose(
+            np.abs(np.asarray(getattr(got, name))), np.abs(np.asarray(getattr(want, name))), atol=1e-6, err_msg=name
+        )
 
 
 def test_stretched_matches_mujoco_on_a_stretched_file(folder):
@@ -102,10 +112,10 @@ def _render(target, tile=render.renderer.DEFAULT_TILE):
     q = rng.normal(size=(6, 4))
     poses = jax.vmap(lambda v: rotations.quat_to_mat(v / jnp.linalg.norm(v)))(jnp.asarray(q, jnp.float32))
     positions = jnp.asarray([[0.0, 0.0, z] for z in (3.0, 4.0, 5.0, 6.0, 7.0, 8.0)]) + jnp.asarray(
-        rng.uniform(-0.6, 0.6, (6, 3)), jnp.float32)
+        rng.uniform(-0.6, 0.6, (6, 3)), jnp.float32
+    )
     batch = jax.tree.map(lambda x: jnp.broadcast_to(x, (6,) + x.shape), target)
-    return render.render_batch(batch, positions, poses, cam, render.default_lighting(),
-                               shade=False, tile=tile)
+    return render.render_batch(batch, positions, poses, cam, render.default_lighting(), shade=False, tile=tile)
 
 
 def test_stretch_by_ones_renders_the_same_target():
@@ -113,8 +123,9 @@ def test_stretch_by_ones_renders_the_same_target():
     model itself."""
     model = targets.load("Station-v0")
     assert np.any(np.asarray(model.geom_type) == targets.SPHERE)
-    np.testing.assert_allclose(np.asarray(_render(targets.stretched(model, jnp.ones(3))).depth),
-                               np.asarray(_render(model).depth), atol=1e-5)
+    np.testing.assert_allclose(
+        np.asarray(_render(targets.stretched(model, jnp.ones(3))).depth), np.asarray(_render(model).depth), atol=1e-5
+    )
 
 
 @pytest.mark.parametrize("name", ["Station-v0", "Asteroid-v1"])
@@ -134,8 +145,9 @@ def test_stretched_bounds_enclose_what_is_rendered(name):
 # ------------------------------------------------------------------------------------------------ the env's draw
 @pytest.fixture(scope="module")
 def stretch_env():
-    return env.TrackingEnv(env.EnvConfig(camera=render.CameraConfig(resolution=16),
-                                         targets=("Satellite-v0", "Asteroid-v0")))
+    return env.TrackingEnv(
+        env.EnvConfig(camera=render.CameraConfig(resolution=16), targets=("Satellite-v0", "Asteroid-v0"))
+    )
 
 
 @pytest.fixture(scope="module")

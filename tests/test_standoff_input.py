@@ -8,15 +8,16 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from ramavt_jax import greedy
+from ramavt_jax import greedy, presets
 from ramavt_jax import replay as replay_lib
 from ramavt_jax import train as T
-from ramavt_jax import presets
 from ramavt_jax.network import NetworkConfig, RecurrentState, init_params, initial_state, make_network
 
 SMOKE = presets.preset("smoke")
-CFG = SMOKE.override(network=dataclasses.replace(SMOKE.network, standoff_input=True),
-                     env_params=(("size_scale_min", 0.15), ("size_scale_max", 4.0), ("max_steps", 6)))
+CFG = SMOKE.override(
+    network=dataclasses.replace(SMOKE.network, standoff_input=True),
+    env_params=(("size_scale_min", 0.15), ("size_scale_max", 4.0), ("max_steps", 6)),
+)
 
 
 @pytest.fixture(scope="module")
@@ -56,8 +57,9 @@ def test_rollout_stores_each_steps_episode_scale(trainer):
     """The stored k of a step is its episode's: the actor's env scale at the chunk's start, constant within an
     episode, and drawn anew (size randomisation) at episode starts."""
     state = jax.jit(trainer.init)(jax.random.PRNGKey(4))
-    actor, chunk, stats, _ = jax.jit(trainer.rollout)(state.learner.params, state.actor, jnp.int32(0),
-                                                      jax.random.PRNGKey(5))
+    actor, chunk, stats, _ = jax.jit(trainer.rollout)(
+        state.learner.params, state.actor, jnp.int32(0), jax.random.PRNGKey(5)
+    )
     k, first = np.asarray(chunk.standoff), np.asarray(chunk.is_first)  # [N, T]
     assert int(stats.episodes) > 0 and first[:, 1:].any()
     np.testing.assert_array_equal(k[:, 0], np.asarray(state.actor.env_state.scale))
@@ -75,15 +77,24 @@ def test_learner_feeds_the_windows_scale_to_every_pass(trainer, params):
     n = CFG.network
     ks = jax.random.split(jax.random.PRNGKey(2), 4)
     window = replay_lib.Transition(
-        obs=jax.random.uniform(ks[0], (b, l, *CFG.env.obs_shape)), action=jax.random.randint(ks[1], (b, l), 0, 11),
-        reward=jax.random.normal(ks[2], (b, l)), terminated=jnp.zeros((b, l), bool),
-        truncated=jnp.zeros((b, l), bool), is_first=jnp.zeros((b, l), bool),
-        recurrent_state=RecurrentState(h=jnp.zeros((b, l, n.lstm_layers, n.lstm)),
-                                       c=jnp.zeros((b, l, n.lstm_layers, n.lstm)), frames=None),
-        standoff=jax.random.uniform(ks[3], (b, 1), minval=0.3, maxval=4.0) * jnp.ones((b, l)))
+        obs=jax.random.uniform(ks[0], (b, l, *CFG.env.obs_shape)),
+        action=jax.random.randint(ks[1], (b, l), 0, 11),
+        reward=jax.random.normal(ks[2], (b, l)),
+        terminated=jnp.zeros((b, l), bool),
+        truncated=jnp.zeros((b, l), bool),
+        is_first=jnp.zeros((b, l), bool),
+        recurrent_state=RecurrentState(
+            h=jnp.zeros((b, l, n.lstm_layers, n.lstm)), c=jnp.zeros((b, l, n.lstm_layers, n.lstm)), frames=None
+        ),
+        standoff=jax.random.uniform(ks[3], (b, 1), minval=0.3, maxval=4.0) * jnp.ones((b, l)),
+    )
     batch = replay_lib.sequence_batch(window, CFG.replay.burn_in)
-    loss = lambda p, w: trainer.loss(p, p, replay_lib.sequence_batch(w, CFG.replay.burn_in),  # noqa: E731
-                                     jax.random.PRNGKey(0))[0]
+    loss = lambda p, w: trainer.loss(
+        p,
+        p,
+        replay_lib.sequence_batch(w, CFG.replay.burn_in),  # noqa: E731
+        jax.random.PRNGKey(0),
+    )[0]
     ones = window.replace(standoff=jnp.ones((b, l)))
     assert abs(float(loss(params, window)) - float(loss(params, ones))) > 1e-6
     prepared = trainer.prepare(params, params, batch, jax.random.PRNGKey(0))

@@ -14,8 +14,11 @@ EPISODES = {"targets": ["Satellite-val0"], "episodes_per_target": 2, "seed": 0}
 
 
 def _curve(path: Path, runs: list[dict], episodes=EPISODES) -> str:
-    result = {"episodes": episodes, "baselines": {"depth": {"aer": 100.0}},
-              "runs": [{"points": [{"step": c, "aer": a} for c, a in run.items()]} for run in runs]}
+    result = {
+        "episodes": episodes,
+        "baselines": {"depth": {"aer": 100.0}},
+        "runs": [{"points": [{"step": c, "aer": a} for c, a in run.items()]} for run in runs],
+    }
     path.write_text(json.dumps(result))
     return str(path)
 

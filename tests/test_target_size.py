@@ -15,8 +15,10 @@ NUM_ENVS = 32  # every vmapped reset: one compile
 
 
 def _write(path, geoms: str) -> str:
-    path.write_text(f'<mujoco model="{path.stem}"><option gravity="0 0 0"/><worldbody><body name="target">'
-                    f'<freejoint/>{geoms}</body></worldbody></mujoco>')
+    path.write_text(
+        f'<mujoco model="{path.stem}"><option gravity="0 0 0"/><worldbody><body name="target">'
+        f"<freejoint/>{geoms}</body></worldbody></mujoco>"
+    )
     return str(path)
 
 
@@ -25,10 +27,12 @@ def models(tmp_path_factory):
     """A 0.3 m cubesat (a cube of side 0.346 m: bounding radius 0.3 m) and a 12 m satellite (bus and two wings)."""
     folder = tmp_path_factory.mktemp("sizes")
     cubesat = _write(folder / "cubesat.xml", '<geom type="box" size="0.1732 0.1732 0.1732" density="300"/>')
-    big = _write(folder / "big_satellite.xml",
-                 '<geom type="box" size="3 3 4" density="50"/>'
-                 '<geom type="box" pos="0 7.26 0" size="1.5 4.5 0.03" density="100"/>'
-                 '<geom type="box" pos="0 -7.26 0" size="1.5 4.5 0.03" density="100"/>')
+    big = _write(
+        folder / "big_satellite.xml",
+        '<geom type="box" size="3 3 4" density="50"/>'
+        '<geom type="box" pos="0 7.26 0" size="1.5 4.5 0.03" density="100"/>'
+        '<geom type="box" pos="0 -7.26 0" size="1.5 4.5 0.03" density="100"/>',
+    )
     return cubesat, big
 
 
@@ -69,12 +73,14 @@ def test_standoff_rule(size_env, models):
 
 
 def test_bad_size_params_fail_in_one_line(size_env):
-    bad = [(dict(standoff_min_radius=0.0), "standoff_min_radius"),
-           (dict(standoff_min_scale=0.0), "standoff_min_scale"),
-           (dict(standoff_min_scale=1.5), "standoff_min_scale"),
-           (dict(size_scale_min=0.0), "size_scale_min"),
-           (dict(size_scale_min=-1.0, size_scale_max=1.0), "size_scale_min"),
-           (dict(size_scale_min=2.0, size_scale_max=1.0), "size_scale_max must be >= size_scale_min")]
+    bad = [
+        (dict(standoff_min_radius=0.0), "standoff_min_radius"),
+        (dict(standoff_min_scale=0.0), "standoff_min_scale"),
+        (dict(standoff_min_scale=1.5), "standoff_min_scale"),
+        (dict(size_scale_min=0.0), "size_scale_min"),
+        (dict(size_scale_min=-1.0, size_scale_max=1.0), "size_scale_min"),
+        (dict(size_scale_min=2.0, size_scale_max=1.0), "size_scale_max must be >= size_scale_min"),
+    ]
     for overrides, match in bad:
         with pytest.raises(ValueError, match=match) as err:
             size_env.default_params(**overrides)
@@ -116,8 +122,9 @@ def test_small_standoff_power_gives_a_small_target_the_catalogue_dynamics_in_sta
         step_plain, k = _chaser_step(size_env, plain, index)
         step_scaled, _ = _chaser_step(size_env, scaled, index)
         np.testing.assert_allclose(step_scaled, gain * step_plain, rtol=1e-3)
-        drift = [size_env.initial_state(jax.random.key(5), size_env.pinned(p, index)).target_vel
-                 for p in (plain, scaled)]
+        drift = [
+            size_env.initial_state(jax.random.key(5), size_env.pinned(p, index)).target_vel for p in (plain, scaled)
+        ]
         np.testing.assert_allclose(np.asarray(drift[1]), gain * np.asarray(drift[0]), rtol=1e-3)
         assert np.linalg.norm(np.asarray(drift[0])) > 0.0
     with pytest.raises(ValueError, match="EnvParams.small_standoff_power must be in"):
@@ -127,7 +134,8 @@ def test_small_standoff_power_gives_a_small_target_the_catalogue_dynamics_in_sta
 def test_speed_rule_is_an_evaluation_field():
     """A run trained with another speed rule is evaluated under the table's, like every other row."""
     assert rollouts.run_env_overrides({"speed_standoff_power": 1.0, "small_standoff_power": 1.0, "speed": 0.5}) == {
-        "speed": 0.5}
+        "speed": 0.5
+    }
 
 
 # ------------------------------------------------------------------------------------------------ possible tasks
@@ -139,8 +147,9 @@ def test_small_and_large_user_targets_are_tracked_by_the_ceiling(size_env):
     params = size_env.eval_params(max_steps=STEPS)
     for index in (0, 1):
         k = float(env.standoff_scale(targets.select(params.catalogue, index), params))
-        stats, rec = rollouts.run_episodes(size_env, policy, size_env.pinned(params, index), jax.random.key(index), 3,
-                                           record=True)
+        stats, rec = rollouts.run_episodes(
+            size_env, policy, size_env.pinned(params, index), jax.random.key(index), 3, record=True
+        )
         assert np.all(np.asarray(stats.length) == STEPS) and not np.any(np.asarray(stats.terminated))
         rel = np.asarray(rec.rel_pos)  # [T, N, 3]
         error = np.linalg.norm(rel - np.asarray(params.desired_pos) * k, axis=-1) / k  # stand-off units
@@ -192,8 +201,9 @@ def test_size_randomisation(size_env, vreset):
     factor = np.asarray(st_r.target.bound_radius) / base
     assert np.all((factor >= 0.5 * (1 - 1e-5)) & (factor <= 2.0 * (1 + 1e-5))), factor
     assert factor.min() < 0.7 and factor.max() > 1.4 and np.mean(factor < 1.0) == pytest.approx(0.5, abs=0.2)
-    np.testing.assert_allclose(np.asarray(st_r.target.geom_size)[:, 0, 0] / np.asarray(st_d.target.geom_size)[:, 0, 0],
-                               factor, rtol=1e-5)
+    np.testing.assert_allclose(
+        np.asarray(st_r.target.geom_size)[:, 0, 0] / np.asarray(st_d.target.geom_size)[:, 0, 0], factor, rtol=1e-5
+    )
     k = np.asarray(jax.vmap(env.standoff_scale, in_axes=(0, None))(st_r.target, p))
     np.testing.assert_array_equal(np.asarray(st_r.scale), k)
     radius = np.asarray(st_r.target.bound_radius)
@@ -203,8 +213,12 @@ def test_size_randomisation(size_env, vreset):
     # the size draw leaves every other draw of the episode as it was
     for name in ("target_index", "target_vel", "target_quat", "target_omega"):
         np.testing.assert_array_equal(np.asarray(getattr(st_r, name)), np.asarray(getattr(st_d, name)))
-    np.testing.assert_allclose(np.asarray(st_r.target_pos) / k[:, None],
-                               np.asarray(st_d.target_pos) / np.asarray(st_d.scale)[:, None], rtol=1e-5, atol=1e-6)
+    np.testing.assert_allclose(
+        np.asarray(st_r.target_pos) / k[:, None],
+        np.asarray(st_d.target_pos) / np.asarray(st_d.scale)[:, None],
+        rtol=1e-5,
+        atol=1e-6,
+    )
 
 
 def test_size_scale_prob_resizes_that_share_of_the_episodes(size_env, vreset):
@@ -218,8 +232,9 @@ def test_size_scale_prob_resizes_that_share_of_the_episodes(size_env, vreset):
     base = np.asarray(always.catalogue.bound_radius)[np.asarray(st_half.target_index)]
     kept = np.asarray(st_half.target.bound_radius) == base
     assert 0.2 < kept.mean() < 0.8, kept.mean()
-    np.testing.assert_array_equal(np.asarray(st_half.target.bound_radius)[~kept],
-                                  np.asarray(st_all.target.bound_radius)[~kept])
+    np.testing.assert_array_equal(
+        np.asarray(st_half.target.bound_radius)[~kept], np.asarray(st_all.target.bound_radius)[~kept]
+    )
     assert not np.any(np.asarray(st_all.target.bound_radius) == base)  # factors in [0.5, 0.9]: none kept
     np.testing.assert_array_equal(np.asarray(st_half.target_quat), np.asarray(st_all.target_quat))
     with pytest.raises(ValueError, match="EnvParams.size_scale_prob must be in \\[0, 1\\]"):
@@ -242,9 +257,31 @@ def test_eval_records_the_stand_off_rules_it_flew(tmp_path):
     from ramavt_jax import cli
 
     out = tmp_path / "eval"
-    cli.main(["eval", "--policy", "random", "--targets", "Satellite-v2@12m", "--episodes", "1", "--max-steps", "3",
-              "--tables", "1", "--resolution", "8", "--speed-steps", "0", "--speed-standoff-power", "0",
-              "--small-standoff-power", "1", "--out", str(out)])
+    cli.main(
+        [
+            "eval",
+            "--policy",
+            "random",
+            "--targets",
+            "Satellite-v2@12m",
+            "--episodes",
+            "1",
+            "--max-steps",
+            "3",
+            "--tables",
+            "1",
+            "--resolution",
+            "8",
+            "--speed-steps",
+            "0",
+            "--speed-standoff-power",
+            "0",
+            "--small-standoff-power",
+            "1",
+            "--out",
+            str(out),
+        ]
+    )
     task = json.loads((out / "results.json").read_text())["settings"]["eval_params"]
     assert task["speed_standoff_power"] == 0.0 and task["small_standoff_power"] == 1.0
     assert task["size_scale_min"] == task["size_scale_max"] == 1.0 and task["dist_weight"] == 1.0

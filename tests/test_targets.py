@@ -20,10 +20,20 @@ import catalogue_gen  # noqa: E402
 # bound_radius (m) and mass (kg) ranges per class. The size rule (catalogue_gen) caps every bounding radius at
 # 2.4 m so that the target fits the 60-degree view at the 5 m stand-off; spacecraft classes are scaled down to it
 # with their densities kept (hence the small masses of the scaled rockets, satellites and stations).
-RADIUS_RANGE = {"asteroid": (0.4, 2.401), "capsule": (1.5, 2.401), "rocket": (1.5, 2.401), "satellite": (1.5, 2.401),
-                "station": (1.5, 2.401)}
-MASS_RANGE = {"asteroid": (100.0, 1e5), "capsule": (1e3, 1.5e4), "rocket": (50.0, 1e3), "satellite": (50.0, 1e3),
-              "station": (50.0, 1e3)}
+RADIUS_RANGE = {
+    "asteroid": (0.4, 2.401),
+    "capsule": (1.5, 2.401),
+    "rocket": (1.5, 2.401),
+    "satellite": (1.5, 2.401),
+    "station": (1.5, 2.401),
+}
+MASS_RANGE = {
+    "asteroid": (100.0, 1e5),
+    "capsule": (1e3, 1.5e4),
+    "rocket": (50.0, 1e3),
+    "satellite": (50.0, 1e3),
+    "station": (50.0, 1e3),
+}
 
 
 @pytest.fixture(scope="module")
@@ -93,8 +103,7 @@ def _check_body_frame(arrays: dict, densities: np.ndarray, rtol: float = 2e-3) -
     np.testing.assert_allclose(com, 0.0, atol=1e-4 * max(1.0, float(arrays["bound_radius"])))
     np.testing.assert_allclose(tensor, np.diag(arrays["inertia"]), atol=rtol * scale)
     # geom rotations are proper rotations
-    np.testing.assert_allclose(np.einsum("gji,gjk->gik", mats, mats), np.broadcast_to(np.eye(3), mats.shape),
-                               atol=1e-5)
+    np.testing.assert_allclose(np.einsum("gji,gjk->gik", mats, mats), np.broadcast_to(np.eye(3), mats.shape), atol=1e-5)
     np.testing.assert_allclose(np.linalg.det(mats), 1.0, atol=1e-5)
 
 
@@ -142,7 +151,8 @@ def test_validation_models_are_seen_whole_at_the_stand_off():
     batch, infos = targets.load_many(targets.VAL_TARGETS)
     n, poses = len(infos), 3
     rotations = jax.vmap(lambda k: quat_to_mat(random_quaternion(k)))(
-        jax.random.split(jax.random.PRNGKey(0), n * poses))
+        jax.random.split(jax.random.PRNGKey(0), n * poses)
+    )
     tiled = jax.tree.map(lambda a: np.repeat(np.asarray(a), poses, axis=0), batch)
     positions = np.tile([0.0, 0.0, 5.0], (n * poses, 1)).astype(np.float32)
     frames = render.render_batch(tiled, positions, rotations, cam, render.default_lighting(), shade=False)
@@ -200,7 +210,8 @@ def test_every_catalogue_target_fits_the_view_at_the_stand_off(catalogue):
     assert max(radii.values()) <= catalogue_gen.MAX_BOUND_RADIUS + 1e-3 < half_width
     for cls in ("capsule", "rocket", "satellite", "station"):
         assert max(r for n, r in radii.items() if targets.CATALOGUE[n] == cls) == pytest.approx(
-            catalogue_gen.MAX_BOUND_RADIUS, abs=1e-3), cls
+            catalogue_gen.MAX_BOUND_RADIUS, abs=1e-3
+        ), cls
 
 
 def test_generator_reproduces_the_committed_files():
@@ -270,7 +281,9 @@ def test_padding_and_select(catalogue):
         assert mask[k, : info.num_geoms].all() and not mask[k, info.num_geoms :].any()
         pad = slice(info.num_geoms, None)
         assert np.all(np.asarray(batch.geom_size[k, pad]) == 0) and np.all(np.asarray(batch.geom_rbound[k, pad]) == 0)
-        np.testing.assert_array_equal(np.asarray(batch.geom_mat[k, pad]), np.broadcast_to(np.eye(3), (width - info.num_geoms, 3, 3)))
+        np.testing.assert_array_equal(
+            np.asarray(batch.geom_mat[k, pad]), np.broadcast_to(np.eye(3), (width - info.num_geoms, 3, 3))
+        )
         rgb = np.asarray(batch.geom_rgb[k, : info.num_geoms])
         assert np.all((rgb >= 0) & (rgb <= 1))
     # select (jitted, traced index) equals loading the target on its own with the same padding
@@ -295,8 +308,9 @@ def test_catalogue_table():
     for r in rows:
         assert set(r) == {"name", "class", "split", "num_geoms", "bound_radius", "mass"}
         assert r["class"] == targets.CATALOGUE[r["name"]]
-        assert r["split"] == ("test" if r["name"] in targets.TEST_TARGETS else
-                              "val" if r["name"] in targets.VAL_TARGETS else "train")
+        assert r["split"] == (
+            "test" if r["name"] in targets.TEST_TARGETS else "val" if r["name"] in targets.VAL_TARGETS else "train"
+        )
         assert r["num_geoms"] >= 1 and r["bound_radius"] > 0 and r["mass"] > 0
 
 
@@ -314,13 +328,16 @@ def _rot_z(deg: float) -> np.ndarray:
 
 def test_single_offset_rotated_box_is_centred_and_diagonal(tmp_path):
     half, mass = np.array([0.5, 0.2, 1.5]), 120.0
-    path = _write(tmp_path, f"""
+    path = _write(
+        tmp_path,
+        f"""
 <mujoco><worldbody>
   <body pos="3 -2 1" euler="0 0 30"><freejoint/>
     <geom type="box" size="{half[0]} {half[1]} {half[2]}" mass="{mass}" pos="0.7 0.4 -0.2" euler="20 0 45"
           rgba="0.9 0.1 0.2 1"/>
   </body>
-</worldbody></mujoco>""")
+</worldbody></mujoco>""",
+    )
     arrays, info = targets.load_numpy(path)
     a, b, c = half
     expected = mass / 3 * np.array([b * b + c * c, a * a + c * c, a * a + b * b])
@@ -343,13 +360,16 @@ def test_two_box_composite_matches_parallel_axis_theorem(tmp_path):
     h1, p1 = np.array([1.0, 0.5, 0.5]), np.array([-1.0, 0.0, 0.0])
     h2, p2 = np.array([0.5, 0.5, 0.25]), np.array([1.5, 0.3, 0.0])
     rot = _rot_z(40.0)
-    path = _write(tmp_path, f"""
+    path = _write(
+        tmp_path,
+        f"""
 <mujoco><worldbody>
   <body name="t" euler="0 0 40"><freejoint/>
     <geom name="a" type="box" size="{h1[0]} {h1[1]} {h1[2]}" pos="{p1[0]} {p1[1]} {p1[2]}" density="{density}"/>
     <geom name="b" type="box" size="{h2[0]} {h2[1]} {h2[2]}" pos="{p2[0]} {p2[1]} {p2[2]}" density="{density}"/>
   </body>
-</worldbody></mujoco>""")
+</worldbody></mujoco>""",
+    )
     arrays, info = targets.load_numpy(path)
     parts = [_primitive_mass_inertia("box", h, density) for h in (h1, h2)]
     total, com, tensor = _composite([m for m, _ in parts], [i for _, i in parts], [rot @ p1, rot @ p2], [rot, rot])
@@ -365,7 +385,9 @@ def test_two_box_composite_matches_parallel_axis_theorem(tmp_path):
 
 def test_user_model_with_nested_bodies_and_rotated_geoms(tmp_path):
     """A user's own MJCF: nested welded bodies, all primitive types, euler/axisangle/quat/fromto orientations."""
-    path = _write(tmp_path, """
+    path = _write(
+        tmp_path,
+        """
 <mujoco model="my_probe">
   <compiler angle="degree"/>
   <worldbody>
@@ -384,7 +406,9 @@ def test_user_model_with_nested_bodies_and_rotated_geoms(tmp_path):
       </body>
     </body>
   </worldbody>
-</mujoco>""", "my_probe.xml")
+</mujoco>""",
+        "my_probe.xml",
+    )
     model = mujoco.MjModel.from_xml_path(str(path))
     data = mujoco.MjData(model)
     mujoco.mj_forward(model, data)
@@ -394,18 +418,22 @@ def test_user_model_with_nested_bodies_and_rotated_geoms(tmp_path):
     assert info.geom_types == ("box", "sphere", "capsule", "ellipsoid", "cylinder", "box")
     _check_body_frame(arrays, densities)
     # independent composite from MuJoCo's world poses of the geoms: same mass and principal moments
-    parts = [_primitive_mass_inertia(targets.SUPPORTED_GEOM_TYPES[int(t)], s, d)
-             for t, s, d in zip(model.geom_type, model.geom_size, densities)]
-    total, com, tensor = _composite([m for m, _ in parts], [i for _, i in parts], data.geom_xpos,
-                                    data.geom_xmat.reshape(-1, 3, 3))
+    parts = [
+        _primitive_mass_inertia(targets.SUPPORTED_GEOM_TYPES[int(t)], s, d)
+        for t, s, d in zip(model.geom_type, model.geom_size, densities)
+    ]
+    total, com, tensor = _composite(
+        [m for m, _ in parts], [i for _, i in parts], data.geom_xpos, data.geom_xmat.reshape(-1, 3, 3)
+    )
     assert info.mass == pytest.approx(total, rel=1e-4)
     np.testing.assert_allclose(arrays["inertia"], np.linalg.eigvalsh(tensor), rtol=1e-4)
     # rigid transform: pairwise geom distances and the distance of each geom to the COM are kept
     world = data.geom_xpos
     dist = lambda p: np.linalg.norm(p[:, None] - p[None], axis=-1)  # noqa: E731
     np.testing.assert_allclose(dist(arrays["geom_pos"]), dist(world), atol=1e-5)
-    np.testing.assert_allclose(np.linalg.norm(arrays["geom_pos"], axis=1), np.linalg.norm(world - com, axis=1),
-                               atol=1e-5)
+    np.testing.assert_allclose(
+        np.linalg.norm(arrays["geom_pos"], axis=1), np.linalg.norm(world - com, axis=1), atol=1e-5
+    )
     # and it loads as a TargetModel / batches with catalogue targets
     model_j = targets.load(path)
     assert model_j.geom_type.shape == (6,)
@@ -430,32 +458,52 @@ def test_nonexistent_file(tmp_path):
 
 BAD_MODELS = {
     # not well-formed XML
-    "unclosed_tag": ('<mujoco><worldbody><body><geom type="box" size="1 1 1"></body></worldbody></mujoco>',
-                     "cannot parse MJCF"),
+    "unclosed_tag": (
+        '<mujoco><worldbody><body><geom type="box" size="1 1 1"></body></worldbody></mujoco>',
+        "cannot parse MJCF",
+    ),
     "not_xml": ("this is not xml at all", "cannot parse MJCF"),
     # well-formed, but not valid MJCF
     "unknown_element": ("<mujoco><worldbody><body><banana/></body></worldbody></mujoco>", "unrecognized element"),
-    "bad_geom_type": ('<mujoco><worldbody><body><freejoint/><geom type="dodecahedron" size="1"/></body>'
-                      "</worldbody></mujoco>", "invalid keyword"),
+    "bad_geom_type": (
+        '<mujoco><worldbody><body><freejoint/><geom type="dodecahedron" size="1"/></body></worldbody></mujoco>',
+        "invalid keyword",
+    ),
     "not_mujoco": ("<spaceship><part/></spaceship>", "Unrecognized XML model type"),
     "massless_body": ("<mujoco><worldbody><body><freejoint/></body></worldbody></mujoco>", "cannot parse MJCF"),
     # unsupported geom types
-    "inline_mesh": ('<mujoco><asset><mesh name="m" vertex="0 0 0 1 0 0 0 1 0 0 0 1"/></asset><worldbody>'
-                    '<body><freejoint/><geom type="mesh" mesh="m"/></body></worldbody></mujoco>',
-                    r"unsupported geom type\(s\) \['mesh'\]"),
-    "hfield": ('<mujoco><asset><hfield name="h" nrow="3" ncol="3" size="1 1 0.1 0.1"/></asset><worldbody>'
-               '<body><freejoint/><geom type="box" size="0.1 0.1 0.1"/><geom type="hfield" hfield="h"/></body>'
-               "</worldbody></mujoco>", r"unsupported geom type\(s\) \['hfield'\]"),
-    "plane_in_world": ('<mujoco><worldbody><geom type="plane" size="5 5 0.1"/><body><freejoint/>'
-                       '<geom type="box" size="0.1 0.1 0.1"/></body></worldbody></mujoco>',
-                       r"unsupported geom type\(s\) \['plane'\]"),
-    "plane_in_body": ('<mujoco><worldbody><body><freejoint/><geom type="box" size="0.1 0.1 0.1"/>'
-                      '<geom type="plane" size="1 1 0.1"/></body></worldbody></mujoco>', "plane"),
+    "inline_mesh": (
+        '<mujoco><asset><mesh name="m" vertex="0 0 0 1 0 0 0 1 0 0 0 1"/></asset><worldbody>'
+        '<body><freejoint/><geom type="mesh" mesh="m"/></body></worldbody></mujoco>',
+        r"unsupported geom type\(s\) \['mesh'\]",
+    ),
+    "hfield": (
+        '<mujoco><asset><hfield name="h" nrow="3" ncol="3" size="1 1 0.1 0.1"/></asset><worldbody>'
+        '<body><freejoint/><geom type="box" size="0.1 0.1 0.1"/><geom type="hfield" hfield="h"/></body>'
+        "</worldbody></mujoco>",
+        r"unsupported geom type\(s\) \['hfield'\]",
+    ),
+    "plane_in_world": (
+        '<mujoco><worldbody><geom type="plane" size="5 5 0.1"/><body><freejoint/>'
+        '<geom type="box" size="0.1 0.1 0.1"/></body></worldbody></mujoco>',
+        r"unsupported geom type\(s\) \['plane'\]",
+    ),
+    "plane_in_body": (
+        '<mujoco><worldbody><body><freejoint/><geom type="box" size="0.1 0.1 0.1"/>'
+        '<geom type="plane" size="1 1 0.1"/></body></worldbody></mujoco>',
+        "plane",
+    ),
     # mass problems
-    "geoms_in_worldbody": ('<mujoco><worldbody><geom type="box" size="1 1 1"/><geom type="sphere" size="1" '
-                           'pos="2 0 0"/></worldbody></mujoco>', "zero mass.*<body>"),
-    "mixed_world_geom": ('<mujoco><worldbody><geom name="rock" type="sphere" size="1" pos="5 0 0"/><body><freejoint/>'
-                         '<geom type="box" size="1 1 1"/></body></worldbody></mujoco>', "rock.*worldbody"),
+    "geoms_in_worldbody": (
+        '<mujoco><worldbody><geom type="box" size="1 1 1"/><geom type="sphere" size="1" '
+        'pos="2 0 0"/></worldbody></mujoco>',
+        "zero mass.*<body>",
+    ),
+    "mixed_world_geom": (
+        '<mujoco><worldbody><geom name="rock" type="sphere" size="1" pos="5 0 0"/><body><freejoint/>'
+        '<geom type="box" size="1 1 1"/></body></worldbody></mujoco>',
+        "rock.*worldbody",
+    ),
     "no_geoms": ("<mujoco><worldbody/></mujoco>", "no geoms"),
 }
 
@@ -470,8 +518,11 @@ def test_bad_models_raise_target_error(tmp_path, case):
 
 
 def test_catalogue_table_with_user_file(tmp_path):
-    path = _write(tmp_path, '<mujoco><worldbody><body><freejoint/><geom type="sphere" size="0.5"/></body>'
-                  "</worldbody></mujoco>", "ball.xml")
+    path = _write(
+        tmp_path,
+        '<mujoco><worldbody><body><freejoint/><geom type="sphere" size="0.5"/></body></worldbody></mujoco>',
+        "ball.xml",
+    )
     rows = targets.catalogue_table(["Rocket-v2", path])
     assert rows[0]["split"] == "test" and rows[0]["class"] == "rocket"
     assert rows[1]["name"] == "ball" and rows[1]["class"] == "custom" and rows[1]["split"] == "custom"
@@ -501,8 +552,10 @@ def test_sized_spec_scales_every_length_and_nothing_else():
 
 def test_sized_spec_works_on_files_and_in_target_lists(tmp_path):
     path = tmp_path / "ball.xml"
-    path.write_text('<mujoco><worldbody><body><freejoint/><geom type="sphere" size="0.7" density="100"/></body>'
-                    '</worldbody></mujoco>')
+    path.write_text(
+        '<mujoco><worldbody><body><freejoint/><geom type="sphere" size="0.7" density="100"/></body>'
+        "</worldbody></mujoco>"
+    )
     arrays, info = targets.load_numpy(f"{path}@2m")
     assert info.name == "ball@2m" and float(arrays["geom_size"][0, 0]) == pytest.approx(2.0)
     from ramavt_jax.evaluation import rollouts
@@ -526,8 +579,18 @@ def test_a_resized_target_gets_its_size_stand_off_in_the_env():
     assert k == pytest.approx([0.6, 4.8, 1.0])
 
 
-@pytest.mark.parametrize("spec", ["Satellite-v2@0m", "Satellite-v2@-1m", "Satellite-v2@bigm", "Satellite-v2@nanm",
-                                  "Satellite-v2@1e-9m", "Satellite-v2@1m@2m", "Satellite-v9@1m"])
+@pytest.mark.parametrize(
+    "spec",
+    [
+        "Satellite-v2@0m",
+        "Satellite-v2@-1m",
+        "Satellite-v2@bigm",
+        "Satellite-v2@nanm",
+        "Satellite-v2@1e-9m",
+        "Satellite-v2@1m@2m",
+        "Satellite-v9@1m",
+    ],
+)
 def test_bad_sized_specs_raise_one_line_target_errors(spec):
     with pytest.raises(targets.TargetError) as err:
         targets.load_numpy(spec)

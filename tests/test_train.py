@@ -1,19 +1,17 @@
 """Trainer: config validation, burn-in gradients, sequence plumbing, stored recurrent state, vmap over seeds, learning."""
 
 import dataclasses
+
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from ramavt_jax import baselines
-from ramavt_jax.evaluation import rollouts as evaluate
+from ramavt_jax import baselines, greedy, presets, train_config, train_state
 from ramavt_jax import env as env_lib
 from ramavt_jax import replay as replay_lib
 from ramavt_jax import train as T
-from ramavt_jax import train_state
-from ramavt_jax import greedy
-from ramavt_jax import presets, train_config
+from ramavt_jax.evaluation import rollouts as evaluate
 from ramavt_jax.losses import sequence_td_loss
 from ramavt_jax.network import NetworkConfig, RecurrentState, init_params, initial_state
 from ramavt_jax.render import CameraConfig
@@ -78,10 +76,14 @@ def test_presets():
         (dict(num_envs=0), "num_envs must be >= 1"),
         (dict(batch_size=2.5), "batch_size must be an int"),
         (dict(env=env_lib.EnvConfig(camera=CameraConfig(resolution=16))), "autoreset must be 'next_step'"),
-        (dict(network=NetworkConfig(variant="drlavt", channels=(8,), kernels=(3,), strides=(1,), pools=(True,)),
-              burn_in=2), "burn_in must be >= frame_stack - 1"),
-        (dict(network=dataclasses.replace(SMOKE.network, frame_difference=True), burn_in=0),
-         "burn_in must be >= 1"),
+        (
+            dict(
+                network=NetworkConfig(variant="drlavt", channels=(8,), kernels=(3,), strides=(1,), pools=(True,)),
+                burn_in=2,
+            ),
+            "burn_in must be >= frame_stack - 1",
+        ),
+        (dict(network=dataclasses.replace(SMOKE.network, frame_difference=True), burn_in=0), "burn_in must be >= 1"),
         (dict(network=dataclasses.replace(SMOKE.network, exposure_rate=0.1), augment=True), "turn one off"),
         (dict(network=NetworkConfig(norm="batch")), "norm='batch'"),
         (dict(env_params=(("warp_speed", 9.0),)), "env_params"),
@@ -94,24 +96,43 @@ def test_invalid_configs_raise_clear_errors(overrides, message):
         SMOKE.override(**overrides)
 
 
-@pytest.mark.parametrize("build, message", [
-    (lambda: ActingConfig(eps_end=2.0), r"^ActingConfig: eps_end must be in \[0, 1\], got 2.0$"),
-    (lambda: ActingConfig(eps_ladder=-1.0), r"^ActingConfig: eps_ladder must be >= 0 \(0: no ladder\), got -1.0$"),
-    (lambda: ActingConfig(num_envs=4, teacher_envs=4),
-     r"^ActingConfig: teacher_envs must be < num_envs=4 \(some envs must act with the Q-net\), got 4$"),
-    (lambda: ActingConfig(teacher_envs=-1), r"^ActingConfig: teacher_envs must be >= 0, got -1$"),
-    (lambda: LearnerConfig(target_update="soft"), r"^LearnerConfig: target_update must be 'polyak' or 'period'"),
-    (lambda: LearnerConfig(td_lambda=0.9), r"^LearnerConfig: td_lambda must be None \(n-step targets\) or in \[0, 1\] with n_step=1"),
-    (lambda: LearnerConfig(bootstrap_from="both"), r"^LearnerConfig: bootstrap_from must be .target. or .online., got .both.$"),
-    (lambda: RunConfig(keep_checkpoints=0), r"^RunConfig: keep_checkpoints must be >= 1, got 0$"),
-    (lambda: RunConfig(policy_params="ema"), r"^RunConfig: policy_params must be 'online', 'target' or 'averaged', got 'ema'$"),
-    (lambda: RunConfig(policy_params="averaged"), r"^RunConfig: policy_params='averaged' needs policy_average_from"),
-    (lambda: RunConfig(policy_average_from=-1), r"^RunConfig: policy_average_from must be >= 0, got -1$"),
-    (lambda: RunConfig(policy_average_from=2.5), r"^RunConfig: policy_average_from must be an int, got 2.5$"),
-    (lambda: replay_lib.ReplayConfig(train_len=0), r"^ReplayConfig.train_len must be >= 1, got 0$"),
-    (lambda: train_config.TrainConfig(replay=replay_lib.ReplayConfig(capacity_steps=64_010)),
-     r"^TrainConfig: replay.capacity_steps=64010 must be divisible by acting.num_envs=64$"),
-])
+@pytest.mark.parametrize(
+    "build, message",
+    [
+        (lambda: ActingConfig(eps_end=2.0), r"^ActingConfig: eps_end must be in \[0, 1\], got 2.0$"),
+        (lambda: ActingConfig(eps_ladder=-1.0), r"^ActingConfig: eps_ladder must be >= 0 \(0: no ladder\), got -1.0$"),
+        (
+            lambda: ActingConfig(num_envs=4, teacher_envs=4),
+            r"^ActingConfig: teacher_envs must be < num_envs=4 \(some envs must act with the Q-net\), got 4$",
+        ),
+        (lambda: ActingConfig(teacher_envs=-1), r"^ActingConfig: teacher_envs must be >= 0, got -1$"),
+        (lambda: LearnerConfig(target_update="soft"), r"^LearnerConfig: target_update must be 'polyak' or 'period'"),
+        (
+            lambda: LearnerConfig(td_lambda=0.9),
+            r"^LearnerConfig: td_lambda must be None \(n-step targets\) or in \[0, 1\] with n_step=1",
+        ),
+        (
+            lambda: LearnerConfig(bootstrap_from="both"),
+            r"^LearnerConfig: bootstrap_from must be .target. or .online., got .both.$",
+        ),
+        (lambda: RunConfig(keep_checkpoints=0), r"^RunConfig: keep_checkpoints must be >= 1, got 0$"),
+        (
+            lambda: RunConfig(policy_params="ema"),
+            r"^RunConfig: policy_params must be 'online', 'target' or 'averaged', got 'ema'$",
+        ),
+        (
+            lambda: RunConfig(policy_params="averaged"),
+            r"^RunConfig: policy_params='averaged' needs policy_average_from",
+        ),
+        (lambda: RunConfig(policy_average_from=-1), r"^RunConfig: policy_average_from must be >= 0, got -1$"),
+        (lambda: RunConfig(policy_average_from=2.5), r"^RunConfig: policy_average_from must be an int, got 2.5$"),
+        (lambda: replay_lib.ReplayConfig(train_len=0), r"^ReplayConfig.train_len must be >= 1, got 0$"),
+        (
+            lambda: train_config.TrainConfig(replay=replay_lib.ReplayConfig(capacity_steps=64_010)),
+            r"^TrainConfig: replay.capacity_steps=64010 must be divisible by acting.num_envs=64$",
+        ),
+    ],
+)
 def test_each_group_checks_its_own_values_in_one_line(build, message):
     """A group's bad value fails when the group is built, naming the group; how groups fit, in TrainConfig."""
     with pytest.raises(ValueError, match=message) as e:
@@ -124,8 +145,11 @@ def test_lr_final_decays_the_learning_rate_over_the_runs_gradient_steps():
     cfg = SMOKE.override(lr_final=1e-5)
     schedule = T.Trainer(cfg).learning_rate
     assert cfg.total_updates > 1
-    np.testing.assert_allclose([schedule(0), schedule(cfg.total_updates), schedule(10 * cfg.total_updates)],
-                               [cfg.learner.lr, 1e-5, 1e-5], rtol=1e-5)
+    np.testing.assert_allclose(
+        [schedule(0), schedule(cfg.total_updates), schedule(10 * cfg.total_updates)],
+        [cfg.learner.lr, 1e-5, 1e-5],
+        rtol=1e-5,
+    )
     assert 1e-5 < float(schedule(cfg.total_updates // 2)) < cfg.learner.lr
 
 
@@ -165,20 +189,28 @@ def test_polyak_tau_start_holds_then_moves_linearly_to_polyak_tau(learner):
     replay = trainer.replay.init()
     update = jax.jit(trainer.update)
     for updates, tau in ((0, 0.05), (1500, 0.03)):
-        state = T.LearnerState(params=params, target_params=target, opt_state=trainer.optimizer.init(params),
-                               updates=jnp.int32(updates))
+        state = T.LearnerState(
+            params=params, target_params=target, opt_state=trainer.optimizer.init(params), updates=jnp.int32(updates)
+        )
         new, _, _ = update(state, replay, jax.random.PRNGKey(1))
-        moved = [(np.asarray(t1) - np.asarray(t0), np.asarray(p1) - np.asarray(t0)) for t1, t0, p1 in
-                 zip(jax.tree.leaves(new.target_params), jax.tree.leaves(target), jax.tree.leaves(new.params))]
+        moved = [
+            (np.asarray(t1) - np.asarray(t0), np.asarray(p1) - np.asarray(t0))
+            for t1, t0, p1 in zip(
+                jax.tree.leaves(new.target_params), jax.tree.leaves(target), jax.tree.leaves(new.params)
+            )
+        ]
         step, gap = max(moved, key=lambda m: np.abs(m[1]).max())
         np.testing.assert_allclose(step, tau * gap, rtol=1e-4, atol=1e-7)
 
 
-@pytest.mark.parametrize("overrides, message", [
-    (dict(polyak_tau_start=0.0), r"polyak_tau_start must be None \(a constant polyak_tau\) or in \(0, 1\]"),
-    (dict(polyak_tau_decay=(2000, 1000)), r"polyak_tau_decay must be two gradient steps 0 <= hold <= end"),
-    (dict(polyak_tau_decay=(1000,)), r"polyak_tau_decay must be two gradient steps 0 <= hold <= end"),
-])
+@pytest.mark.parametrize(
+    "overrides, message",
+    [
+        (dict(polyak_tau_start=0.0), r"polyak_tau_start must be None \(a constant polyak_tau\) or in \(0, 1\]"),
+        (dict(polyak_tau_decay=(2000, 1000)), r"polyak_tau_decay must be two gradient steps 0 <= hold <= end"),
+        (dict(polyak_tau_decay=(1000,)), r"polyak_tau_decay must be two gradient steps 0 <= hold <= end"),
+    ],
+)
 def test_invalid_polyak_schedules_raise(overrides, message):
     with pytest.raises(ValueError, match=message):
         SMOKE.override(**overrides)
@@ -199,16 +231,35 @@ def test_drlavt_with_enough_burn_in_is_accepted():
 
 @pytest.mark.parametrize(
     "variant, obs_mode, augment, prev_action, aux, inputs",
-    [("ramavt", "depth", False, False, 0, {}), ("drlavt", "depth", False, False, 0, {}),
-     ("se", "rgbd", False, False, 0, {}), ("mha", "color", True, False, 0, {}), ("origin", "depth", True, False, 0, {}),
-     ("ramavt", "depth", False, True, 3, {}), ("ramavt", "rgbd", True, True, 3, dict(frame_difference=True)),
-     ("ramavt", "depth", False, True, 3, dict(exposure_rate=0.1))],
+    [
+        ("ramavt", "depth", False, False, 0, {}),
+        ("drlavt", "depth", False, False, 0, {}),
+        ("se", "rgbd", False, False, 0, {}),
+        ("mha", "color", True, False, 0, {}),
+        ("origin", "depth", True, False, 0, {}),
+        ("ramavt", "depth", False, True, 3, {}),
+        ("ramavt", "rgbd", True, True, 3, dict(frame_difference=True)),
+        ("ramavt", "depth", False, True, 3, dict(exposure_rate=0.1)),
+    ],
 )
 def test_every_variant_observation_and_augmentation_traces(variant, obs_mode, augment, prev_action, aux, inputs):
     """The whole chunk (acting, replay, burn-in learner) traces for each option (abstractly: nothing compiles)."""
-    net = NetworkConfig(variant=variant, channels=(8, 8), kernels=(3, 3), strides=(1, 1), pools=(True, True),
-                        dense=16, lstm=16, lstm_layers=2, head=16, attention_heads=2, drlavt_dense=(16,),
-                        prev_action=prev_action, aux_outputs=aux, **inputs)
+    net = NetworkConfig(
+        variant=variant,
+        channels=(8, 8),
+        kernels=(3, 3),
+        strides=(1, 1),
+        pools=(True, True),
+        dense=16,
+        lstm=16,
+        lstm_layers=2,
+        head=16,
+        attention_heads=2,
+        drlavt_dense=(16,),
+        prev_action=prev_action,
+        aux_outputs=aux,
+        **inputs,
+    )
     env_cfg = env_lib.EnvConfig(camera=CameraConfig(resolution=16), obs_mode=obs_mode, autoreset="next_step")
     cfg = SMOKE.override(network=net, env=env_cfg, augment=augment, aux_weight=float(aux > 0))
     tr = T.Trainer(cfg)
@@ -311,8 +362,15 @@ def test_loss_masks_the_episode_crossing_and_matches_hand_plumbing(trainer, lear
     mask = np.ones((B, T_), np.float32)
     mask[:, 2] = 0.0  # transition burn+2: terminal obs -> first obs of the next episode
     expected, _ = sequence_td_loss(
-        q_on[:, burn:], q_tg[:, burn:], window.action[:, burn:-1], window.reward[:, burn:-1] * cfg.learner.reward_scale,
-        window.terminated[:, burn:-1], window.truncated[:, burn:-1], jnp.asarray(mask), trainer.td)
+        q_on[:, burn:],
+        q_tg[:, burn:],
+        window.action[:, burn:-1],
+        window.reward[:, burn:-1] * cfg.learner.reward_scale,
+        window.terminated[:, burn:-1],
+        window.truncated[:, burn:-1],
+        jnp.asarray(mask),
+        trainer.td,
+    )
     np.testing.assert_allclose(float(loss), float(expected), rtol=2e-5)
 
     def perturbed(t, what):
@@ -341,11 +399,14 @@ def test_stored_recurrent_state_is_the_actors_state():
     assert np.all(np.asarray(chunk1.recurrent_state.h)[:, 0] == 0.0)  # fresh actors start from zeros
     assert np.abs(h).sum() > 0
     # Recompute the carries by stepping the network from the stored state of the chunk's first step.
-    s = RecurrentState(h=jnp.moveaxis(stored.h[:, 0], 0, 1), c=jnp.moveaxis(stored.c[:, 0], 0, 1),
-                       frames=jnp.zeros((cfg.acting.num_envs, 0)))
+    s = RecurrentState(
+        h=jnp.moveaxis(stored.h[:, 0], 0, 1),
+        c=jnp.moveaxis(stored.c[:, 0], 0, 1),
+        frames=jnp.zeros((cfg.acting.num_envs, 0)),
+    )
     step = jax.jit(lambda s, o, r: tr.q_values(params, o, r, s)[1])
     for t in range(cfg.acting.rollout_steps):
-        s = step(s, chunk2.obs[:, t:t + 1], chunk2.is_first[:, t:t + 1])
+        s = step(s, chunk2.obs[:, t : t + 1], chunk2.is_first[:, t : t + 1])
         ref_h = np.moveaxis(np.asarray(s.h), 0, 1)
         if t + 1 < cfg.acting.rollout_steps:
             np.testing.assert_allclose(h[:, t + 1], ref_h, atol=1e-5)
@@ -376,7 +437,7 @@ def test_stored_long_exposure_is_the_actors_before_each_obs():
     stored = np.asarray(chunk.recurrent_state.exposure[:, :, 0])  # [N, T, H, W, C + 1]
     assert int(stats.episodes) > 0 and chunk.is_first[:, 1:].any() and np.abs(stored).sum() > 0
     for t in range(tr.config.acting.rollout_steps - 1):
-        after = long_exposure(chunk.obs[:, t:t + 1], chunk.is_first[:, t:t + 1], stored[:, t], 0.1)[:, 0]
+        after = long_exposure(chunk.obs[:, t : t + 1], chunk.is_first[:, t : t + 1], stored[:, t], 0.1)[:, 0]
         np.testing.assert_allclose(stored[:, t + 1], after, atol=1e-6)
 
 
@@ -394,7 +455,8 @@ def test_auxiliary_loss_labels_are_the_true_tracking_error_and_train_the_aux_hea
     expected = 1.0 - float(tr.env_params.dist_weight) * 5.0 * np.linalg.norm(label[:, 1:], axis=-1)
     np.testing.assert_allclose(reward[:, :-1][real], expected[real], atol=1e-4)
     window = _window(jax.random.PRNGKey(1), cfg).replace(
-        privileged=jax.random.normal(jax.random.PRNGKey(2), (cfg.replay.batch_size, cfg.sequence_length, 3)))
+        privileged=jax.random.normal(jax.random.PRNGKey(2), (cfg.replay.batch_size, cfg.sequence_length, 3))
+    )
     prepared = tr.prepare(params, params, _as_batch(window, cfg), jax.random.PRNGKey(0))
     (loss_w1, logged_w1), grads = jax.value_and_grad(tr.trained_loss, has_aux=True)(params, prepared)
     assert float(jnp.abs(grads["aux_head"]["kernel"]).sum()) > 0
@@ -404,7 +466,9 @@ def test_auxiliary_loss_labels_are_the_true_tracking_error_and_train_the_aux_hea
     assert float(logged_w1["aux_loss"]) > 0
     np.testing.assert_allclose(float(logged_w3["aux_loss"]), float(logged_w1["aux_loss"]), rtol=1e-6)
     np.testing.assert_allclose(float(loss_w3 - loss_w1), 2.0 * float(logged_w1["aux_loss"]), rtol=1e-5)
-    assert "aux_head" not in jax.eval_shape(T.Trainer(SMOKE).init, jax.ShapeDtypeStruct((2,), jnp.uint32)).learner.params
+    assert (
+        "aux_head" not in jax.eval_shape(T.Trainer(SMOKE).init, jax.ShapeDtypeStruct((2,), jnp.uint32)).learner.params
+    )
 
 
 def test_six_aux_outputs_add_the_relative_velocity_whose_integral_is_the_errors_change():
@@ -444,25 +508,47 @@ def test_state_input_network_reads_the_stored_true_state_when_acting_learning_an
         tr.q_values(params, obs, reset, start)
     window = _window(jax.random.PRNGKey(1), cfg)
     shape = (cfg.replay.batch_size, cfg.sequence_length, 6)
-    losses = [float(tr.trained_loss(params, tr.prepare(params, params, _as_batch(window.replace(
-        privileged=scale * jax.random.normal(jax.random.PRNGKey(2), shape)), cfg), jax.random.PRNGKey(0)))[0])
-        for scale in (0.0, 1.0)]
+    losses = [
+        float(
+            tr.trained_loss(
+                params,
+                tr.prepare(
+                    params,
+                    params,
+                    _as_batch(window.replace(privileged=scale * jax.random.normal(jax.random.PRNGKey(2), shape)), cfg),
+                    jax.random.PRNGKey(0),
+                ),
+            )[0]
+        )
+        for scale in (0.0, 1.0)
+    ]
     assert abs(losses[0] - losses[1]) > 1e-6
     # beside an aux head of 3 outputs the head is fitted to the first three entries, the error
     aux = T.Trainer(cfg.override(network=dataclasses.replace(cfg.network, aux_outputs=3), aux_weight=1.0))
     aux_params = init_params(aux.config.network, jax.random.PRNGKey(3), aux.obs_shape)["params"]
     labels = jax.random.normal(jax.random.PRNGKey(2), shape)
-    prepared = aux.prepare(aux_params, aux_params, _as_batch(window.replace(privileged=labels), cfg),
-                           jax.random.PRNGKey(0))
-    (_, logged), sown = aux.trained_loss(aux_params, prepared), aux.net.apply(
-        {"params": aux_params}, prepared.obs, prepared.reset, prepared.state, actions=prepared.td.action,
-        true_state=prepared.privileged, mutable=["intermediates"])[1]
+    prepared = aux.prepare(
+        aux_params, aux_params, _as_batch(window.replace(privileged=labels), cfg), jax.random.PRNGKey(0)
+    )
+    (_, logged), sown = (
+        aux.trained_loss(aux_params, prepared),
+        aux.net.apply(
+            {"params": aux_params},
+            prepared.obs,
+            prepared.reset,
+            prepared.state,
+            actions=prepared.td.action,
+            true_state=prepared.privileged,
+            mutable=["intermediates"],
+        )[1],
+    )
     miss = np.square(np.asarray(sown["intermediates"]["aux"][0] - prepared.privileged[..., :3]))[:, :-1].sum(-1)
     mask = np.asarray(prepared.td.mask, np.float32)  # [B, T - 1], as the loss's per-step terms
     assert mask.sum() > 0 and np.isclose(float(logged["aux_loss"]), (miss * mask).sum() / mask.sum(), rtol=1e-4)
     policy, key = greedy.greedy_policy(cfg.network, params, cfg.env.obs_shape), jax.random.PRNGKey(0)
     flown = jax.vmap(lambda o, s: policy.act(key, policy.init(key), o, s, tr.env_params)[0])(
-        state.actor.obs, state.actor.env_state)
+        state.actor.obs, state.actor.env_state
+    )
     picks, blind = np.asarray(jnp.argmax(q_true[:, 0], -1)), np.asarray(jnp.argmax(q_zero[:, 0], -1))
     np.testing.assert_array_equal(np.asarray(flown), picks)
     assert (picks != blind).any()  # the comparison tells a policy given the true state from one given none
@@ -473,8 +559,10 @@ def test_the_visible_state_measures_the_error_to_the_surface_the_frame_shows():
     at its depth (a point seen at pixel (v, u) and depth z projects back to it), lies within the target's bounding
     radius of the centre of mass, keeps the true velocity, and is the true state on a blank frame; acting stores it.
     Targets resized to stand-off scales k != 1 (drawn at 1 / k: the frame is in stand-off units) are among them."""
-    cfg = SMOKE.override(network=dataclasses.replace(SMOKE.network, state_input=True, state_input_point="visible"),
-                         env_params={"size_scale_min": 0.2, "size_scale_max": 0.4})
+    cfg = SMOKE.override(
+        network=dataclasses.replace(SMOKE.network, state_input=True, state_input_point="visible"),
+        env_params={"size_scale_min": 0.2, "size_scale_max": 0.4},
+    )
     tr = T.Trainer(cfg)
     cam, params = cfg.env.camera, tr.env_params
     env_state = jax.jit(tr.init)(jax.random.PRNGKey(4)).actor.env_state
@@ -493,21 +581,31 @@ def test_the_visible_state_measures_the_error_to_the_surface_the_frame_shows():
         depth = np.asarray(env_state.frames[i, -1, ..., -1])[rows, cols] * cam.far
         u, v = cam.focal() * point[0] / point[2] + cam.centre(), cam.focal() * point[1] / point[2] + cam.centre()
         # the mean point projects to the depth-weighted mean pixel (x = z (u - c) / f), at the mean depth
-        np.testing.assert_allclose([u, v, point[2]], [np.average(cols, weights=depth), np.average(rows, weights=depth),
-                                                      depth.mean()], rtol=1e-4, atol=1e-3)
+        np.testing.assert_allclose(
+            [u, v, point[2]],
+            [np.average(cols, weights=depth), np.average(rows, weights=depth), depth.mean()],
+            rtol=1e-4,
+            atol=1e-3,
+        )
         np.testing.assert_allclose(seen[i, 3:], true[i, 3:])
     one = jax.tree.map(lambda x: x[0], env_state)
     pixel = one.frames.at[-1].set(0.0).at[-1, 3, 5, -1].set(6.0 / cam.far)  # one target pixel at 6 m
     point = np.asarray(greedy.visible_tracking_state(one.replace(frames=pixel), params, cam)[:3]) * standoff + desired
-    np.testing.assert_allclose([cam.focal() * point[0] / point[2] + cam.centre(),
-                                cam.focal() * point[1] / point[2] + cam.centre(), point[2]], [5, 3, 6.0], atol=1e-4)
+    np.testing.assert_allclose(
+        [cam.focal() * point[0] / point[2] + cam.centre(), cam.focal() * point[1] / point[2] + cam.centre(), point[2]],
+        [5, 3, 6.0],
+        atol=1e-4,
+    )
     blank = one.replace(frames=jnp.zeros_like(one.frames))
-    np.testing.assert_array_equal(greedy.visible_tracking_state(blank, params, cam),
-                                  greedy.true_tracking_state(blank, params))
+    np.testing.assert_array_equal(
+        greedy.visible_tracking_state(blank, params, cam), greedy.true_tracking_state(blank, params)
+    )
     image = greedy.visible_tracking_state(blank, params, cam, image_only=True)  # a tracker's input: the image only
     np.testing.assert_array_equal(image, np.zeros(6))
-    np.testing.assert_allclose(jax.vmap(greedy.visible_tracking_state, (0, None, None, None))(
-        env_state, params, cam, True), np.where(shown.any(axis=(1, 2))[:, None], seen * [1, 1, 1, 0, 0, 0], 0.0))
+    np.testing.assert_allclose(
+        jax.vmap(greedy.visible_tracking_state, (0, None, None, None))(env_state, params, cam, True),
+        np.where(shown.any(axis=(1, 2))[:, None], seen * [1, 1, 1, 0, 0, 0], 0.0),
+    )
     state = jax.jit(tr.init)(jax.random.PRNGKey(4))
     _, chunk, _, _ = jax.jit(tr.rollout)(state.learner.params, state.actor, jnp.int32(0), jax.random.PRNGKey(5))
     # acting stores the true state (the auxiliary label's) and then the input; the network reads the input
@@ -615,12 +713,18 @@ def test_vmapped_seeds_equal_single_seed_runs():
     for i in range(2):
         one = single(keys[i])
         np.testing.assert_array_equal(np.asarray(both["metrics"].episodes[i]), np.asarray(one["metrics"].episodes))
-        np.testing.assert_array_equal(np.asarray(both["runner_state"].replay.experience.action[i]),
-                                      np.asarray(one["runner_state"].replay.experience.action))
-        for a, b in zip(jax.tree.leaves(both["runner_state"].learner.params), jax.tree.leaves(one["runner_state"].learner.params)):
+        np.testing.assert_array_equal(
+            np.asarray(both["runner_state"].replay.experience.action[i]),
+            np.asarray(one["runner_state"].replay.experience.action),
+        )
+        for a, b in zip(
+            jax.tree.leaves(both["runner_state"].learner.params), jax.tree.leaves(one["runner_state"].learner.params)
+        ):
             np.testing.assert_allclose(np.asarray(a[i]), np.asarray(b), rtol=1e-4, atol=1e-5)
     assert int(both["runner_state"].learner.updates[0]) > 0
-    diff = jax.tree.leaves(jax.tree.map(lambda x: float(jnp.abs(x[0] - x[1]).max()), both["runner_state"].learner.params))
+    diff = jax.tree.leaves(
+        jax.tree.map(lambda x: float(jnp.abs(x[0] - x[1]).max()), both["runner_state"].learner.params)
+    )
     assert max(diff) > 0  # the seeds really differ
 
 
@@ -634,8 +738,9 @@ def test_greedy_policy_matches_the_network_over_a_sequence(trainer, learner):
     for t in range(5):
         a, ps = policy.act(jax.random.PRNGKey(t), ps, obs[t], None, None)
         actions.append(int(a))
-    q, _ = trainer.q_values(params, obs[None], jnp.array([[True, False, False, False, False]]),
-                            initial_state(SMOKE.network, 1))
+    q, _ = trainer.q_values(
+        params, obs[None], jnp.array([[True, False, False, False, False]]), initial_state(SMOKE.network, 1)
+    )
     assert actions == np.asarray(jnp.argmax(q[0], -1)).tolist()
 
 
@@ -643,13 +748,45 @@ def test_greedy_policy_matches_the_network_over_a_sequence(trainer, learner):
 EASY = SMOKE.override(
     # An easy task: a static, non-spinning target near r*, a fast chaser (random actions lose it quickly: any step out
     # of view ends the episode), 200-step episodes. The agent must learn from rewards which motions keep it in view.
-    env_params=(("init_xy_std", 0.3), ("init_z_max", 6.0), ("init_z_min", 4.0), ("lost_patience", 0),
-                ("max_steps", 200), ("speed", 3.0), ("target_spin_std", 0.0), ("target_vel_std", 0.0)),
-    network=NetworkConfig(variant="origin", channels=(8, 16), kernels=(3, 3), strides=(1, 1), pools=(True, True),
-                          dense=64, lstm=64, lstm_layers=1, head=64),
-    num_envs=16, rollout_steps=16, iterations_per_chunk=10, total_env_steps=40_960, eps_start=1.0, eps_end=0.05,
-    eps_decay_steps=16_000, capacity_steps=8192, burn_in=2, train_len=8, batch_size=16, learning_starts=1024,
-    replay_ratio=4.0, lr=1e-3, gamma=0.9, n_step=3, reward_scale=0.1, polyak_tau=0.05,
+    env_params=(
+        ("init_xy_std", 0.3),
+        ("init_z_max", 6.0),
+        ("init_z_min", 4.0),
+        ("lost_patience", 0),
+        ("max_steps", 200),
+        ("speed", 3.0),
+        ("target_spin_std", 0.0),
+        ("target_vel_std", 0.0),
+    ),
+    network=NetworkConfig(
+        variant="origin",
+        channels=(8, 16),
+        kernels=(3, 3),
+        strides=(1, 1),
+        pools=(True, True),
+        dense=64,
+        lstm=64,
+        lstm_layers=1,
+        head=64,
+    ),
+    num_envs=16,
+    rollout_steps=16,
+    iterations_per_chunk=10,
+    total_env_steps=40_960,
+    eps_start=1.0,
+    eps_end=0.05,
+    eps_decay_steps=16_000,
+    capacity_steps=8192,
+    burn_in=2,
+    train_len=8,
+    batch_size=16,
+    learning_starts=1024,
+    replay_ratio=4.0,
+    lr=1e-3,
+    gamma=0.9,
+    n_step=3,
+    reward_scale=0.1,
+    polyak_tau=0.05,
 )
 
 
@@ -661,12 +798,17 @@ def test_learns_an_easy_task():
     tracking_env = env_lib.TrackingEnv(EASY.env)
     env_params = tracking_env.default_params(**dict(EASY.env_params))
     key = jax.random.PRNGKey(123)
-    learned = evaluate.summarise(evaluate.run_episodes(
-        tracking_env, greedy.greedy_policy(EASY.network, params, EASY.env.obs_shape), env_params, key, 64)[0])
+    learned = evaluate.summarise(
+        evaluate.run_episodes(
+            tracking_env, greedy.greedy_policy(EASY.network, params, EASY.env.obs_shape), env_params, key, 64
+        )[0]
+    )
     rand = evaluate.summarise(evaluate.run_episodes(tracking_env, baselines.random_policy(), env_params, key, 64)[0])
     m = out["metrics"]
-    print(f"random {rand.length_mean:.1f}, greedy {learned.length_mean:.1f}, training episodes per chunk "
-          f"{np.round(np.asarray(m.episode_length_sum.sum(1) / np.maximum(m.episodes.sum(1), 1)), 1)}")
+    print(
+        f"random {rand.length_mean:.1f}, greedy {learned.length_mean:.1f}, training episodes per chunk "
+        f"{np.round(np.asarray(m.episode_length_sum.sum(1) / np.maximum(m.episodes.sum(1), 1)), 1)}"
+    )
     assert learned.length_mean > 1.5 * rand.length_mean, (learned, rand)
     assert int(out["runner_state"].learner.updates) == EASY.total_updates  # what an lr schedule decays over
 
@@ -740,4 +882,3 @@ def test_online_targets_equal_target_net_targets_for_quantiles_and_advantage_lea
     by_target = T.Trainer(cfg).loss(params, params, batch, key)[0]
     by_online = T.Trainer(cfg.override(bootstrap_from="online")).loss(params, None, batch, key)[0]
     np.testing.assert_allclose(float(by_online), float(by_target), rtol=1e-5)
-

@@ -12,9 +12,12 @@ import training_tail  # noqa: E402
 
 
 def test_the_tail_mean_skips_earlier_chunks_and_missing_values():
-    records = [{"chunk": 1, "episode_return": 1000.0}, {"chunk": 2, "episode_return": 10.0},
-               {"chunk": 3, "episode_return": 20.0, "expert_agreement": 0.5},
-               {"chunk": 4, "episode_return": math.nan, "expert_agreement": None}]
+    records = [
+        {"chunk": 1, "episode_return": 1000.0},
+        {"chunk": 2, "episode_return": 10.0},
+        {"chunk": 3, "episode_return": 20.0, "expert_agreement": 0.5},
+        {"chunk": 4, "episode_return": math.nan, "expert_agreement": None},
+    ]
     means = training_tail.tail_means(records, ("episode_return", "expert_agreement", "aux_loss"), from_chunk=2)
     assert means["episode_return"] == pytest.approx(15.0) and means["expert_agreement"] == pytest.approx(0.5)
     assert math.isnan(means["aux_loss"])

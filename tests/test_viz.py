@@ -13,9 +13,19 @@ from ramavt_jax.figures import episode, training
 
 
 def test_attention_maps_sum_to_one_and_plot(tmp_path):
-    cfg = network.NetworkConfig(variant="ramavt", channels=(8, 8, 8), kernels=(3, 3, 1), strides=(1, 1, 1),
-                                pools=(True, True, True), se_reduction=2, attention_heads=2, dense=16, lstm=16,
-                                lstm_layers=1, head=16)
+    cfg = network.NetworkConfig(
+        variant="ramavt",
+        channels=(8, 8, 8),
+        kernels=(3, 3, 1),
+        strides=(1, 1, 1),
+        pools=(True, True, True),
+        se_reduction=2,
+        attention_heads=2,
+        dense=16,
+        lstm=16,
+        lstm_layers=1,
+        head=16,
+    )
     params = network.init_params(cfg, jax.random.PRNGKey(0), (16, 16, 1))["params"]
     obs = np.zeros((2, 16, 16, 1), np.float32)
     obs[0, 4:9, 5:11] = 0.3
@@ -40,10 +50,15 @@ def test_frame_strip_indices():
 
 def _write_run(path, xs, ys, variant="ramavt"):
     path.mkdir(parents=True)
-    (path / "config.json").write_text(json.dumps({"seed": 0, "config": {"network": {"variant": variant},
-                                                                        "env": {"obs_mode": "depth"}}}))
-    lines = [json.dumps({"chunk": i + 1, "env_steps": x, "episode_length": y, "episode_return": -y, "loss": 1.0,
-                         "q_mean": 0.5}) for i, (x, y) in enumerate(zip(xs, ys))]
+    (path / "config.json").write_text(
+        json.dumps({"seed": 0, "config": {"network": {"variant": variant}, "env": {"obs_mode": "depth"}}})
+    )
+    lines = [
+        json.dumps(
+            {"chunk": i + 1, "env_steps": x, "episode_length": y, "episode_return": -y, "loss": 1.0, "q_mean": 0.5}
+        )
+        for i, (x, y) in enumerate(zip(xs, ys))
+    ]
     (path / "metrics.jsonl").write_text("\n".join(lines) + "\n")
 
 
@@ -60,8 +75,9 @@ def test_training_bands_mean_std(tmp_path):
     # the NaN of seed 1 at 300 is interpolated from its finite points (held at 40)
     np.testing.assert_allclose(mean, [20.0, 30.0, 35.0])
     np.testing.assert_allclose(std, [10.0, 10.0, 5.0])
-    out = training.plot_training_runs([tmp_path / "ramavt_s0", tmp_path / "ramavt_s1", tmp_path / "origin-seed0"],
-                                       tmp_path / "curves.png")
+    out = training.plot_training_runs(
+        [tmp_path / "ramavt_s0", tmp_path / "ramavt_s1", tmp_path / "origin-seed0"], tmp_path / "curves.png"
+    )
     assert out.exists() and out.stat().st_size > 1000
     assert training.run_label(tmp_path / "origin-seed0") == "origin depth"
     with pytest.raises(FileNotFoundError, match="no training metrics"):
@@ -75,16 +91,24 @@ def test_a_run_figure_keeps_the_title_it_is_given(tmp_path, monkeypatch):
     _write_run(tmp_path / "ramavt_s0", [100, 200], [10.0, 20.0])
     titles = []
     real = matplotlib.figure.Figure.suptitle
-    monkeypatch.setattr(matplotlib.figure.Figure, "suptitle",
-                        lambda fig, text, **kw: titles.append(text) or real(fig, text, **kw))
+    monkeypatch.setattr(
+        matplotlib.figure.Figure, "suptitle", lambda fig, text, **kw: titles.append(text) or real(fig, text, **kw)
+    )
     training.plot_run(tmp_path / "ramavt_s0", title="ramavt seed 0")
     assert titles == ["ramavt seed 0"]
 
 
 def test_plot_cmd_baseline(tmp_path):
     _write_run(tmp_path / "runs" / "a_s0", [1, 2], [3.0, 4.0])
-    paths = cli_eval.plot_cmd(runs=(tmp_path / "runs" / "a_s0",), policy="proportional", target="Satellite-v2", steps=12,
-                         resolution=16, frames=4, out=tmp_path / "fig")
+    paths = cli_eval.plot_cmd(
+        runs=(tmp_path / "runs" / "a_s0",),
+        policy="proportional",
+        target="Satellite-v2",
+        steps=12,
+        resolution=16,
+        frames=4,
+        out=tmp_path / "fig",
+    )
     assert set(paths) == {"training_curves", "tracking_error", "trajectory_3d", "frames"}
     for p in paths.values():
         assert (tmp_path / "fig").joinpath(p.split("/")[-1]).stat().st_size > 1000

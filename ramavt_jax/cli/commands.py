@@ -26,8 +26,10 @@ def targets_cmd(split: Literal["all", "train", "val", "test", "val-sizes"] = "al
     rows = targets.catalogue_table(targets.split(split))
     print(f"{'name':<20} {'class':<10} {'split':<9} {'geoms':>5} {'radius_m':>9} {'mass_kg':>10}")
     for r in rows:
-        print(f"{r['name']:<20} {r['class']:<10} {r['split']:<9} {r['num_geoms']:>5} {r['bound_radius']:>9.2f} "
-              f"{r['mass']:>10.1f}")
+        print(
+            f"{r['name']:<20} {r['class']:<10} {r['split']:<9} {r['num_geoms']:>5} {r['bound_radius']:>9.2f} "
+            f"{r['mass']:>10.1f}"
+        )
 
 
 def render_cmd(
@@ -63,11 +65,14 @@ def render_cmd(
         positive(name, value)
     output_file(out, (".gif", ".mp4"))
     resolve_targets(target)
-    config = env.EnvConfig(camera=render.CameraConfig(resolution=resolution), obs_mode=obs, targets=(target,),
-                           dynamics=dynamics)
+    config = env.EnvConfig(
+        camera=render.CameraConfig(resolution=resolution), obs_mode=obs, targets=(target,), dynamics=dynamics
+    )
     if policy == "pretrained":
         if agent not in pretrained.available():
-            raise UsageError(f"--agent {agent!r} is not shipped; available: {', '.join(pretrained.available()) or 'none'}")
+            raise UsageError(
+                f"--agent {agent!r} is not shipped; available: {', '.join(pretrained.available()) or 'none'}"
+            )
         loaded = pretrained.load(agent)
         config = dataclasses.replace(config, camera=loaded.config.env.camera, obs_mode=loaded.config.env.obs_mode)
         pol = loaded.policy
@@ -80,19 +85,23 @@ def render_cmd(
     length = int(frames.alive.sum())
     print(f"recorded in {time.time() - t:.0f} s; writing {out} ...", flush=True)
     path = run_folder.replace_atomic(out, lambda tmp: episode.episode_video(frames, tmp, size=size, every=every))
-    print(f"{pol.name} on {target}: {length} steps tracked, return {float(frames.reward[:length].sum()):.1f}; wrote {path}")
+    print(
+        f"{pol.name} on {target}: {length} steps tracked, return {float(frames.reward[:length].sum()):.1f}; wrote {path}"
+    )
 
 
 def bench_main(argv: list[str]) -> None:
     """`ramavt bench WHAT [ARGS ...]`: run ``benchmarks/bench_WHAT.py ARGS`` of the source checkout."""
-    usage = (f"usage: ramavt bench {{{','.join(BENCHMARKS)}}} [ARGS ...]\n\nThroughput benchmarks of a source "
-             f"checkout; ARGS go to benchmarks/bench_WHAT.py (see `ramavt bench WHAT --help`). Each prints a table "
-             f"and writes JSON (default benchmarks/results_WHAT.json).\n  env: env steps/s and frames/s vs envs "
-             f"and resolution\n  train: trainer throughput per network\n  gpu: the accelerator check in one command "
-             f"(env steps/s up to 64k envs, the quick and paper presets' chunks)\n  conv: the encoder's conv "
-             f"implementations against im2col, per layer and in a learner update\n  network: inference and train-step "
-             f"speed\n  render: renderer frames/s\n  scaling: env steps/s and trained frames/s vs envs per device "
-             f"and devices (one worker process per device count)\n  mjx_ray: MuJoCo MJX ray casting for comparison")
+    usage = (
+        f"usage: ramavt bench {{{','.join(BENCHMARKS)}}} [ARGS ...]\n\nThroughput benchmarks of a source "
+        f"checkout; ARGS go to benchmarks/bench_WHAT.py (see `ramavt bench WHAT --help`). Each prints a table "
+        f"and writes JSON (default benchmarks/results_WHAT.json).\n  env: env steps/s and frames/s vs envs "
+        f"and resolution\n  train: trainer throughput per network\n  gpu: the accelerator check in one command "
+        f"(env steps/s up to 64k envs, the quick and paper presets' chunks)\n  conv: the encoder's conv "
+        f"implementations against im2col, per layer and in a learner update\n  network: inference and train-step "
+        f"speed\n  render: renderer frames/s\n  scaling: env steps/s and trained frames/s vs envs per device "
+        f"and devices (one worker process per device count)\n  mjx_ray: MuJoCo MJX ray casting for comparison"
+    )
     if not argv or argv[0] in ("-h", "--help"):
         print(usage)
         raise SystemExit(0)

@@ -25,11 +25,15 @@ def _check_runs(run: tuple[Path, ...], policy_params: str | None = None) -> None
         raise UsageError("--run needs at least one run folder written by `ramavt train`")
     for run_dir in run:
         if not (Path(run_dir) / run_folder.CONFIG_FILE).is_file():
-            raise UsageError(f"--run {run_dir}: {run_folder.CONFIG_FILE} not found; --run must name a folder written "
-                             f"by `ramavt train` (config.json, checkpoints/)")
+            raise UsageError(
+                f"--run {run_dir}: {run_folder.CONFIG_FILE} not found; --run must name a folder written "
+                f"by `ramavt train` (config.json, checkpoints/)"
+            )
         if not has_checkpoint(Path(run_dir) / run_folder.CHECKPOINTS):
-            raise UsageError(f"--run {run_dir} has no checkpoints; train it with --run.checkpoint-every-chunks 1 "
-                             f"--run.keep-checkpoints K to keep one per chunk")
+            raise UsageError(
+                f"--run {run_dir} has no checkpoints; train it with --run.checkpoint-every-chunks 1 "
+                f"--run.keep-checkpoints K to keep one per chunk"
+            )
         keeps_policy_params(run_dir, policy_params)
 
 
@@ -69,18 +73,31 @@ def curve_cmd(
         progress: a progress bar over each run's checkpoints.
         chunks: only the checkpoints of these chunks (e.g. `--chunks 6 7 8 9 10`); default: every checkpoint.
     """
-    for name, value in (("--episodes", episodes), ("--max-steps", max_steps), ("--resolution", resolution),
-                        ("--horizon", horizon)):
+    for name, value in (
+        ("--episodes", episodes),
+        ("--max-steps", max_steps),
+        ("--resolution", resolution),
+        ("--horizon", horizon),
+    ):
         positive(name, value)
     _check_runs(run, policy_params)
     names = rollouts.resolve_targets(targets)
     output_folder(out)
     ep = curve_lib.CurveEpisodes(names, episodes, max_steps, seed)
     with run_folder.RunLock(Path(out), OTHER_WRITER):  # a second command writing into --out is refused
-        result = curve_lib.learning_curves(run, ep, policy_params, tuple(curve_lib.BASELINES) if baselines else (),
-                                           resolution, horizon, progress=progress, chunks=chunks)
-        js = run_folder.replace_atomic(Path(out) / JSON_FILE,
-                                       lambda tmp: tmp.write_text(run_folder.dumps(result, indent=1)))
+        result = curve_lib.learning_curves(
+            run,
+            ep,
+            policy_params,
+            tuple(curve_lib.BASELINES) if baselines else (),
+            resolution,
+            horizon,
+            progress=progress,
+            chunks=chunks,
+        )
+        js = run_folder.replace_atomic(
+            Path(out) / JSON_FILE, lambda tmp: tmp.write_text(run_folder.dumps(result, indent=1))
+        )
         png = run_folder.replace_atomic(Path(out) / PNG_FILE, lambda tmp: curve_fig.plot_curve(result, tmp))
     print(curve_table(result))
     print(f"wrote {js} and {png} ({result['wall_s']:.0f} s)")
@@ -102,15 +119,23 @@ def curve_table(result: dict) -> str:
     lines = [f"{b['label']}: AER {_num(b['aer'])} {_ci(b)}" for b in result["baselines"].values()]
     depth = result["baselines"].get(curve_lib.DEPTH, {}).get("aer")
     for run in result["runs"]:
-        lines += ["", f"{run['name']} (training seed {run['seed']}, {run['policy_params']} params)",
-                  f"{'step':>5} {'env steps':>10} {'wall s':>8}  {'AER':>8} {'95 % CI':<20} {'vs depth':>8}"]
+        lines += [
+            "",
+            f"{run['name']} (training seed {run['seed']}, {run['policy_params']} params)",
+            f"{'step':>5} {'env steps':>10} {'wall s':>8}  {'AER':>8} {'95 % CI':<20} {'vs depth':>8}",
+        ]
         for p in run["points"]:
             vs = "-" if depth is None else f"{p['aer'] - depth:+.1f}"
-            lines.append(f"{p['step']:>5} {p['env_steps'] or '-':>10} {_num(p['wall_s']):>8}  {p['aer']:>8.1f} "
-                         f"{_ci(p):<20} {vs:>8}")
+            lines.append(
+                f"{p['step']:>5} {p['env_steps'] or '-':>10} {_num(p['wall_s']):>8}  {p['aer']:>8.1f} "
+                f"{_ci(p):<20} {vs:>8}"
+            )
         if depth is not None:
             cross = run["above_depth"]
-            lines.append("never above the depth tracker" if cross is None else
-                         f"first above the depth tracker: step {cross['step']} ({cross['env_steps']} env steps, "
-                         f"{_num(cross['wall_s'], 0)} s)")
+            lines.append(
+                "never above the depth tracker"
+                if cross is None
+                else f"first above the depth tracker: step {cross['step']} ({cross['env_steps']} env steps, "
+                f"{_num(cross['wall_s'], 0)} s)"
+            )
     return "\n".join(lines)

@@ -22,22 +22,43 @@ from ramavt_jax.figures import episode, training
 from ramavt_jax.training import run_folder
 
 OTHER_WRITER = "wait for that command to finish, stop it, or write into another --out"
-LABELS = {"mpc": "mpc ceiling (true state)", "proportional": "proportional (true state)", "depth": "depth tracker",
-          "random": "random"}
+LABELS = {
+    "mpc": "mpc ceiling (true state)",
+    "proportional": "proportional (true state)",
+    "depth": "depth tracker",
+    "random": "random",
+}
 
 
-def _run_entries(runs: tuple[Path, ...], policy_params: str | None = None, search: str = "learned"
-                 ) -> tuple[list[tables_lib.Entry], list[LoadedRun]]:
+def _run_entries(
+    runs: tuple[Path, ...], policy_params: str | None = None, search: str = "learned"
+) -> tuple[list[tables_lib.Entry], list[LoadedRun]]:
     entries, loaded = [], []
     for run_dir in runs:
         lr = load_policy(run_dir, policy_params=policy_params, search=search)
         loaded.append(lr)
         cfg = lr.config
-        info = {"run_dir": str(run_dir), "variant": cfg.network.variant, "augment": bool(cfg.learner.augment),
-                "seed": lr.seed, "step": lr.step, "env_steps": lr.meta.get("env_steps"),
-                "policy_params": cfg.run.policy_params, "blind_search": search}
-        entries.append(tables_lib.Entry(row_name(run_dir), "checkpoint", lr.policy, cfg.env,
-                                    rollouts.run_env_overrides(cfg.env_params), cfg.env.obs_mode, info))
+        info = {
+            "run_dir": str(run_dir),
+            "variant": cfg.network.variant,
+            "augment": bool(cfg.learner.augment),
+            "seed": lr.seed,
+            "step": lr.step,
+            "env_steps": lr.meta.get("env_steps"),
+            "policy_params": cfg.run.policy_params,
+            "blind_search": search,
+        }
+        entries.append(
+            tables_lib.Entry(
+                row_name(run_dir),
+                "checkpoint",
+                lr.policy,
+                cfg.env,
+                rollouts.run_env_overrides(cfg.env_params),
+                cfg.env.obs_mode,
+                info,
+            )
+        )
     return entries, loaded
 
 
@@ -47,32 +68,79 @@ def _ensemble_entry(loaded: list[LoadedRun], search: str) -> tables_lib.Entry:
     first = loaded[0].config
     for lr in loaded[1:]:
         c = lr.config
-        if ((c.network, c.env, c.env_params, c.run.policy_params)
-                != (first.network, first.env, first.env_params, first.run.policy_params)):
-            raise UsageError(f"--ensemble: {lr.run_dir} has another network, env, env settings or parameter set "
-                             f"than {loaded[0].run_dir}; an ensemble's runs share one config")
+        if (c.network, c.env, c.env_params, c.run.policy_params) != (
+            first.network,
+            first.env,
+            first.env_params,
+            first.run.policy_params,
+        ):
+            raise UsageError(
+                f"--ensemble: {lr.run_dir} has another network, env, env settings or parameter set "
+                f"than {loaded[0].run_dir}; an ensemble's runs share one config"
+            )
     params = greedy.stack_params([lr.params for lr in loaded])
-    policy = greedy.greedy_policy(first.network, params, tuple(first.env.obs_shape), "ensemble", search,
-                                  members=len(loaded), camera=first.env.camera)
-    sweeps = sorted({(path.parent if run_folder.is_seed_dir(path) else path).name
-                     for path in (Path(lr.run_dir).resolve() for lr in loaded)})
-    info = {"ensemble_of": [lr.run_dir for lr in loaded], "variant": first.network.variant,
-            "policy_params": first.run.policy_params, "blind_search": search}
-    return tables_lib.Entry(f"ensemble of {len(loaded)}: {', '.join(sweeps)}", "checkpoint", policy, first.env,
-                            rollouts.run_env_overrides(first.env_params), first.env.obs_mode, info)
+    policy = greedy.greedy_policy(
+        first.network,
+        params,
+        tuple(first.env.obs_shape),
+        "ensemble",
+        search,
+        members=len(loaded),
+        camera=first.env.camera,
+    )
+    sweeps = sorted(
+        {
+            (path.parent if run_folder.is_seed_dir(path) else path).name
+            for path in (Path(lr.run_dir).resolve() for lr in loaded)
+        }
+    )
+    info = {
+        "ensemble_of": [lr.run_dir for lr in loaded],
+        "variant": first.network.variant,
+        "policy_params": first.run.policy_params,
+        "blind_search": search,
+    }
+    return tables_lib.Entry(
+        f"ensemble of {len(loaded)}: {', '.join(sweeps)}",
+        "checkpoint",
+        policy,
+        first.env,
+        rollouts.run_env_overrides(first.env_params),
+        first.env.obs_mode,
+        info,
+    )
 
 
 def _pretrained_entry(name: str, search: str = "learned") -> tables_lib.Entry:
     agent = pretrained.load(name, search=search)
     cfg = agent.config
-    info = {"variant": cfg.network.variant, "augment": bool(cfg.learner.augment), "pretrained": name, **agent.info,
-            "policy_params": cfg.run.policy_params, "blind_search": search}
-    return tables_lib.Entry(f"pretrained:{name}", "checkpoint", agent.policy, cfg.env,
-                            rollouts.run_env_overrides(cfg.env_params), cfg.env.obs_mode, info)
+    info = {
+        "variant": cfg.network.variant,
+        "augment": bool(cfg.learner.augment),
+        "pretrained": name,
+        **agent.info,
+        "policy_params": cfg.run.policy_params,
+        "blind_search": search,
+    }
+    return tables_lib.Entry(
+        f"pretrained:{name}",
+        "checkpoint",
+        agent.policy,
+        cfg.env,
+        rollouts.run_env_overrides(cfg.env_params),
+        cfg.env.obs_mode,
+        info,
+    )
 
 
-def _baseline_entries(names: list[str], obs: tuple[str, ...], resolution: int, dynamics: str,
-                      targets: tuple[str, ...], horizon: int = baselines_lib.MPC_HORIZON) -> list[tables_lib.Entry]:
+def _baseline_entries(
+    names: list[str],
+    obs: tuple[str, ...],
+    resolution: int,
+    dynamics: str,
+    targets: tuple[str, ...],
+    horizon: int = baselines_lib.MPC_HORIZON,
+) -> list[tables_lib.Entry]:
     camera = render.CameraConfig(resolution=resolution)
     entries = []
     for name in names:
@@ -87,8 +155,9 @@ def _baseline_entries(names: list[str], obs: tuple[str, ...], resolution: int, d
     return entries
 
 
-def _check_eval_args(policy, agent, run, targets, episodes, max_steps, tables, blur_frames, out,
-                     policy_params=None) -> tuple[str, ...]:
+def _check_eval_args(
+    policy, agent, run, targets, episodes, max_steps, tables, blur_frames, out, policy_params=None
+) -> tuple[str, ...]:
     """Every argument of `ramavt eval` checked before anything compiles; returns the resolved target names."""
     positive("--episodes", episodes)
     positive("--max-steps", max_steps)
@@ -101,8 +170,10 @@ def _check_eval_args(policy, agent, run, targets, episodes, max_steps, tables, b
         raise UsageError("--policy checkpoint needs at least one --run folder (or pick a baseline policy)")
     for run_dir in run:
         if not (Path(run_dir) / run_folder.CONFIG_FILE).is_file():
-            raise UsageError(f"--run {run_dir}: {run_folder.CONFIG_FILE} not found; --run must name a folder written by "
-                             f"`ramavt train` (config.json, checkpoints/)")
+            raise UsageError(
+                f"--run {run_dir}: {run_folder.CONFIG_FILE} not found; --run must name a folder written by "
+                f"`ramavt train` (config.json, checkpoints/)"
+            )
         keeps_policy_params(run_dir, policy_params)
     names = rollouts.resolve_targets(targets)
     output_folder(out)
@@ -207,14 +278,18 @@ def eval_cmd(
         if task:  # evaluation fields: the same task for every row
             entries = [dataclasses.replace(e, env_overrides={**e.env_overrides, **task}) for e in entries]
         settings = tables_lib.settings_for(tuple(tables))
-        print(f"evaluating {len(entries)} policies x {len(settings)} setting(s) x {len(names)} targets x {episodes} "
-              f"episodes (each policy compiles first) ...", flush=True)
+        print(
+            f"evaluating {len(entries)} policies x {len(settings)} setting(s) x {len(names)} targets x {episodes} "
+            f"episodes (each policy compiles first) ...",
+            flush=True,
+        )
         values = {"actuator_noise": actuator_noise, "delay_max": delay_max, "blur_frames": blur_frames}
         result = tables_lib.run_suite(entries, names, episodes, max_steps, seed, tuple(tables), values, speed_steps)
         if figures:
             print("plotting one episode per policy ...", flush=True)
-            result["figures"] = episode.eval_figures(entries, loaded, names[0], Path(out) / "figures", seed=seed,
-                                                     steps=max_steps)
+            result["figures"] = episode.eval_figures(
+                entries, loaded, names[0], Path(out) / "figures", seed=seed, steps=max_steps
+            )
         result["wall_s"] = time.time() - t0
         command = "ramavt " + " ".join(shlex.quote(a) for a in sys.argv[1:]) if sys.argv[1:2] == ["eval"] else ""
         md, js = tables_lib.write(result, out, command)
@@ -264,8 +339,9 @@ def _plot(runs, run, policy, names, steps, resolution, obs, seed, frames, out: P
         labels = {training.group_name(r): training.run_label(r) for r in runs}
         if len(set(labels.values())) < len(labels):  # two groups would share a legend entry: name them by folder
             labels = {g: f"{g} ({lab})" for g, lab in labels.items()}
-        out_paths["training_curves"] = str(training.plot_training_runs(runs, out / "training_curves.png",
-                                                                       labels=labels))
+        out_paths["training_curves"] = str(
+            training.plot_training_runs(runs, out / "training_curves.png", labels=labels)
+        )
     if run is not None:
         lr = load_policy(run)
         config = dataclasses.replace(lr.config.env, targets=names[:1])
@@ -278,8 +354,11 @@ def _plot(runs, run, policy, names, steps, resolution, obs, seed, frames, out: P
     tracking_env = env_lib.TrackingEnv(config)
     params = tracking_env.eval_params(**overrides, max_steps=steps)
     print(f"recording one episode of {pol.name} on {names[0]} ...", flush=True)
-    out_paths.update(episode.episode_figures(tracking_env, pol, params, jax.random.PRNGKey(seed), steps, out, prefix,
-                                             strip=frames, network=network))
+    out_paths.update(
+        episode.episode_figures(
+            tracking_env, pol, params, jax.random.PRNGKey(seed), steps, out, prefix, strip=frames, network=network
+        )
+    )
     for k, v in out_paths.items():
         print(f"{k}: {v}")
     return out_paths

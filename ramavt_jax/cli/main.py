@@ -72,8 +72,9 @@ def _dispatch(argv: list[str], clock_start: float) -> None:
     cmds = {
         "targets": commands.targets_cmd,
         "render": commands.render_cmd,
-        "train": train.make_train_cmd(train.preset_in(argv[1:]) if argv[:1] == ["train"] else train.DEFAULT_PRESET,
-                                      clock_start),
+        "train": train.make_train_cmd(
+            train.preset_in(argv[1:]) if argv[:1] == ["train"] else train.DEFAULT_PRESET, clock_start
+        ),
         "eval": evaluate.eval_cmd,
         "curve": curve.curve_cmd,
         "plot": evaluate.plot_cmd,

@@ -11,11 +11,10 @@ import dataclasses
 import json
 import typing
 from pathlib import Path
-from typing import Literal
+from typing import Annotated, Literal
 
 import tyro
 from tyro import constructors
-from typing_extensions import Annotated
 
 from ramavt_jax import distributed
 from ramavt_jax.cli.checks import positive
@@ -55,8 +54,11 @@ def _is_pairs_type(type_) -> bool:
     if type_ is tuple:
         return True
     args = [a for a in typing.get_args(type_) if a is not Ellipsis]
-    return typing.get_origin(type_) is tuple and bool(args) and all(
-        typing.get_origin(a) is tuple and typing.get_args(a)[:1] == (str,) for a in args)
+    return (
+        typing.get_origin(type_) is tuple
+        and bool(args)
+        and all(typing.get_origin(a) is tuple and typing.get_args(a)[:1] == (str,) for a in args)
+    )
 
 
 @FLAG_TYPES.primitive_rule
@@ -64,8 +66,12 @@ def _pairs_rule(info: constructors.PrimitiveTypeInfo) -> constructors.PrimitiveC
     if not _is_pairs_type(info.type):
         return None
     return constructors.PrimitiveConstructorSpec(
-        nargs="*", metavar="NAME=VALUE", instance_from_str=_name_value_pairs, is_instance=lambda x: isinstance(x, tuple),
-        str_from_instance=lambda x: [f"{k}={v}" for k, v in x])
+        nargs="*",
+        metavar="NAME=VALUE",
+        instance_from_str=_name_value_pairs,
+        is_instance=lambda x: isinstance(x, tuple),
+        str_from_instance=lambda x: [f"{k}={v}" for k, v in x],
+    )
 
 
 class ConfigError(Exception):
@@ -102,14 +108,19 @@ def _checked_configs_rule(info: constructors.StructTypeInfo) -> constructors.Str
 
 def _print_summary(summary: driver.RunSummary, seeds: int) -> None:
     for one in summary.get("seeds", [summary]):
-        print(json.dumps({"run": one["out_dir"], **{k: v for k, v in one.items() if not isinstance(v, dict)}},
-                         default=str))
+        print(
+            json.dumps(
+                {"run": one["out_dir"], **{k: v for k, v in one.items() if not isinstance(v, dict)}}, default=str
+            )
+        )
         if isinstance(one.get("eval"), dict):
             print(json.dumps(one["eval"], indent=1, default=str))
     mem = summary["memory"]
-    print(f"memory per seed: state {mem['state_bytes_per_seed'] / 2**20:.1f} MiB (replay "
-          f"{mem['replay_bytes_per_seed'] / 2**20:.1f} MiB); chunk working memory {mem['chunk_temp_bytes'] / 2**20:.1f} "
-          f"MiB for {seeds} seed(s) on {summary['devices']} device(s), {summary['processes']} process(es)")
+    print(
+        f"memory per seed: state {mem['state_bytes_per_seed'] / 2**20:.1f} MiB (replay "
+        f"{mem['replay_bytes_per_seed'] / 2**20:.1f} MiB); chunk working memory {mem['chunk_temp_bytes'] / 2**20:.1f} "
+        f"MiB for {seeds} seed(s) on {summary['devices']} device(s), {summary['processes']} process(es)"
+    )
 
 
 def make_train_cmd(preset_name: str, clock_start: float | None = None):
@@ -161,8 +172,16 @@ def make_train_cmd(preset_name: str, clock_start: float | None = None):
         positive("--devices", devices, minimum=0)
         config = config.override(env_params=with_preset_pairs(default.env_params, config.env_params))
         distributed.initialize(coordinator_address, num_processes, process_id)
-        summary = train_and_evaluate(config, out, seed=seed, seeds=seeds, resume=resume, progress=progress,
-                                     devices=devices, clock_start=clock_start)
+        summary = train_and_evaluate(
+            config,
+            out,
+            seed=seed,
+            seeds=seeds,
+            resume=resume,
+            progress=progress,
+            devices=devices,
+            clock_start=clock_start,
+        )
         if distributed.is_primary():
             _print_summary(summary, seeds)
 

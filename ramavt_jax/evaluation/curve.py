@@ -15,24 +15,33 @@ from __future__ import annotations
 import dataclasses
 import math
 import time
+from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Callable, Sequence
 
 import jax
 
 from ramavt_jax import baselines as baselines_lib
 from ramavt_jax import env as env_lib
 from ramavt_jax import render
-from ramavt_jax.evaluation import rollouts
-from ramavt_jax.evaluation import tables
+from ramavt_jax.evaluation import rollouts, tables
 from ramavt_jax.evaluation.runs import load_policy, row_name
 from ramavt_jax.greedy import GreedyPolicyOf
 from ramavt_jax.train_config import TrainConfig
 from ramavt_jax.training import run_folder as folders
 from ramavt_jax.training.checkpoint import CheckpointNotFoundError, CheckpointStore, has_checkpoint
 
-__all__ = ["CurveEpisodes", "BASELINES", "checkpoint_steps", "chosen_steps", "training_clock", "evaluate_checkpoint",
-           "evaluate_baselines", "first_above", "run_curve", "learning_curves"]
+__all__ = [
+    "CurveEpisodes",
+    "BASELINES",
+    "checkpoint_steps",
+    "chosen_steps",
+    "training_clock",
+    "evaluate_checkpoint",
+    "evaluate_baselines",
+    "first_above",
+    "run_curve",
+    "learning_curves",
+]
 
 DEPTH, CEILING = "depth", "mpc"
 BASELINES = {DEPTH: "depth tracker", CEILING: "mpc ceiling (true state)"}
@@ -51,23 +60,42 @@ class CurveEpisodes:
     seed: int = 0
 
     def as_dict(self) -> dict:
-        return {"targets": list(self.targets), "episodes_per_target": self.episodes, "max_steps": self.max_steps,
-                "seed": self.seed, "setting": SETTING}
+        return {
+            "targets": list(self.targets),
+            "episodes_per_target": self.episodes,
+            "max_steps": self.max_steps,
+            "seed": self.seed,
+            "setting": SETTING,
+        }
 
 
 def _evaluate(tracking_env, policy, overrides: dict, ep: CurveEpisodes, policy_params=None) -> dict:
     """{'overall', 'per_target'} Summary dicts of one policy on ``ep`` (tables.evaluate_setting, setting 'none')."""
-    return tables.evaluate_setting(tracking_env, policy, overrides, ep.episodes, ep.max_steps,
-                                   jax.random.PRNGKey(ep.seed), SETTING, rollouts.PERTURBATION_VALUES, policy_params)
+    return tables.evaluate_setting(
+        tracking_env,
+        policy,
+        overrides,
+        ep.episodes,
+        ep.max_steps,
+        jax.random.PRNGKey(ep.seed),
+        SETTING,
+        rollouts.PERTURBATION_VALUES,
+        policy_params,
+    )
 
 
 def _point(res: dict) -> dict:
     """The curve's columns of one evaluation: AER with its 95 % bootstrap interval (episodes resampled within each
     target), AEL, lost fraction, and AER / AEL per target."""
     o = res["overall"]
-    return {"aer": o["return_mean"], "aer_ci_low": o["return_ci_low"], "aer_ci_high": o["return_ci_high"],
-            "ael": o["length_mean"], "lost_fraction": o["lost_fraction"],
-            "per_target": {t: {"aer": s["return_mean"], "ael": s["length_mean"]} for t, s in res["per_target"].items()}}
+    return {
+        "aer": o["return_mean"],
+        "aer_ci_low": o["return_ci_low"],
+        "aer_ci_high": o["return_ci_high"],
+        "ael": o["length_mean"],
+        "lost_fraction": o["lost_fraction"],
+        "per_target": {t: {"aer": s["return_mean"], "ael": s["length_mean"]} for t, s in res["per_target"].items()},
+    }
 
 
 # ============================================================================================ a run's checkpoints
@@ -78,7 +106,8 @@ def checkpoint_steps(run_dir: str | Path) -> list[int]:
     if not has_checkpoint(ckpt):
         raise CheckpointNotFoundError(
             f"{run_dir} has no checkpoints (nothing in {ckpt}); train it with --run.checkpoint-every-chunks 1 "
-            f"--run.keep-checkpoints K to keep one per chunk")
+            f"--run.keep-checkpoints K to keep one per chunk"
+        )
     store = CheckpointStore(ckpt, create=False)
     try:
         return sorted(store.all_steps())
@@ -152,8 +181,14 @@ def first_above(points: Sequence[dict], level: float) -> dict | None:
     return None
 
 
-def run_curve(run_dir: str | Path, ep: CurveEpisodes, policy_params: str | None = None,
-              baselines: dict | None = None, progress: bool = False, chunks: Sequence[int] = ()) -> dict:
+def run_curve(
+    run_dir: str | Path,
+    ep: CurveEpisodes,
+    policy_params: str | None = None,
+    baselines: dict | None = None,
+    progress: bool = False,
+    chunks: Sequence[int] = (),
+) -> dict:
     """Every checkpoint of one run on ``ep``, oldest first: {'run_dir', 'name', 'seed', 'policy_params', 'points':
     [{'step', 'env_steps', 'wall_s', 'aer', 'aer_ci_low', 'aer_ci_high', 'ael', 'lost_fraction', 'per_target'}],
     'above_depth'}. ``wall_s`` is :func:`training_clock`'s (None for a step without a metrics record). With
@@ -165,10 +200,17 @@ def run_curve(run_dir: str | Path, ep: CurveEpisodes, policy_params: str | None 
     seed, config = _saved_config(run_dir)
     points = []
     for step in _progress(steps, row_name(run_dir), progress):
-        points.append({**evaluate_checkpoint(run_dir, step, ep, policy_params),
-                       "wall_s": clock.get(step, {}).get("wall_s")})
-    out = {"run_dir": str(run_dir), "name": row_name(run_dir), "seed": seed,
-           "policy_params": policy_params or config.run.policy_params, "points": points, "above_depth": None}
+        points.append(
+            {**evaluate_checkpoint(run_dir, step, ep, policy_params), "wall_s": clock.get(step, {}).get("wall_s")}
+        )
+    out = {
+        "run_dir": str(run_dir),
+        "name": row_name(run_dir),
+        "seed": seed,
+        "policy_params": policy_params or config.run.policy_params,
+        "points": points,
+        "above_depth": None,
+    }
     baselines = baselines or {}
     if CEILING in baselines:
         top = baselines[CEILING]["aer"]
@@ -189,8 +231,13 @@ def _progress(steps: list[int], name: str, on: bool):
 
 
 # ============================================================================================ baselines
-def evaluate_baselines(names: Sequence[str], ep: CurveEpisodes, resolution: int = 64, dynamics: str = "cw",
-                       horizon: int = baselines_lib.MPC_HORIZON) -> dict[str, dict]:
+def evaluate_baselines(
+    names: Sequence[str],
+    ep: CurveEpisodes,
+    resolution: int = 64,
+    dynamics: str = "cw",
+    horizon: int = baselines_lib.MPC_HORIZON,
+) -> dict[str, dict]:
     """{name: {'label', 'aer', 'aer_ci_low', 'aer_ci_high', 'ael', 'lost_fraction', 'per_target'}} of each baseline
     ('depth', 'mpc', ...) on ``ep``, as ``ramavt eval`` flies them (depth images at ``resolution``, ``dynamics``)."""
     camera = render.CameraConfig(resolution=resolution)
@@ -204,10 +251,17 @@ def evaluate_baselines(names: Sequence[str], ep: CurveEpisodes, resolution: int 
 
 
 # ============================================================================================ all together
-def learning_curves(run_dirs: Sequence[str | Path], ep: CurveEpisodes, policy_params: str | None = None,
-                    baselines: Sequence[str] = (DEPTH, CEILING), resolution: int = 64,
-                    horizon: int = baselines_lib.MPC_HORIZON, progress: bool = False,
-                    log: Callable[[str], None] = print, chunks: Sequence[int] = ()) -> dict:
+def learning_curves(
+    run_dirs: Sequence[str | Path],
+    ep: CurveEpisodes,
+    policy_params: str | None = None,
+    baselines: Sequence[str] = (DEPTH, CEILING),
+    resolution: int = 64,
+    horizon: int = baselines_lib.MPC_HORIZON,
+    progress: bool = False,
+    log: Callable[[str], None] = print,
+    chunks: Sequence[int] = (),
+) -> dict:
     """The curve of every run in ``run_dirs`` (:func:`run_curve`) and of the ``baselines`` flown once
     (:func:`evaluate_baselines`, with the first run's dynamics): {'episodes', 'baselines', 'runs', 'wall_s'}.
     ``chunks``: only these checkpoints of each run (empty = all).
@@ -217,15 +271,21 @@ def learning_curves(run_dirs: Sequence[str | Path], ep: CurveEpisodes, policy_pa
     dynamics = _saved_config(run_dirs[0])[1].env.dynamics if run_dirs else "cw"
     base = {}
     if baselines:
-        log(f"flying the baselines ({', '.join(baselines)}) on {len(ep.targets)} target(s) x {ep.episodes} "
-            f"episodes ...")
+        log(
+            f"flying the baselines ({', '.join(baselines)}) on {len(ep.targets)} target(s) x {ep.episodes} episodes ..."
+        )
         base = evaluate_baselines(baselines, ep, resolution, dynamics, horizon)
     runs = []
     for run_dir, count in zip(run_dirs, counts):
         log(f"{run_dir}: {count} checkpoint(s) (one compile per network, the parameters are its input) ...")
         runs.append(run_curve(run_dir, ep, policy_params, base, progress, chunks))
-    return {"episodes": ep.as_dict(), "baselines": base, "baseline_settings": {"resolution": resolution,
-            "dynamics": dynamics, "mpc_horizon": horizon}, "runs": runs, "wall_s": time.time() - t0}
+    return {
+        "episodes": ep.as_dict(),
+        "baselines": base,
+        "baseline_settings": {"resolution": resolution, "dynamics": dynamics, "mpc_horizon": horizon},
+        "runs": runs,
+        "wall_s": time.time() - t0,
+    }
 
 
 def _saved_config(run_dir: str | Path) -> tuple[int, TrainConfig]:

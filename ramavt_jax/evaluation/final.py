@@ -9,8 +9,9 @@ from __future__ import annotations
 import dataclasses
 import time
 import zlib
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -32,8 +33,9 @@ def split_key(key: jax.Array, split: str) -> jax.Array:
     return jax.random.fold_in(key, zlib.crc32(split.encode()))
 
 
-def split_envs(config: TrainConfig, splits: dict[str, tuple[str, ...]],
-               max_steps: int) -> tuple[env_lib.TrackingEnv, dict[str, env_lib.EnvParams]]:
+def split_envs(
+    config: TrainConfig, splits: dict[str, tuple[str, ...]], max_steps: int
+) -> tuple[env_lib.TrackingEnv, dict[str, env_lib.EnvParams]]:
     """One env over every split's targets, and per split the evaluation EnvParams that draw only that split's
     targets (uniformly). The target draw is a traced value, so one compiled rollout serves every split."""
     names = tuple(dict.fromkeys(n for split in splits.values() for n in split))
@@ -52,32 +54,42 @@ def final_evaluation(config: TrainConfig, params: Any, key: jax.Array, log: Call
     splits = {"train": tuple(config.env.targets), "val": targets_lib.VAL_TARGETS, "test": targets_lib.TEST_TARGETS}
     tracking_env, split_params = split_envs(config, splits, config.run.eval_max_steps)
     greedy = greedy_policy(config.network, params, tuple(config.env.obs_shape), camera=config.env.camera)
-    policies = {"greedy": greedy,
-                "random": baselines.random_policy(), "mpc": baselines.mpc_policy(tracking_env.config)}
+    policies = {"greedy": greedy, "random": baselines.random_policy(), "mpc": baselines.mpc_policy(tracking_env.config)}
     key_index = {"greedy": 0, "random": 1, "mpc": 0}  # the ceiling flies the greedy policy's episodes
     out = {}
     for split, names in splits.items():
         for name, policy in policies.items():
             t = time.time()
             k = jax.random.fold_in(split_key(key, split), key_index[name])
-            stats, _ = rollouts.run_episodes(tracking_env, policy, split_params[split], k, config.run.eval_episodes,
-                                             num_steps=config.run.eval_max_steps)
+            stats, _ = rollouts.run_episodes(
+                tracking_env,
+                policy,
+                split_params[split],
+                k,
+                config.run.eval_episodes,
+                num_steps=config.run.eval_max_steps,
+            )
             out.setdefault(split, {})[name] = res = rollouts.summarise(stats).as_dict()
-            log(f"final evaluation: {name:<6} on {split:<5} targets ({len(names)}): mean episode length "
-                f"{res['length_mean']:.0f}, return {res['return_mean']:.1f} ({time.time() - t:.0f} s)")
+            log(
+                f"final evaluation: {name:<6} on {split:<5} targets ({len(names)}): mean episode length "
+                f"{res['length_mean']:.0f}, return {res['return_mean']:.1f} ({time.time() - t:.0f} s)"
+            )
         ceiling = out[split]["mpc"]["return_mean"]
         greedy = out[split]["greedy"]
         greedy["ceiling_fraction"] = greedy["return_mean"] / ceiling if ceiling > 0 else None
     return out
 
 
-def evaluate_run(config: TrainConfig, run_dir: str | Path, seed: int, params: Any,
-                 log: Callable[[str], None] = print) -> dict:
+def evaluate_run(
+    config: TrainConfig, run_dir: str | Path, seed: int, params: Any, log: Callable[[str], None] = print
+) -> dict:
     """Evaluate a finished run's params (the set ``config.run.policy_params`` names; key: seed + 10,000) and write
     ``run_dir/eval.json``; returns the results."""
     t = time.time()
-    log(f"final evaluation of {run_dir} ({config.run.policy_params} params): {config.run.eval_episodes} episodes per "
-        f"split and policy, up to {config.run.eval_max_steps} steps ...")
+    log(
+        f"final evaluation of {run_dir} ({config.run.policy_params} params): {config.run.eval_episodes} episodes per "
+        f"split and policy, up to {config.run.eval_max_steps} steps ..."
+    )
     results = final_evaluation(config, params, jax.random.PRNGKey(seed + 10_000), log)
     results["policy_params"] = config.run.policy_params
     results["eval_wall_s"] = time.time() - t

@@ -20,12 +20,20 @@ import numpy as np
 
 from ramavt_jax.baselines import Policy
 from ramavt_jax.evaluation.runs import load_policy
-from ramavt_jax.network import init_params
 from ramavt_jax.greedy import greedy_policy
+from ramavt_jax.network import init_params
 from ramavt_jax.train_config import TrainConfig
 
-__all__ = ["AGENTS_DIR", "DEFAULT_AGENT", "PretrainedAgent", "PretrainedError", "available", "load", "export",
-           "load_policy"]
+__all__ = [
+    "AGENTS_DIR",
+    "DEFAULT_AGENT",
+    "PretrainedAgent",
+    "PretrainedError",
+    "available",
+    "load",
+    "export",
+    "load_policy",
+]
 
 AGENTS_DIR = Path(__file__).resolve().parent.parent / "agents"
 DEFAULT_AGENT = "ramavt_depth"
@@ -73,13 +81,20 @@ def load(name: str = DEFAULT_AGENT, agents_dir: Path = AGENTS_DIR, search: str =
         return jax.numpy.asarray(stored[key], like.dtype)
 
     params = jax.tree_util.tree_map_with_path(fill, template)
-    policy = greedy_policy(config.network, params, obs_shape, name=f"pretrained:{name}", search=search,
-                           camera=config.env.camera)
+    policy = greedy_policy(
+        config.network, params, obs_shape, name=f"pretrained:{name}", search=search, camera=config.env.camera
+    )
     return PretrainedAgent(name=name, policy=policy, config=config, params=params, info=saved.get("info", {}))
 
 
-def export(run_dir, name: str, command: str, info: dict | None = None, out_dir: Path = AGENTS_DIR,
-           policy_params: str | None = None) -> Path:
+def export(
+    run_dir,
+    name: str,
+    command: str,
+    info: dict | None = None,
+    out_dir: Path = AGENTS_DIR,
+    policy_params: str | None = None,
+) -> Path:
     """Copy a run folder's latest network parameters (the set its config's RunConfig.policy_params names, unless
     ``policy_params`` says) and config into an agent folder ``out_dir/name``."""
     run = load_policy(run_dir, policy_params=policy_params)
@@ -87,7 +102,9 @@ def export(run_dir, name: str, command: str, info: dict | None = None, out_dir: 
     folder.mkdir(parents=True, exist_ok=True)
     flat = {_path_key(p): np.asarray(v) for p, v in jax.tree_util.tree_flatten_with_path(run.params)[0]}
     np.savez_compressed(folder / "params.npz", **flat)
-    record = {"config": run.config.to_dict(),
-              "info": {"command": command, "run": str(run_dir), "seed": run.seed, "chunks": run.step, **(info or {})}}
+    record = {
+        "config": run.config.to_dict(),
+        "info": {"command": command, "run": str(run_dir), "seed": run.seed, "chunks": run.step, **(info or {})},
+    }
     (folder / "config.json").write_text(json.dumps(record, indent=1))
     return folder

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-from typing import Sequence
+from collections.abc import Sequence
 
 import jax
 import jax.numpy as jnp
@@ -21,9 +21,26 @@ from ramavt_jax.training import memory as memplan
 # EnvParams fields whose evaluation values (env.eval_params) replace a run's training values: each target at its own
 # size and shape, one speed rule for every row of a table, Table II's perturbations as the flown setting says, and
 # the benchmark's start distribution (a run may train on wider starts for practice; every row flies the same ones)
-EVAL_FIELDS = ("dist_weight", "lost_patience", "size_scale_min", "size_scale_max", "size_scale_prob", "stretch_max",
-               "stretch_prob", "offset_max", "offset_prob", "speed_standoff_power", "small_standoff_power",
-               "actuator_noise", "delay_max", "blur_frames", "perturb_prob", "init_xy_std", "init_z_min", "init_z_max")
+EVAL_FIELDS = (
+    "dist_weight",
+    "lost_patience",
+    "size_scale_min",
+    "size_scale_max",
+    "size_scale_prob",
+    "stretch_max",
+    "stretch_prob",
+    "offset_max",
+    "offset_prob",
+    "speed_standoff_power",
+    "small_standoff_power",
+    "actuator_noise",
+    "delay_max",
+    "blur_frames",
+    "perturb_prob",
+    "init_xy_std",
+    "init_z_min",
+    "init_z_max",
+)
 
 
 def run_env_overrides(env_params) -> dict:
@@ -69,15 +86,17 @@ class TrackingSums:
     within_half: jax.Array  # steps with that distance <= 0.5
 
     @staticmethod
-    def zeros(n: int) -> "TrackingSums":
+    def zeros(n: int) -> TrackingSums:
         return TrackingSums(jnp.zeros(n), jnp.zeros(n, jnp.int32), jnp.zeros(n, jnp.int32))
 
-    def add(self, tracking_error: jax.Array, scale: jax.Array, alive: jax.Array) -> "TrackingSums":
+    def add(self, tracking_error: jax.Array, scale: jax.Array, alive: jax.Array) -> TrackingSums:
         """Add one step: tracking_error [N, 3] (m, camera frame), scale [N], alive [N] bool (ended: nothing)."""
         distance = jnp.linalg.norm(tracking_error, axis=-1) / scale
-        return TrackingSums(error=self.error + jnp.where(alive, distance, 0.0),
-                            within_quarter=self.within_quarter + (alive & (distance <= 0.25)),
-                            within_half=self.within_half + (alive & (distance <= 0.5)))
+        return TrackingSums(
+            error=self.error + jnp.where(alive, distance, 0.0),
+            within_quarter=self.within_quarter + (alive & (distance <= 0.25)),
+            within_half=self.within_half + (alive & (distance <= 0.5)),
+        )
 
 
 def run_episodes(
@@ -108,8 +127,14 @@ def run_episodes(
         return compiled(params, key, policy_params, 0)
     # too many episodes side by side for the memory: batches of equal size (one compile), and the rest (a second)
     starts = range(0, num_episodes, batch)
-    parts = [jax.device_get(_compiled_runner(fn, params, key, min(batch, num_episodes - s), num_episodes,
-                                             policy_params)(params, key, policy_params, s)) for s in starts]
+    parts = [
+        jax.device_get(
+            _compiled_runner(fn, params, key, min(batch, num_episodes - s), num_episodes, policy_params)(
+                params, key, policy_params, s
+            )
+        )
+        for s in starts
+    ]
     stats = jax.tree.map(lambda *xs: np.concatenate(xs), *(p[0] for p in parts))
     rec = None if not record else jax.tree.map(lambda *xs: np.concatenate(xs, axis=1), *(p[1] for p in parts))
     return stats, rec
@@ -157,8 +182,9 @@ def _episode_keys(key: jax.Array) -> jax.Array:
     return jax.random.split(key, 3)
 
 
-def episode_starts(tracking_env: env_lib.TrackingEnv, params: env_lib.EnvParams, key: jax.Array,
-                   num_episodes: int) -> env_lib.EnvState:
+def episode_starts(
+    tracking_env: env_lib.TrackingEnv, params: env_lib.EnvParams, key: jax.Array, num_episodes: int
+) -> env_lib.EnvState:
     """The initial states [N] of the episodes :func:`run_episodes` flies for ``key``: no policy acts on them yet, so
     every policy's episodes start from these (for sorting episodes by how they start, say)."""
     keys = jax.random.split(_episode_keys(key)[0], num_episodes)
@@ -202,8 +228,14 @@ def _episode_runner(tracking_env, policy, steps, record):
             out = None
             if record:
                 out = EpisodeRecord(
-                    reward=reward, action=action, terminated=terminated, truncated=truncated, alive=alive,
-                    rel_pos=info["rel_pos"], chaser_pos=state.chaser_pos, target_pos=state.target_pos,
+                    reward=reward,
+                    action=action,
+                    terminated=terminated,
+                    truncated=truncated,
+                    alive=alive,
+                    rel_pos=info["rel_pos"],
+                    chaser_pos=state.chaser_pos,
+                    target_pos=state.target_pos,
                     in_view=info["in_view"],
                 )
             alive = alive & ~(terminated | truncated)
@@ -214,6 +246,7 @@ def _episode_runner(tracking_env, policy, steps, record):
         if record:
             carry, rec = jax.lax.scan(body, init, step_keys)
         else:
+
             def cond(c):
                 t, carry = c
                 return (t < steps) & carry[3].any()
@@ -225,8 +258,14 @@ def _episode_runner(tracking_env, policy, steps, record):
             _, carry = jax.lax.while_loop(cond, loop, (jnp.zeros((), jnp.int32), init))
             rec = None
         _, state, _, _, length, ret, term, trunc, track = carry
-        stats = EpisodeStats(length=length, episode_return=ret, terminated=term, target_index=state.target_index,
-                             truncated=trunc, tracking=track)
+        stats = EpisodeStats(
+            length=length,
+            episode_return=ret,
+            terminated=term,
+            target_index=state.target_index,
+            truncated=trunc,
+            tracking=track,
+        )
         return stats, rec
 
     return jax.jit(run, static_argnums=(3, 4))
@@ -308,8 +347,12 @@ def _tracking_columns(tracking: TrackingSums | None, length: np.ndarray, strata:
     error = np.asarray(tracking.error, np.float64).reshape(-1) / steps
     quarter = np.asarray(tracking.within_quarter, np.float64).reshape(-1) / steps
     half = np.asarray(tracking.within_half, np.float64).reshape(-1) / steps
-    return {"error_mean": float(error.mean()), **_intervals("error", error, strata),
-            "within_quarter_fraction": float(quarter.mean()), "within_half_fraction": float(half.mean())}
+    return {
+        "error_mean": float(error.mean()),
+        **_intervals("error", error, strata),
+        "within_quarter_fraction": float(quarter.mean()),
+        "within_half_fraction": float(half.mean()),
+    }
 
 
 def concat_stats(stats: Sequence[EpisodeStats]) -> EpisodeStats:
@@ -337,8 +380,9 @@ def evaluate_per_target(
     params = make(**(params_overrides or {}))
     results = {}
     for i, name in enumerate(config.targets):
-        stats, _ = run_episodes(tracking_env, policy, tracking_env.pinned(params, i), jax.random.fold_in(key, i),
-                                episodes_per_target)
+        stats, _ = run_episodes(
+            tracking_env, policy, tracking_env.pinned(params, i), jax.random.fold_in(key, i), episodes_per_target
+        )
         results[name] = summarise(stats)
     return results
 
@@ -348,8 +392,11 @@ def evaluate_per_target(
 # observation = mean of the last 3 frames (the paper gives no frame count; 3 is our choice).
 PERTURBATION_VALUES = {"actuator_noise": 0.3, "delay_max": 0.5, "blur_frames": 3}
 PERTURBATIONS: dict[str, tuple[str, ...]] = {
-    "actuator_noise": ("actuator_noise",), "time_delay": ("delay_max",), "blur": ("blur_frames",),
-    "all": ("actuator_noise", "delay_max", "blur_frames"), "none": (),
+    "actuator_noise": ("actuator_noise",),
+    "time_delay": ("delay_max",),
+    "blur": ("blur_frames",),
+    "all": ("actuator_noise", "delay_max", "blur_frames"),
+    "none": (),
 }
 
 
@@ -370,8 +417,9 @@ def resolve_targets(spec: str | Sequence[str]) -> tuple[str, ...]:
     items = [s.strip() for s in spec.split(",")] if isinstance(spec, str) else [str(s).strip() for s in spec]
     items = [s for s in items if s]
     if not items:
-        raise ValueError(f"no targets given: use a split ({', '.join(targets_lib.SPLITS)}) or comma-separated names "
-                         "/ MJCF files")
+        raise ValueError(
+            f"no targets given: use a split ({', '.join(targets_lib.SPLITS)}) or comma-separated names / MJCF files"
+        )
     out: list[str] = []
     for item in items:
         if item in targets_lib.SPLITS:
@@ -384,4 +432,3 @@ def resolve_targets(spec: str | Sequence[str]) -> tuple[str, ...]:
             raise targets_lib.TargetError(f"{e} (the splits {splits} are accepted too)") from None
         out.append(targets_lib.sized_name(item))  # one spelling per size: one set of episodes
     return tuple(dict.fromkeys(out))  # keep order, drop repeats
-

@@ -44,12 +44,20 @@ def check_policy_params(run_dir, policy_params: str | None, config: TrainConfig 
     if config is None:
         config = TrainConfig.from_dict(folders.read_config(Path(run_dir))["config"])
     if config.run.policy_average_from is None:
-        raise ValueError(f"{run_dir} keeps no averaged params: policy_params='averaged' needs a run trained with "
-                         f"--run.policy-average-from S (or use the 'target' params)")
+        raise ValueError(
+            f"{run_dir} keeps no averaged params: policy_params='averaged' needs a run trained with "
+            f"--run.policy-average-from S (or use the 'target' params)"
+        )
 
 
-def load_policy(run_dir, step: int | None = None, name: str | None = None,
-                policy_params: str | None = None, log=print, search: str = "learned") -> LoadedRun:
+def load_policy(
+    run_dir,
+    step: int | None = None,
+    name: str | None = None,
+    policy_params: str | None = None,
+    log=print,
+    search: str = "learned",
+) -> LoadedRun:
     """The greedy policy of a training run folder written by ``ramavt train`` (config.json + checkpoints/).
 
     One network parameter set is read from the checkpoint (not the replay buffer): the online net's, the target
@@ -62,8 +70,9 @@ def load_policy(run_dir, step: int | None = None, name: str | None = None,
     run_dir = Path(run_dir)
     cfg_file = run_dir / folders.CONFIG_FILE
     if not cfg_file.is_file():
-        raise FileNotFoundError(f"{cfg_file} not found: --run must name a folder written by `ramavt train` "
-                                f"(config.json, checkpoints/)")
+        raise FileNotFoundError(
+            f"{cfg_file} not found: --run must name a folder written by `ramavt train` (config.json, checkpoints/)"
+        )
     saved = folders.read_config(run_dir)
     config = TrainConfig.from_dict(saved["config"])
     check_policy_params(run_dir, policy_params, config)
@@ -83,8 +92,21 @@ def load_policy(run_dir, step: int | None = None, name: str | None = None,
     finally:
         store.close()
     params = jax.tree.map(jnp.asarray, params)
-    policy = greedy_policy(config.network, params, tuple(config.env.obs_shape), name=name or run_dir.name,
-                           search=search, camera=config.env.camera)
+    policy = greedy_policy(
+        config.network,
+        params,
+        tuple(config.env.obs_shape),
+        name=name or run_dir.name,
+        search=search,
+        camera=config.env.camera,
+    )
     meta = {k: v for k, v in meta.items() if k not in ("_num_leaves", "_leaf_paths", "config")}
-    return LoadedRun(policy=policy, config=config, params=params, run_dir=str(run_dir),
-                     seed=int(saved.get("seed", -1)), step=int(step), meta=meta)
+    return LoadedRun(
+        policy=policy,
+        config=config,
+        params=params,
+        run_dir=str(run_dir),
+        seed=int(saved.get("seed", -1)),
+        step=int(step),
+        meta=meta,
+    )

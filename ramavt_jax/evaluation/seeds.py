@@ -46,8 +46,14 @@ def summarise_arms(result: dict, setting: str = "none") -> dict:
     targets = result["settings"]["targets"]
     grouped = arms(result, setting)
     scores = {name: _scores(runs, targets) for name, runs in grouped.items()}
-    ceiling = next((r["settings"][setting]["overall"]["return_mean"] for r in result["rows"]
-                    if r.get("info", {}).get("variant") == "mpc" and setting in r["settings"]), None)
+    ceiling = next(
+        (
+            r["settings"][setting]["overall"]["return_mean"]
+            for r in result["rows"]
+            if r.get("info", {}).get("variant") == "mpc" and setting in r["settings"]
+        ),
+        None,
+    )
     compared = statistics.compare_arms(scores)  # IQM with its interval, P(x > y) for every ordered pair
     out = {"arms": {}, "probability_of_improvement": compared["probability_of_improvement"]}
     for name, runs in grouped.items():
@@ -58,8 +64,12 @@ def summarise_arms(result: dict, setting: str = "none") -> dict:
         per_run = {f: [r["overall"][f] for r in runs] for f in _SEED_FIELDS}
         mean = float(s.mean())
         out["arms"][name] = {
-            "runs": int(s.shape[0]), "return_mean": mean, "return_ci_low": low, "return_ci_high": high,
-            "return_iqm": iqm["iqm"], "iqm_ci_low": iqm["ci_low"] if several else None,
+            "runs": int(s.shape[0]),
+            "return_mean": mean,
+            "return_ci_low": low,
+            "return_ci_high": high,
+            "return_iqm": iqm["iqm"],
+            "iqm_ci_low": iqm["ci_low"] if several else None,
             "iqm_ci_high": iqm["ci_high"] if several else None,
             "return_sample_std_over_runs": statistics.sample_std(per_run["return_mean"]),
             "ceiling_fraction": mean / ceiling if ceiling and ceiling > 0 else None,
@@ -78,18 +88,27 @@ def arms_md(result: dict, setting: str = "none") -> str:
     """A Markdown table: one line per arm (mean over its runs with the interval, IQM, fraction of the ceiling,
     lost %, error), then P(arm > each other arm) for the arms of several runs."""
     summary = summarise_arms(result, setting)
-    lines = ["| Arm | Runs | AER mean | 95 % CI (runs within targets) | std over runs | IQM | IQM 95 % CI | "
-             "of ceiling % | lost % | error (m) |", "|---|---|---|---|---|---|---|---|---|---|"]
+    lines = [
+        "| Arm | Runs | AER mean | 95 % CI (runs within targets) | std over runs | IQM | IQM 95 % CI | "
+        "of ceiling % | lost % | error (m) |",
+        "|---|---|---|---|---|---|---|---|---|---|",
+    ]
     for name, a in summary["arms"].items():
         ci = "-" if a["return_ci_low"] is None else f"[{a['return_ci_low']:.1f}, {a['return_ci_high']:.1f}]"
         iqm_ci = "-" if a["iqm_ci_low"] is None else f"[{a['iqm_ci_low']:.1f}, {a['iqm_ci_high']:.1f}]"
-        lines.append(f"| {name} | {a['runs']} | {a['return_mean']:.1f} | {ci} | "
-                     f"{_cell(a['return_sample_std_over_runs'])} | {a['return_iqm']:.1f} | {iqm_ci} | "
-                     f"{_cell(a['ceiling_fraction'], 0, 100)} | {_cell(a['lost_fraction_over_runs'], 1, 100)} | "
-                     f"{_cell(a['error_mean_over_runs'], 2)} |")
+        lines.append(
+            f"| {name} | {a['runs']} | {a['return_mean']:.1f} | {ci} | "
+            f"{_cell(a['return_sample_std_over_runs'])} | {a['return_iqm']:.1f} | {iqm_ci} | "
+            f"{_cell(a['ceiling_fraction'], 0, 100)} | {_cell(a['lost_fraction_over_runs'], 1, 100)} | "
+            f"{_cell(a['error_mean_over_runs'], 2)} |"
+        )
     multi = [n for n, a in summary["arms"].items() if a["runs"] > 1]
-    pis = [f"P({x} > {y}) = {p:.2f}" for k, p in summary["probability_of_improvement"].items()
-           for x, y in [k.split(">", 1)] if x in multi]
+    pis = [
+        f"P({x} > {y}) = {p:.2f}"
+        for k, p in summary["probability_of_improvement"].items()
+        for x, y in [k.split(">", 1)]
+        if x in multi
+    ]
     if pis:
         lines += ["", "Probability of improvement (rliable; per target, averaged over targets): " + "; ".join(pis)]
     return "\n".join(lines)

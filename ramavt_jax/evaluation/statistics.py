@@ -23,8 +23,9 @@ def _rliable():
     return metrics
 
 
-def stratified_resample_means(values: np.ndarray, strata: np.ndarray | None, resamples: int,
-                              rng: np.random.Generator) -> np.ndarray:
+def stratified_resample_means(
+    values: np.ndarray, strata: np.ndarray | None, resamples: int, rng: np.random.Generator
+) -> np.ndarray:
     """Means [resamples] of `values` [N] resampled with replacement within each stratum (`strata` [N] labels; None:
     one stratum), each stratum keeping its size, so every resample weighs the targets as the data does."""
     values = np.asarray(values, np.float64).reshape(-1)
@@ -37,8 +38,13 @@ def stratified_resample_means(values: np.ndarray, strata: np.ndarray | None, res
     return total / values.size
 
 
-def bootstrap_ci(values: np.ndarray, strata: np.ndarray | None = None, confidence: float = CONFIDENCE,
-                 resamples: int = RESAMPLES, seed: int = 0) -> tuple[float, float]:
+def bootstrap_ci(
+    values: np.ndarray,
+    strata: np.ndarray | None = None,
+    confidence: float = CONFIDENCE,
+    resamples: int = RESAMPLES,
+    seed: int = 0,
+) -> tuple[float, float]:
     """Percentile bootstrap interval (low, high) of the mean of `values` [N], stratified by `strata` [N] (e.g. the
     target of each episode). NaNs for fewer than two values: one sample gives no interval."""
     values = np.asarray(values, np.float64).reshape(-1)
@@ -61,8 +67,9 @@ def iqm(scores: np.ndarray) -> float:
     return float(_rliable().aggregate_iqm(np.asarray(scores, np.float64)))
 
 
-def iqm_ci(scores: np.ndarray, confidence: float = CONFIDENCE, resamples: int = RESAMPLES,
-           seed: int = 0) -> tuple[float, float]:
+def iqm_ci(
+    scores: np.ndarray, confidence: float = CONFIDENCE, resamples: int = RESAMPLES, seed: int = 0
+) -> tuple[float, float]:
     """Stratified bootstrap interval of the IQM of `scores` [runs, tasks]: runs resampled within each task."""
     scores = np.asarray(scores, np.float64)
     runs, tasks = scores.shape
@@ -81,8 +88,9 @@ def iqm_ci(scores: np.ndarray, confidence: float = CONFIDENCE, resamples: int = 
 def probability_of_improvement(scores_x: np.ndarray, scores_y: np.ndarray) -> float:
     """P(X > Y): the chance that a run of arm X scores above a run of arm Y on a task, averaged over tasks
     (rliable.metrics.probability_of_improvement; Mann-Whitney U). Scores [runs_x, tasks], [runs_y, tasks]."""
-    return float(_rliable().probability_of_improvement(np.asarray(scores_x, np.float64),
-                                                        np.asarray(scores_y, np.float64)))
+    return float(
+        _rliable().probability_of_improvement(np.asarray(scores_x, np.float64), np.asarray(scores_y, np.float64))
+    )
 
 
 def compare_arms(scores: dict[str, np.ndarray], seed: int = 0) -> dict:

@@ -20,16 +20,16 @@ import os
 import platform
 import time
 import zlib
+from collections.abc import Callable
 from pathlib import Path
-from typing import Callable
 
 import jax
 import numpy as np
 
 from ramavt_jax import env as env_lib
+from ramavt_jax.baselines import Policy
 from ramavt_jax.evaluation import rollouts, seeds
 from ramavt_jax.training.run_folder import dumps
-from ramavt_jax.baselines import Policy
 
 # The paper's numbers (RAMAVT, IEEE TAES; 256x256 renders of the SNCOAT benchmark, 6 held-out targets).
 PAPER_TABLE1 = [  # name, input, AEL, min, max, AER, min, max, Hz
@@ -50,11 +50,18 @@ PAPER_TABLE2 = [  # name, setting, AEL, AER (RAMAVT rows are RGBD: the 'none' ro
     ("RAMAVT", "none", 952.4, -398.5),
 ]
 PAPER_TABLE3 = [  # name, AEL, AER, Hz (RGBD)
-    ("Origin", 368.5, -1876.3, 214.3), ("Augment", 419.3, -1283.6, 215.7), ("SE", 625.8, -956.0, 211.3),
-    ("MHA", 731.1, -845.7, 206.6), ("RAMAVT", 952.4, -398.5, 202.7),
+    ("Origin", 368.5, -1876.3, 214.3),
+    ("Augment", 419.3, -1283.6, 215.7),
+    ("SE", 625.8, -956.0, 211.3),
+    ("MHA", 731.1, -845.7, 206.6),
+    ("RAMAVT", 952.4, -398.5, 202.7),
 ]
 SETTING_MARKS = {  # setting -> (actuator noise, time delay, image blur)
-    "actuator_noise": (1, 0, 0), "time_delay": (0, 1, 0), "blur": (0, 0, 1), "all": (1, 1, 1), "none": (0, 0, 0),
+    "actuator_noise": (1, 0, 0),
+    "time_delay": (0, 1, 0),
+    "blur": (0, 0, 1),
+    "all": (1, 1, 1),
+    "none": (0, 0, 0),
 }
 
 
@@ -92,18 +99,29 @@ def suite_env(env_config: env_lib.EnvConfig, targets: tuple[str, ...], values: d
     return env_lib.TrackingEnv(dataclasses.replace(env_config, targets=tuple(targets), frame_history=history))
 
 
-def evaluate_setting(tracking_env: env_lib.TrackingEnv, policy, env_overrides: dict, episodes: int, max_steps: int,
-                     root: jax.Array, setting: str, values: dict, policy_params=None) -> dict:
+def evaluate_setting(
+    tracking_env: env_lib.TrackingEnv,
+    policy,
+    env_overrides: dict,
+    episodes: int,
+    max_steps: int,
+    root: jax.Array,
+    setting: str,
+    values: dict,
+    policy_params=None,
+) -> dict:
     """{'overall': Summary dict, 'per_target': {target: Summary dict}} of ``policy`` in one setting: ``episodes`` per
     target of ``tracking_env`` (a :func:`suite_env`), those of ``episode_key(root, setting, target)``. With
     ``policy_params``, ``policy`` is a function of them (rollouts.run_episodes)."""
-    params = tracking_env.eval_params(**{**env_overrides, "max_steps": max_steps,
-                                         **rollouts.perturbation_overrides(setting, values)})
+    params = tracking_env.eval_params(
+        **{**env_overrides, "max_steps": max_steps, **rollouts.perturbation_overrides(setting, values)}
+    )
     per_target, all_stats = {}, []
     for i, target in enumerate(tracking_env.config.targets):
         key = episode_key(root, setting, target)  # same episodes for every policy and request
-        stats, _ = rollouts.run_episodes(tracking_env, policy, tracking_env.pinned(params, i), key, episodes,
-                                         policy_params=policy_params)
+        stats, _ = rollouts.run_episodes(
+            tracking_env, policy, tracking_env.pinned(params, i), key, episodes, policy_params=policy_params
+        )
         stats = jax.device_get(stats)
         all_stats.append(stats)
         per_target[target] = rollouts.summarise(stats).as_dict()
@@ -115,9 +133,17 @@ def recorded_eval_params(params: env_lib.EnvParams) -> dict:
     return {name: float(getattr(params, name)) for name in rollouts.EVAL_FIELDS}
 
 
-def run_suite(entries: list[Entry], targets: tuple[str, ...], episodes: int, max_steps: int, seed: int,
-              tables: tuple[int, ...] = (1, 2, 3), perturbation_values: dict | None = None, speed_steps: int = 200,
-              log: Callable[[str], None] = print) -> dict:
+def run_suite(
+    entries: list[Entry],
+    targets: tuple[str, ...],
+    episodes: int,
+    max_steps: int,
+    seed: int,
+    tables: tuple[int, ...] = (1, 2, 3),
+    perturbation_values: dict | None = None,
+    speed_steps: int = 200,
+    log: Callable[[str], None] = print,
+) -> dict:
     """Evaluate every entry on every target (vmapped episodes) for each needed setting. Returns a JSON-able dict."""
     values = {**rollouts.PERTURBATION_VALUES, **(perturbation_values or {})}
     settings = settings_for(tables)
@@ -132,32 +158,55 @@ def run_suite(entries: list[Entry], targets: tuple[str, ...], episodes: int, max
         if task not in (None, entry_task):  # every row of a table flies the same task
             raise ValueError(f"{entry.name} is evaluated with {entry_task}, the rows before it with {task}")
         task = entry_task
-        row = {"name": entry.name, "kind": entry.kind, "input": entry.input_label or config.obs_mode,
-               "obs_mode": config.obs_mode, "resolution": config.camera.resolution, "dynamics": config.dynamics,
-               "info": entry.info, "settings": {}}
-        log(f"{entry.name} ({row['input']}): {len(settings)} setting(s) x {len(targets)} target(s) x {episodes} "
-            f"episodes, up to {max_steps} steps ...")
+        row = {
+            "name": entry.name,
+            "kind": entry.kind,
+            "input": entry.input_label or config.obs_mode,
+            "obs_mode": config.obs_mode,
+            "resolution": config.camera.resolution,
+            "dynamics": config.dynamics,
+            "info": entry.info,
+            "settings": {},
+        }
+        log(
+            f"{entry.name} ({row['input']}): {len(settings)} setting(s) x {len(targets)} target(s) x {episodes} "
+            f"episodes, up to {max_steps} steps ..."
+        )
         for setting in settings:
             t0 = time.time()
-            res = evaluate_setting(tracking_env, entry.policy, entry.env_overrides, episodes, max_steps, root,
-                                   setting, values)
+            res = evaluate_setting(
+                tracking_env, entry.policy, entry.env_overrides, episodes, max_steps, root, setting, values
+            )
             overall = res["overall"]
             row["settings"][setting] = {**res, "wall_s": time.time() - t0}
-            log(f"{entry.name:<22} {row['input']:<6} {setting:<15} AEL {overall['length_mean']:7.1f} "
-                f"AER {overall['return_mean']:9.1f} lost {overall['lost_fraction']:.2f} ({time.time() - t0:.0f} s)")
+            log(
+                f"{entry.name:<22} {row['input']:<6} {setting:<15} AEL {overall['length_mean']:7.1f} "
+                f"AER {overall['return_mean']:9.1f} lost {overall['lost_fraction']:.2f} ({time.time() - t0:.0f} s)"
+            )
         row["speed_hz"] = None
         if speed_steps > 0:
-            row["speed_hz"] = measure_speed(tracking_env, entry.policy, tracking_env.pinned(params, 0),
-                                            jax.random.fold_in(root, 99), speed_steps)
+            row["speed_hz"] = measure_speed(
+                tracking_env, entry.policy, tracking_env.pinned(params, 0), jax.random.fold_in(root, 99), speed_steps
+            )
             log(f"{entry.name:<22} {row['input']:<6} speed {row['speed_hz']:.1f} Hz (single env, {speed_steps} steps)")
         row["wall_s"] = time.time() - t_entry
         results.append(row)
     add_ceiling_fractions(results)
-    return {"settings": {"seed": seed, "episodes_per_target": episodes, "targets": list(targets),
-                         "max_steps": max_steps, "eval_params": task or {},
-                         "perturbation_values": values, "perturbation_settings": settings, "tables": list(tables),
-                         "speed_steps": speed_steps},
-            "machine": machine_info(), "rows": results}
+    return {
+        "settings": {
+            "seed": seed,
+            "episodes_per_target": episodes,
+            "targets": list(targets),
+            "max_steps": max_steps,
+            "eval_params": task or {},
+            "perturbation_values": values,
+            "perturbation_settings": settings,
+            "tables": list(tables),
+            "speed_steps": speed_steps,
+        },
+        "machine": machine_info(),
+        "rows": results,
+    }
 
 
 def add_ceiling_fractions(rows: list[dict]) -> None:
@@ -180,10 +229,15 @@ def _fraction(value: float, ceiling: dict | None) -> float | None:
 
 
 def machine_info() -> dict:
-    return {"platform": platform.platform(), "processor": platform.processor() or platform.machine(),
-            "cpu_count": os.cpu_count(), "jax": jax.__version__, "backend": jax.default_backend(),
-            "devices": [str(d) for d in jax.devices()],
-            "load_average": list(os.getloadavg()) if hasattr(os, "getloadavg") else None}
+    return {
+        "platform": platform.platform(),
+        "processor": platform.processor() or platform.machine(),
+        "cpu_count": os.cpu_count(),
+        "jax": jax.__version__,
+        "backend": jax.default_backend(),
+        "devices": [str(d) for d in jax.devices()],
+        "load_average": list(os.getloadavg()) if hasattr(os, "getloadavg") else None,
+    }
 
 
 # ============================================================================================ Markdown
@@ -221,19 +275,50 @@ def _ci(o: dict, name: str = "return") -> str:
 def _quality_cells(o: dict) -> list[str]:
     """Tracking error (stand-off units: m for catalogue targets), steps within 0.25 / 0.5 of the desired point,
     lost episodes and the AER as a fraction of the mpc ceiling's, as table cells."""
-    return [_f(o.get("error_mean"), 2), _pct(o.get("within_quarter_fraction")), _pct(o.get("within_half_fraction")),
-            _pct(o["lost_fraction"]), _pct(o.get("ceiling_fraction"))]
+    return [
+        _f(o.get("error_mean"), 2),
+        _pct(o.get("within_quarter_fraction")),
+        _pct(o.get("within_half_fraction")),
+        _pct(o["lost_fraction"]),
+        _pct(o.get("ceiling_fraction")),
+    ]
 
 
 def table1_md(result: dict) -> str:
     rows = []
     for r, s in _rows_in(result):
         o = s["overall"]
-        rows.append([r["name"], r["input"], _f(o["length_mean"]), _f(o["length_min"], 0), _f(o["length_max"], 0),
-                     _f(o["return_mean"]), _ci(o), _f(o["return_min"]), _f(o["return_max"]), *_quality_cells(o),
-                     _f(r.get("speed_hz"))])
-    return _table(["Policy", "Input", "AEL", "EL min", "EL max", "AER", "AER 95 % CI", "ER min", "ER max",
-                   *QUALITY_HEADER, "Speed (Hz)"], rows)
+        rows.append(
+            [
+                r["name"],
+                r["input"],
+                _f(o["length_mean"]),
+                _f(o["length_min"], 0),
+                _f(o["length_max"], 0),
+                _f(o["return_mean"]),
+                _ci(o),
+                _f(o["return_min"]),
+                _f(o["return_max"]),
+                *_quality_cells(o),
+                _f(r.get("speed_hz")),
+            ]
+        )
+    return _table(
+        [
+            "Policy",
+            "Input",
+            "AEL",
+            "EL min",
+            "EL max",
+            "AER",
+            "AER 95 % CI",
+            "ER min",
+            "ER max",
+            *QUALITY_HEADER,
+            "Speed (Hz)",
+        ],
+        rows,
+    )
 
 
 def table2_md(result: dict) -> str:
@@ -245,10 +330,13 @@ def table2_md(result: dict) -> str:
                 continue
             marks = ["✓" if m else "-" for m in SETTING_MARKS[setting]]
             o = s["overall"]
-            rows.append([r["name"], r["input"], *marks, _f(o["length_mean"]), _f(o["return_mean"]), _ci(o),
-                         *_quality_cells(o)])
-    return _table(["Policy", "Input", "Actuator noise", "Time delay", "Image blur", "AEL", "AER", "AER 95 % CI",
-                   *QUALITY_HEADER], rows)
+            rows.append(
+                [r["name"], r["input"], *marks, _f(o["length_mean"]), _f(o["return_mean"]), _ci(o), *_quality_cells(o)]
+            )
+    return _table(
+        ["Policy", "Input", "Actuator noise", "Time delay", "Image blur", "AEL", "AER", "AER 95 % CI", *QUALITY_HEADER],
+        rows,
+    )
 
 
 def table3_md(result: dict) -> str:
@@ -256,24 +344,48 @@ def table3_md(result: dict) -> str:
     for r, s in _rows_in(result):
         info = r.get("info", {})
         o = s["overall"]
-        rows.append([r["name"], info.get("variant", r["kind"]), str(info.get("augment", "-")), r["input"],
-                     _f(o["length_mean"]), _f(o["return_mean"]), _ci(o), *_quality_cells(o), _f(r.get("speed_hz"))])
-    return _table(["Run", "Variant", "Augment", "Input", "AEL", "AER", "AER 95 % CI", *QUALITY_HEADER, "Speed (Hz)"],
-                  rows)
+        rows.append(
+            [
+                r["name"],
+                info.get("variant", r["kind"]),
+                str(info.get("augment", "-")),
+                r["input"],
+                _f(o["length_mean"]),
+                _f(o["return_mean"]),
+                _ci(o),
+                *_quality_cells(o),
+                _f(r.get("speed_hz")),
+            ]
+        )
+    return _table(
+        ["Run", "Variant", "Augment", "Input", "AEL", "AER", "AER 95 % CI", *QUALITY_HEADER, "Speed (Hz)"], rows
+    )
 
 
 def per_target_md(result: dict) -> str:
     rows = []
     for r, s in _rows_in(result):
         for target, o in s["per_target"].items():
-            rows.append([r["name"], r["input"], target, _f(o["length_mean"]), _f(o["length_min"], 0),
-                         _f(o["return_mean"]), _ci(o), *_quality_cells(o)])
+            rows.append(
+                [
+                    r["name"],
+                    r["input"],
+                    target,
+                    _f(o["length_mean"]),
+                    _f(o["length_min"], 0),
+                    _f(o["return_mean"]),
+                    _ci(o),
+                    *_quality_cells(o),
+                ]
+            )
     return _table(["Policy", "Input", "Target", "AEL", "EL min", "AER", "AER 95 % CI", *QUALITY_HEADER], rows)
 
 
 def paper_md() -> str:
-    t1 = _table(["Name", "Input", "AEL", "EL min", "EL max", "AER", "ER min", "ER max", "Speed (Hz)"],
-                [[str(c) for c in row] for row in PAPER_TABLE1])
+    t1 = _table(
+        ["Name", "Input", "AEL", "EL min", "EL max", "AER", "ER min", "ER max", "Speed (Hz)"],
+        [[str(c) for c in row] for row in PAPER_TABLE1],
+    )
     t2 = _table(["Name", "Setting", "AEL", "AER"], [[str(c) for c in row] for row in PAPER_TABLE2])
     t3 = _table(["Name", "AEL", "AER", "Speed (Hz)"], [[str(c) for c in row] for row in PAPER_TABLE3])
     return f"Table I\n\n{t1}\n\nTable II (RGBD)\n\n{t2}\n\nTable III (RGBD)\n\n{t3}"
@@ -309,19 +421,25 @@ def to_markdown(result: dict, command: str = "") -> str:
     for r in rows:
         i = r["info"]
         if r["kind"] == "checkpoint" and i.get("pretrained"):  # a shipped agent: its own record of how it was made
-            head.append(f"- {r['name']}: the agent shipped with the package, variant {i.get('variant')}, trained by "
-                        f"`{i.get('command')}` (training seed {i.get('seed')}, {i.get('chunks')} chunks), "
-                        f"{i.get('policy_params')} params, {r['resolution']}x{r['resolution']} {r['obs_mode']}")
+            head.append(
+                f"- {r['name']}: the agent shipped with the package, variant {i.get('variant')}, trained by "
+                f"`{i.get('command')}` (training seed {i.get('seed')}, {i.get('chunks')} chunks), "
+                f"{i.get('policy_params')} params, {r['resolution']}x{r['resolution']} {r['obs_mode']}"
+            )
         elif r["kind"] == "checkpoint" and i.get("ensemble_of"):  # greedy on the mean Q of several runs
-            head.append(f"- {r['name']}: the runs {', '.join(f'`{d}`' for d in i['ensemble_of'])} flying together, "
-                        f"greedy on their mean output (Q, or a policy head's logits), "
-                        f"{i.get('policy_params', 'online')} params, "
-                        f"{r['resolution']}x{r['resolution']} {r['obs_mode']}")
+            head.append(
+                f"- {r['name']}: the runs {', '.join(f'`{d}`' for d in i['ensemble_of'])} flying together, "
+                f"greedy on their mean output (Q, or a policy head's logits), "
+                f"{i.get('policy_params', 'online')} params, "
+                f"{r['resolution']}x{r['resolution']} {r['obs_mode']}"
+            )
         elif r["kind"] == "checkpoint":
-            head.append(f"- {r['name']}: run `{i.get('run_dir')}`, variant {i.get('variant')}, training seed "
-                        f"{i.get('seed')}, checkpoint step {i.get('step')} ({i.get('env_steps')} env steps), "
-                        f"{i.get('policy_params', 'online')} params, "
-                        f"{r['resolution']}x{r['resolution']} {r['obs_mode']}")
+            head.append(
+                f"- {r['name']}: run `{i.get('run_dir')}`, variant {i.get('variant')}, training seed "
+                f"{i.get('seed')}, checkpoint step {i.get('step')} ({i.get('env_steps')} env steps), "
+                f"{i.get('policy_params', 'online')} params, "
+                f"{r['resolution']}x{r['resolution']} {r['obs_mode']}"
+            )
     parts = ["\n".join(h for h in head if h)]
     tables = s["tables"]
     if 1 in tables:
@@ -348,10 +466,12 @@ def write(result: dict, out: Path, command: str = "") -> tuple[Path, Path]:
 
 
 # ============================================================================================ speed
-def measure_speed(tracking_env: env_lib.TrackingEnv, policy: Policy, params: env_lib.EnvParams, key: jax.Array,
-                  steps: int = 200) -> float:
+def measure_speed(
+    tracking_env: env_lib.TrackingEnv, policy: Policy, params: env_lib.EnvParams, key: jax.Array, steps: int = 200
+) -> float:
     """Control-loop rate in Hz of one env: policy.act + env.step as one jitted call per step (greedy, batch 1),
     timed over `steps` calls after a warm-up call. Includes dispatch overhead, as a real control loop would."""
+
     @jax.jit
     def step(carry, k):
         obs, state, pstate = carry

@@ -31,8 +31,9 @@ class EpisodeFrames:
     alive: jax.Array  # [T] bool, step belongs to the episode
 
 
-def record_episode(tracking_env: env_lib.TrackingEnv, policy: Policy, params: env_lib.EnvParams, key: jax.Array,
-                   steps: int) -> EpisodeFrames:
+def record_episode(
+    tracking_env: env_lib.TrackingEnv, policy: Policy, params: env_lib.EnvParams, key: jax.Array, steps: int
+) -> EpisodeFrames:
     """Run one episode (no auto-reset) and keep every frame. jit-compiled."""
 
     @jax.jit
@@ -46,10 +47,24 @@ def record_episode(tracking_env: env_lib.TrackingEnv, policy: Policy, params: en
             k_act, k_env = jax.random.split(step_key)
             action, pstate = policy.act(k_act, pstate, obs, state, params)
             pose = tracking_env.pose(state, params)
-            frame = render.render(state.target, pose.position, pose.rotation, tracking_env.config.camera,
-                                  tracking_env.lighting(params), True)
-            out = EpisodeFrames(obs=obs, rgb=frame.rgb, rel_pos=pose.position, chaser_pos=state.chaser_pos,
-                                target_pos=state.target_pos, reward=jnp.zeros(()), action=action, alive=alive)
+            frame = render.render(
+                state.target,
+                pose.position,
+                pose.rotation,
+                tracking_env.config.camera,
+                tracking_env.lighting(params),
+                True,
+            )
+            out = EpisodeFrames(
+                obs=obs,
+                rgb=frame.rgb,
+                rel_pos=pose.position,
+                chaser_pos=state.chaser_pos,
+                target_pos=state.target_pos,
+                reward=jnp.zeros(()),
+                action=action,
+                alive=alive,
+            )
             obs, state, reward, terminated, truncated, _ = tracking_env.step_env(k_env, state, action, params)
             out = out.replace(reward=reward)
             return (obs, state, pstate, alive & ~(terminated | truncated)), out
@@ -80,8 +95,11 @@ def view_limits(frames: EpisodeFrames, desired_z: float = 5.0) -> tuple[float, f
     if rel.size == 0:
         return 6.0, 15.0, 6.0
     err = np.abs(rel - np.array([0.0, 0.0, desired_z])).max()
-    return (max(6.0, 1.1 * np.abs(rel[:, 0]).max()), max(15.0, 1.1 * rel[:, 2].max(), 1.5 * desired_z),
-            max(6.0, 1.1 * err))
+    return (
+        max(6.0, 1.1 * np.abs(rel[:, 0]).max()),
+        max(15.0, 1.1 * rel[:, 2].max(), 1.5 * desired_z),
+        max(6.0, 1.1 * err),
+    )
 
 
 def _trajectory_panel(frames: EpisodeFrames, t: int, size: int, desired_z: float = 5.0) -> np.ndarray:
@@ -239,8 +257,15 @@ def plot_attention(observations: np.ndarray, maps: list[dict], out: str | Path, 
             a = np.asarray(m[name], np.float32)
             ax = axes[r][c]
             ax.imshow(image, cmap=cmap or None, vmin=0, vmax=1, interpolation="nearest")
-            ax.imshow(a, cmap="jet", alpha=alpha, extent=(-0.5, res - 0.5, res - 0.5, -0.5), interpolation="bilinear",
-                      vmin=0, vmax=max(float(a.max()), 1e-12))
+            ax.imshow(
+                a,
+                cmap="jet",
+                alpha=alpha,
+                extent=(-0.5, res - 0.5, res - 0.5, -0.5),
+                interpolation="bilinear",
+                vmin=0,
+                vmax=max(float(a.max()), 1e-12),
+            )
             label = "MHA" if name == "mha" else name.replace("block", "conv block ")
             ax.set_title(f"{label} ({a.shape[0]}x{a.shape[1]})", fontsize=8)
         for ax in axes[r]:
@@ -249,9 +274,17 @@ def plot_attention(observations: np.ndarray, maps: list[dict], out: str | Path, 
     return _save(fig, out)
 
 
-def episode_figures(tracking_env: env_lib.TrackingEnv, policy: Policy, params: env_lib.EnvParams, key: jax.Array,
-                    steps: int, out_dir: str | Path, prefix: str, strip: int = 8,
-                    network=None) -> dict[str, str]:
+def episode_figures(
+    tracking_env: env_lib.TrackingEnv,
+    policy: Policy,
+    params: env_lib.EnvParams,
+    key: jax.Array,
+    steps: int,
+    out_dir: str | Path,
+    prefix: str,
+    strip: int = 8,
+    network=None,
+) -> dict[str, str]:
     """Record one episode and write tracking error, 3-D trajectory and frame strip PNGs (and, with
     `network=(network_config, net_params)`, attention maps of 3 frames across the episode). Returns {kind: path}."""
     out_dir = Path(out_dir)
@@ -266,8 +299,9 @@ def episode_figures(tracking_env: env_lib.TrackingEnv, policy: Policy, params: e
         net_cfg, net_params = network
         length = max(int(np.asarray(frames.alive).sum()), 1)
         obs = np.asarray(frames.obs)[strip_indices(length, 3)]
-        paths["attention"] = plot_attention(obs, attention_panels(net_params, net_cfg, obs),
-                                            out_dir / f"{prefix}_attention.png")
+        paths["attention"] = plot_attention(
+            obs, attention_panels(net_params, net_cfg, obs), out_dir / f"{prefix}_attention.png"
+        )
     return {k: str(v) for k, v in paths.items()}
 
 
@@ -293,10 +327,10 @@ def eval_figures(entries, loaded, target: str, out_dir: str | Path, seed: int = 
         lr = runs.get(e.info.get("run_dir"))
         network = (lr.config.network, lr.params) if lr is not None else None
         prefix = slug(f"{e.name}_{config.obs_mode}")
-        for k, v in episode_figures(tracking_env, e.policy, params, jax.random.PRNGKey(seed), steps, out_dir, prefix,
-                                    network=network).items():
+        for k, v in episode_figures(
+            tracking_env, e.policy, params, jax.random.PRNGKey(seed), steps, out_dir, prefix, network=network
+        ).items():
             out[f"{prefix}/{k}"] = v
     if loaded:
-        out["training_curves"] = str(plot_training_runs([lr.run_dir for lr in loaded],
-                                                                  out_dir / "training_curves.png"))
+        out["training_curves"] = str(plot_training_runs([lr.run_dir for lr in loaded], out_dir / "training_curves.png"))
     return out

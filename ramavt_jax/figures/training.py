@@ -5,16 +5,20 @@ from __future__ import annotations
 
 import json
 import re
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Sequence
 
 import numpy as np
 
 from ramavt_jax.figures import pyplot, save_figure
 from ramavt_jax.training import run_folder as folders
 
-CURVE_KEYS = (("episode_length", "episode length"), ("episode_return", "episode return"),
-              ("loss", "loss (TD + weighted aux)"), ("q_mean", "mean Q"))
+CURVE_KEYS = (
+    ("episode_length", "episode length"),
+    ("episode_return", "episode return"),
+    ("loss", "loss (TD + weighted aux)"),
+    ("q_mean", "mean Q"),
+)
 RUN_CURVE_KEYS = CURVE_KEYS + (("epsilon", "epsilon"),)  # one run's own training_curves.png
 _SEED_SUFFIX = re.compile(r"[-_.]?(s|seed)\d+$", re.IGNORECASE)
 
@@ -56,8 +60,13 @@ def band(curves: Sequence[tuple[np.ndarray, np.ndarray]]) -> tuple[np.ndarray, n
         return grid, np.nanmean(ys, 0), np.nanstd(ys, 0)
 
 
-def plot_training_runs(run_dirs: Sequence[str | Path], out: str | Path, keys=CURVE_KEYS,
-                       labels: dict[str, str] | None = None, title: str = "") -> Path:
+def plot_training_runs(
+    run_dirs: Sequence[str | Path],
+    out: str | Path,
+    keys=CURVE_KEYS,
+    labels: dict[str, str] | None = None,
+    title: str = "",
+) -> Path:
     """One panel per metric; one line per group of runs (seeds) with a ±1 std band. Returns the PNG path."""
     plt = pyplot()
     if not run_dirs:

@@ -36,7 +36,11 @@ def shape(geom_type, size):
     sph = (geom_type == SPHERE) | (geom_type == CAPSULE)
     cyl = geom_type == CYLINDER
     box = geom_type == BOX
-    scale = [jnp.where(sph, r, size[..., 0]), jnp.where(sph | cyl, r, size[..., 1]), jnp.where(sph, r, jnp.where(cyl, h, size[..., 2]))]
+    scale = [
+        jnp.where(sph, r, size[..., 0]),
+        jnp.where(sph | cyl, r, size[..., 1]),
+        jnp.where(sph, r, jnp.where(cyl, h, size[..., 2])),
+    ]
     inv_s = [1.0 / jnp.where(s > 0, s, 1.0) for s in scale]  # padding geoms have zero size
     round_ = (geom_type == CYLINDER) | (geom_type == CAPSULE)
     one = jnp.ones_like(r)
@@ -61,8 +65,16 @@ def cast_table(targets: TargetModel, m, o, q, e, hl) -> jax.Array:
     cap_hl = jnp.where(targets.geom_type == CAPSULE, hl, BIG)
     lo = [jnp.where(mask, -e[i] - o[i], jnp.inf) for i in range(3)]
     hi = [jnp.where(mask, e[i] - o[i], jnp.inf) for i in range(3)]
-    rows = ([m[i][j] for i in range(3) for j in range(3)] + [q[i] * o[i] for i in range(3)] + [c] + q + lo + hi + o
-            + [cap_hl, q[1] * q[2], q[0] * q[2], q[0] * q[1]])
+    rows = (
+        [m[i][j] for i in range(3) for j in range(3)]
+        + [q[i] * o[i] for i in range(3)]
+        + [c]
+        + q
+        + lo
+        + hi
+        + o
+        + [cap_hl, q[1] * q[2], q[0] * q[2], q[0] * q[1]]
+    )
     assert len(rows) == intersect.NUM_FEATURES
     return jnp.stack(rows, axis=-1).reshape(-1, intersect.NUM_FEATURES).astype(jnp.float32)
 
@@ -142,7 +154,8 @@ def may_be_seen(targets: TargetModel, positions: jax.Array, cam: CameraConfig) -
     """[] bool: some env's target reaches between the near and the far plane (conservative: the sphere about the
     centre of mass that holds every geom's bounding sphere). False, e.g., for a batch whose targets were all moved
     behind the camera (the env's culled second render)."""
-    reach = jnp.max(jnp.where(targets.geom_mask, jnp.linalg.norm(targets.geom_pos, axis=-1) + targets.geom_rbound,
-                              0.0), axis=-1)  # [B]
+    reach = jnp.max(
+        jnp.where(targets.geom_mask, jnp.linalg.norm(targets.geom_pos, axis=-1) + targets.geom_rbound, 0.0), axis=-1
+    )  # [B]
     z = positions[:, 2]
     return jnp.any((z + reach > cam.near) & (z - reach < cam.far))

@@ -82,7 +82,7 @@ def gaussian_blur(image: jax.Array, sigma, max_radius: int = 8) -> jax.Array:
     return _gaussian_fn(int(max_radius))(image, jnp.asarray(sigma, jnp.float32))
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _gaussian_fn(max_radius: int):
     return _skip_when_off(functools.partial(_gaussian_blur, max_radius=max_radius))
 
@@ -105,10 +105,12 @@ def add_noise(key: jax.Array, image: jax.Array, std, mask: jax.Array) -> jax.Arr
     return _noise_fn()(image, jnp.asarray(std, image.dtype), key, jnp.asarray(mask))
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _noise_fn():
     def noisy(image, std, key, mask):
-        return jnp.clip(jnp.where(mask, image + std * jax.random.normal(key, image.shape, image.dtype), image), 0.0, 1.0)
+        return jnp.clip(
+            jnp.where(mask, image + std * jax.random.normal(key, image.shape, image.dtype), image), 0.0, 1.0
+        )
 
     skip = _skip_when_off(noisy)
     return lambda image, std, key, mask: jnp.clip(skip(image, std, key, mask), 0.0, 1.0)
@@ -123,7 +125,7 @@ def motion_blur(image: jax.Array, length_px, angle_rad, samples: int = 9) -> jax
     return _motion_fn(int(samples))(image, jnp.asarray(length_px, jnp.float32), jnp.asarray(angle_rad, jnp.float32))
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _motion_fn(samples: int):
     return _skip_when_off(functools.partial(_motion_blur, samples=samples))
 
@@ -137,7 +139,10 @@ def _motion_blur(image, length, angle_rad, samples):
     def sample(du_i, dv_i):
         coords = [jnp.clip(vv + dv_i, 0, h - 1), jnp.clip(uu + du_i, 0, w - 1)]
         return jnp.stack(
-            [jax.scipy.ndimage.map_coordinates(image[..., c], coords, order=1, mode="nearest") for c in range(image.shape[-1])],
+            [
+                jax.scipy.ndimage.map_coordinates(image[..., c], coords, order=1, mode="nearest")
+                for c in range(image.shape[-1])
+            ],
             axis=-1,
         )
 

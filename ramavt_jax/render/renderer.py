@@ -54,13 +54,13 @@ def _search_levels(ends: jax.Array):
     e = ends.shape[-1]
     levels = max(1, int(np.ceil(np.log(max(e, 2)) / np.log(64))))
     block = int(np.ceil(e ** (1.0 / levels)))
-    while block ** levels < e:
+    while block**levels < e:
         block += 1
-    pad = jnp.pad(ends, ((0, 0), (0, block ** levels - e)), constant_values=np.iinfo(np.int32).max)
+    pad = jnp.pad(ends, ((0, 0), (0, block**levels - e)), constant_values=np.iinfo(np.int32).max)
     out = []
     for lv in range(levels):
         idx = (np.arange(block ** (lv + 1)) + 1) * block ** (levels - 1 - lv) - 1
-        out.append(pad[:, idx].reshape(ends.shape[0], block ** lv, block))
+        out.append(pad[:, idx].reshape(ends.shape[0], block**lv, block))
     return out
 
 
@@ -137,8 +137,15 @@ def render_batch(
     no_depth, no_rgb = jnp.zeros((b, res, res), jnp.float32), jnp.zeros((b, res, res, 3), jnp.float32)
     empty = (no_depth, no_rgb) if shade else (no_depth,)
     cast = functools.partial(_render_seen, cam=cam, shade=shade, chunk=chunk, tile=tile, specialise=specialise)
-    out = jax.lax.cond(geometry.may_be_seen(targets, positions, cam), lambda *a: images(cast(*a)), lambda *_: empty,
-                       targets, positions, rotations, lighting)
+    out = jax.lax.cond(
+        geometry.may_be_seen(targets, positions, cam),
+        lambda *a: images(cast(*a)),
+        lambda *_: empty,
+        targets,
+        positions,
+        rotations,
+        lighting,
+    )
     return Frame(depth=out[0], rgb=out[1] if shade else no_rgb, hit=out[0] > 0)
 
 
@@ -190,8 +197,16 @@ def _chunk_size(b: int, nt: int, tile: int, chunk: int | None) -> int:
     return int(max(1024, b * nt * nt // 2))
 
 
-def _work_list(targets: TargetModel, p: jax.Array, r: jax.Array, unit: tuple, cam: CameraConfig, tile: int,
-               chunk: int | None, specialise: bool) -> _WorkList:
+def _work_list(
+    targets: TargetModel,
+    p: jax.Array,
+    r: jax.Array,
+    unit: tuple,
+    cam: CameraConfig,
+    tile: int,
+    chunk: int | None,
+    specialise: bool,
+) -> _WorkList:
     """The work items of B targets (leading [B]): their geoms' frames p, r (geometry.geom_frames) and unit frames
     ``unit`` (geometry.unit_frames)."""
     b, n_geoms = targets.geom_type.shape  # [B, G]
@@ -206,10 +221,22 @@ def _work_list(targets: TargetModel, p: jax.Array, r: jax.Array, unit: tuple, ca
     member = jnp.stack([functools.reduce(jnp.logical_or, [gtype == t for t in types]) for _, types, _ in classes])
     ends = _prefix_sum(jnp.where(member, counts, 0))
     n_items = ends[:, -1]
-    return _WorkList(table=geometry.cast_table(targets, *unit), counts=counts, tu0=tu0.reshape(-1),
-                     tv0=tv0.reshape(-1), nu=jnp.maximum(nu.reshape(-1), 1), ends=ends, n_items=n_items,
-                     chunk_end=jnp.cumsum((n_items + chunk - 1) // chunk), levels=tuple(_search_levels(ends)),
-                     kernels=tuple(k for _, _, k in classes), batch=b, n_geoms=n_geoms, tiles=nt, chunk=chunk)
+    return _WorkList(
+        table=geometry.cast_table(targets, *unit),
+        counts=counts,
+        tu0=tu0.reshape(-1),
+        tv0=tv0.reshape(-1),
+        nu=jnp.maximum(nu.reshape(-1), 1),
+        ends=ends,
+        n_items=n_items,
+        chunk_end=jnp.cumsum((n_items + chunk - 1) // chunk),
+        levels=tuple(_search_levels(ends)),
+        kernels=tuple(k for _, _, k in classes),
+        batch=b,
+        n_geoms=n_geoms,
+        tiles=nt,
+        chunk=chunk,
+    )
 
 
 def _chunk_items(work: _WorkList, j: jax.Array, cam: CameraConfig, tile: int) -> _Chunk:
@@ -226,8 +253,15 @@ def _chunk_items(work: _WorkList, j: jax.Array, cam: CameraConfig, tile: int) ->
     env = jnp.where(k < work.n_items[cls], pair // work.n_geoms, work.batch)
     tx0 = jnp.asarray((np.arange(work.tiles) * tile - cam.centre()) / cam.focal(), jnp.float32)
     px = jnp.asarray(np.arange(tile) / cam.focal(), jnp.float32)
-    return _Chunk(cls=cls, pair=pair, env=env, tv=tv, tu=tu, x=(tx0[tu][:, None] + px)[:, None, :],
-                  y=(tx0[tv][:, None] + px)[:, :, None])
+    return _Chunk(
+        cls=cls,
+        pair=pair,
+        env=env,
+        tv=tv,
+        tu=tu,
+        x=(tx0[tu][:, None] + px)[:, None, :],
+        y=(tx0[tv][:, None] + px)[:, :, None],
+    )
 
 
 def _cast(work: _WorkList, items: _Chunk, near: float) -> jax.Array:
@@ -245,6 +279,7 @@ def _cast(work: _WorkList, items: _Chunk, near: float) -> jax.Array:
 def _depth_pass(work: _WorkList, cam: CameraConfig, tile: int) -> jax.Array:
     """The nearest depth per pixel, in image layout [B, tile rows, pixel row in tile, tile columns, pixel column in
     tile]: an item's pixels are one [tile, tile] window, and the final image is a reshape (no transpose pass)."""
+
     def body(state):
         j, dbuf = state
         items = _chunk_items(work, j, cam, tile)
@@ -257,8 +292,9 @@ def _depth_pass(work: _WorkList, cam: CameraConfig, tile: int) -> jax.Array:
     return jax.lax.while_loop(lambda s: s[0] < n_chunks, body, (jnp.int32(0), dbuf))[1]
 
 
-def _colour_pass(work: _WorkList, stable: jax.Array, lighting: Lighting, dbuf: jax.Array, cam: CameraConfig,
-                 tile: int) -> tuple[jax.Array, jax.Array]:
+def _colour_pass(
+    work: _WorkList, stable: jax.Array, lighting: Lighting, dbuf: jax.Array, cam: CameraConfig, tile: int
+) -> tuple[jax.Array, jax.Array]:
     """The Lambertian light [B, ...] and the winning pair's index [B, ...] (-1: no hit) per pixel, in dbuf's layout;
     ``stable`` [B*G, S] is geometry.shade_table's."""
     b = work.batch
@@ -290,8 +326,17 @@ def _colour_pass(work: _WorkList, stable: jax.Array, lighting: Lighting, dbuf: j
     return jax.lax.while_loop(lambda s: s[0] < n_chunks, body, (jnp.int32(0), bufs))[1]
 
 
-def _render_seen(targets: TargetModel, positions: jax.Array, rotations: jax.Array, lighting: Lighting,
-                 cam: CameraConfig, shade: bool, chunk: int | None, tile: int, specialise: bool) -> Frame:
+def _render_seen(
+    targets: TargetModel,
+    positions: jax.Array,
+    rotations: jax.Array,
+    lighting: Lighting,
+    cam: CameraConfig,
+    shade: bool,
+    chunk: int | None,
+    tile: int,
+    specialise: bool,
+) -> Frame:
     """`render_batch` without the visibility shortcut: the work list and the casting loops."""
     p, r = geometry.geom_frames(targets, positions, rotations)
     unit = geometry.unit_frames(targets, p, r)  # m, o, q, e, hl
@@ -307,7 +352,7 @@ def _render_seen(targets: TargetModel, positions: jax.Array, rotations: jax.Arra
     lbuf, wbuf = _colour_pass(work, stable, lighting, dbuf, cam, tile)
     winner = wbuf.reshape(b, side, side)[:, :res, :res]  # [B, H, W] pair index, -1: no hit
     light = lbuf.reshape(b, side, side)[:, :res, :res, None]
-    albedo = stable[jnp.maximum(winner, 0), intersect.S_RGB0:intersect.S_RGB0 + 3]  # [B, H, W, 3]
+    albedo = stable[jnp.maximum(winner, 0), intersect.S_RGB0 : intersect.S_RGB0 + 3]  # [B, H, W, 3]
     rgb = jnp.where(winner[..., None] >= 0, jnp.clip(albedo * light, 0.0, 1.0), 0.0)
     return Frame(depth=depth, rgb=rgb, hit=hit)
 
@@ -328,7 +373,7 @@ def render(
     return vmappable_render(cam, bool(shade))(target, jnp.asarray(position), jnp.asarray(rotation), lighting)
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def vmappable_render(cam: CameraConfig, shade: bool, batch_fn=None):
     """render(target, position, rotation, lighting) for one target whose ``jax.vmap`` is one ``batch_fn`` call
     (default `render_batch`)."""
@@ -348,6 +393,8 @@ def vmappable_render(cam: CameraConfig, shade: bool, batch_fn=None):
 
         target, position, rotation = jax.tree.map(batched, (target, position, rotation), tuple(in_batched[:3]))
         lighting = jax.tree.map(batched, lighting, in_batched[3])
-        return (frame := batch_fn(target, position, rotation, cam, lighting, shade)), jax.tree.map(lambda _: True, frame)
+        return (frame := batch_fn(target, position, rotation, cam, lighting, shade)), jax.tree.map(
+            lambda _: True, frame
+        )
 
     return render_one

@@ -15,8 +15,8 @@ import dataclasses
 import difflib
 import os
 import re
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Sequence
 
 import jax
 import jax.numpy as jnp
@@ -50,8 +50,14 @@ ALL_TARGETS: tuple[str, ...] = tuple(CATALOGUE)
 # Size-validation split: the validation models resized (``NAME@Rm``, see `sized_spec`) to bounding radii outside
 # the catalogue's 0.56-2.4 m, three small and three large, so that choices about other sizes (stand-off rule, size
 # randomisation) can be made without looking at the user models of examples/targets/.
-VAL_SIZE_TARGETS: tuple[str, ...] = ("Satellite-val0@0.3m", "Capsule-val0@0.35m", "Asteroid-val0@0.45m",
-                                     "Rocket-val0@4m", "Asteroid-val1@6m", "Station-val0@12m")
+VAL_SIZE_TARGETS: tuple[str, ...] = (
+    "Satellite-val0@0.3m",
+    "Capsule-val0@0.35m",
+    "Asteroid-val0@0.45m",
+    "Rocket-val0@4m",
+    "Asteroid-val1@6m",
+    "Station-val0@12m",
+)
 
 
 class TargetError(ValueError):
@@ -123,8 +129,10 @@ def sized_spec(name_or_path: str | os.PathLike) -> tuple[str, float | None]:
     except ValueError:
         radius = float("nan")
     if not MIN_SIZED_RADIUS <= radius <= MAX_SIZED_RADIUS:  # False for nan
-        raise TargetError(f"target {text!r}: the size after '@' must be a bounding radius in metres from "
-                          f"{MIN_SIZED_RADIUS:g} to {MAX_SIZED_RADIUS:g}, such as '{match['base']}@0.3m'")
+        raise TargetError(
+            f"target {text!r}: the size after '@' must be a bounding radius in metres from "
+            f"{MIN_SIZED_RADIUS:g} to {MAX_SIZED_RADIUS:g}, such as '{match['base']}@0.3m'"
+        )
     if _SIZED.match(match["base"]) and not Path(match["base"]).expanduser().is_file():
         raise TargetError(f"target {text!r}: one size suffix '@<radius>m' at most")
     return match["base"], float(f"{radius:g}")  # 6 significant digits: what `sized_name` spells is what loads
@@ -155,8 +163,9 @@ def resolve(name_or_path: str | os.PathLike) -> Path:
         return path
     close = difflib.get_close_matches(text, list(CATALOGUE), n=3, cutoff=0.6)
     hint = f" Did you mean {' or '.join(close)}?" if close else ""
-    raise TargetError(f"unknown target {text!r}: not in the catalogue ({', '.join(CATALOGUE)}) and not an .xml "
-                      f"file.{hint}")
+    raise TargetError(
+        f"unknown target {text!r}: not in the catalogue ({', '.join(CATALOGUE)}) and not an .xml file.{hint}"
+    )
 
 
 def _load_mj_model(path: Path):
@@ -199,8 +208,11 @@ def load_numpy(name_or_path: str | os.PathLike, pad_to: int | None = None) -> tu
     total_mass = float(masses.sum())
     if not total_mass > 0.0:
         raise TargetError(f"{path}: the model has zero mass; put the geoms in a <body> (not <worldbody> directly)")
-    in_world = [mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_GEOM, g) or f"#{g}" for g in range(model.ngeom)
-                if model.geom_bodyid[g] == 0]
+    in_world = [
+        mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_GEOM, g) or f"#{g}"
+        for g in range(model.ngeom)
+        if model.geom_bodyid[g] == 0
+    ]
     if in_world:
         raise TargetError(
             f"{path}: geom(s) {in_world} are placed directly in <worldbody>; put every geom of the target in a <body>"
@@ -279,7 +291,9 @@ def load(name_or_path: str | os.PathLike, pad_to: int | None = None) -> TargetMo
     return TargetModel(**{k: jnp.asarray(v) for k, v in arrays.items()})
 
 
-def load_many(names_or_paths: Sequence[str | os.PathLike], pad_to: int | None = None) -> tuple[TargetModel, list[TargetInfo]]:
+def load_many(
+    names_or_paths: Sequence[str | os.PathLike], pad_to: int | None = None
+) -> tuple[TargetModel, list[TargetInfo]]:
     """Load several targets padded to a common geom count; arrays get a leading axis [N, G, ...]."""
     if len(names_or_paths) == 0:
         raise TargetError("no targets given")
@@ -348,8 +362,15 @@ def stretched(target: TargetModel, factors: jax.Array) -> TargetModel:
     reach = jnp.where(target.geom_mask, jnp.linalg.norm(geom_pos, axis=-1) + geom_rbound, 0.0)
     second_moments = (jnp.sum(target.inertia) / 2 - target.inertia) * factors**2
     inertia = jnp.sum(second_moments) - second_moments
-    return target.replace(geom_type=geom_type, geom_size=geom_size, geom_pos=geom_pos, geom_mat=geom_mat,
-                          geom_rbound=geom_rbound, bound_radius=jnp.max(reach), inertia=inertia)
+    return target.replace(
+        geom_type=geom_type,
+        geom_size=geom_size,
+        geom_pos=geom_pos,
+        geom_mat=geom_mat,
+        geom_rbound=geom_rbound,
+        bound_radius=jnp.max(reach),
+        inertia=inertia,
+    )
 
 
 def shifted(target: TargetModel, offset: jax.Array) -> TargetModel:
@@ -367,8 +388,13 @@ SPLITS: tuple[str, ...] = ("train", "val", "test", "all", "val-sizes")
 
 def split(name: str) -> tuple[str, ...]:
     """'train', 'val', 'test', 'all' -> catalogue names; 'val-sizes' -> the resized validation models."""
-    table = {"train": TRAIN_TARGETS, "val": VAL_TARGETS, "test": TEST_TARGETS, "all": ALL_TARGETS,
-             "val-sizes": VAL_SIZE_TARGETS}
+    table = {
+        "train": TRAIN_TARGETS,
+        "val": VAL_TARGETS,
+        "test": TEST_TARGETS,
+        "all": ALL_TARGETS,
+        "val-sizes": VAL_SIZE_TARGETS,
+    }
     if name not in table:
         raise TargetError(f"unknown split {name!r}; choose one of {sorted(table)}")
     return table[name]
@@ -382,6 +408,14 @@ def catalogue_table(names: Sequence[str | os.PathLike] | None = None) -> list[di
         _, info = load_numpy(target)
         key = sized_name(target)
         split_name = next((n for n in ("train", "val", "test", "val-sizes") if key in split(n)), "custom")
-        rows.append({"name": info.name, "class": CATALOGUE.get(sized_spec(key)[0], "custom"), "split": split_name,
-                     "num_geoms": info.num_geoms, "bound_radius": info.bound_radius, "mass": info.mass})
+        rows.append(
+            {
+                "name": info.name,
+                "class": CATALOGUE.get(sized_spec(key)[0], "custom"),
+                "split": split_name,
+                "num_geoms": info.num_geoms,
+                "bound_radius": info.bound_radius,
+                "mass": info.mass,
+            }
+        )
     return rows

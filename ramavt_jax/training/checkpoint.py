@@ -69,13 +69,17 @@ def _saved_indices(like: Any, meta: dict, where: str) -> list[int | None]:
         count = meta.get("_num_leaves")
         saved = paths if count == len(paths) else [p for p in paths if not p.endswith(ADDED_LEAVES)]
         if count != len(saved):
-            raise CheckpointError(f"{where} holds a state with {count} arrays, the current code and config expect "
-                                  f"{len(paths)}: it was written by another configuration or code version")
+            raise CheckpointError(
+                f"{where} holds a state with {count} arrays, the current code and config expect "
+                f"{len(paths)}: it was written by another configuration or code version"
+            )
     index = {p: i for i, p in enumerate(saved)}
     differ = sorted(set(saved) ^ {p for p in paths if p in index or not p.endswith(ADDED_LEAVES)})
     if differ:
-        raise CheckpointError(f"{where} holds another state (it differs at {', '.join(differ[:3])}): it was written "
-                              f"by another configuration or code version")
+        raise CheckpointError(
+            f"{where} holds another state (it differs at {', '.join(differ[:3])}): it was written "
+            f"by another configuration or code version"
+        )
     return [index.get(p) for p in paths]
 
 
@@ -115,7 +119,8 @@ class CheckpointStore:
         if not create and not has_checkpoint(self.directory):
             raise CheckpointNotFoundError(
                 f"no checkpoint found in {self.directory} (expected numbered step folders written by a "
-                f"previous run); check the path or start a fresh run")
+                f"previous run); check the path or start a fresh run"
+            )
         options = ocp.CheckpointManagerOptions(max_to_keep=keep, create=create, enable_async_checkpointing=False)
         self.manager = ocp.CheckpointManager(self.directory, options=options)
 
@@ -133,8 +138,11 @@ class CheckpointStore:
         # else: a multi-host run; orbax writes each process's shards of the global arrays itself
         flat, count = _flat(state)
         meta = dict(meta, _num_leaves=count, _leaf_paths=_paths(state))
-        self.manager.save(int(step), args=ocp.args.Composite(state=ocp.args.StandardSave(flat),
-                                                             meta=ocp.args.JsonSave(meta)), force=force)
+        self.manager.save(
+            int(step),
+            args=ocp.args.Composite(state=ocp.args.StandardSave(flat), meta=ocp.args.JsonSave(meta)),
+            force=force,
+        )
         self.manager.wait_until_finished()
 
     def restore(self, like: Any, step: int | None = None) -> tuple[Any, dict]:
@@ -174,12 +182,15 @@ class CheckpointStore:
             if failures:
                 what = "resuming from" if delete else "using"
                 kept = "the damaged ones were deleted" if delete else "the damaged ones were left as they are"
-                log(f"checkpoint(s) in {self.directory} did not load ({'; '.join(failures)}); {what} step {step} "
-                    f"({kept})")
+                log(
+                    f"checkpoint(s) in {self.directory} did not load ({'; '.join(failures)}); {what} step {step} "
+                    f"({kept})"
+                )
             return result, step
         advice = "start afresh with --no-resume" if delete else "the run has no usable checkpoint"
-        raise CheckpointError(f"no checkpoint in {self.directory} loads ({'; '.join(failures) or 'none found'}); "
-                              f"{advice}")
+        raise CheckpointError(
+            f"no checkpoint in {self.directory} loads ({'; '.join(failures) or 'none found'}); {advice}"
+        )
 
     def restore_newest_loadable(self, like: Any, log=print) -> tuple[Any, dict, int]:
         """Restore the newest step that loads, newest first. A step that fails (a truncated or missing file) is
@@ -190,8 +201,9 @@ class CheckpointStore:
     def restore_subtree_newest_loadable(self, like: Any, pick, log=print) -> tuple[Any, dict, int]:
         """:meth:`restore_subtree` and :meth:`read_meta` of the newest step that loads (a reader's fallback: the
         damaged steps are reported in one line and left on disk). Returns (sub-tree, meta, step)."""
-        (sub, meta), step = self._newest_loadable(lambda s: (self.restore_subtree(like, pick, s), self.read_meta(s)),
-                                                  log, delete=False)
+        (sub, meta), step = self._newest_loadable(
+            lambda s: (self.restore_subtree(like, pick, s), self.read_meta(s)), log, delete=False
+        )
         return sub, meta, step
 
     def restore_subtree(self, like: Any, pick, step: int | None = None) -> Any:
@@ -207,7 +219,8 @@ class CheckpointStore:
         keys = [_leaf_key(saved[i]) for i in wanted]
         abstract = {k: jax.ShapeDtypeStruct(leaves[i].shape, leaves[i].dtype) for k, i in zip(keys, wanted)}
         restored = self.manager.restore(
-            int(step), args=ocp.args.Composite(state=ocp.args.PyTreeRestore(abstract, partial_restore=True)))["state"]
+            int(step), args=ocp.args.Composite(state=ocp.args.PyTreeRestore(abstract, partial_restore=True))
+        )["state"]
         _, sub_def = jax.tree.flatten(pick(like))
         return jax.tree.unflatten(sub_def, [restored[k] for k in keys])
 

@@ -19,13 +19,13 @@ import jax
 import numpy as np
 
 from ramavt_jax import distributed
-from ramavt_jax.train_state import TrainingDivergedError
 from ramavt_jax.train_config import TrainConfig
+from ramavt_jax.train_state import TrainingDivergedError
 from ramavt_jax.training import run_folder as folders
-from ramavt_jax.training.program import _compiled, _Program
 from ramavt_jax.training.checkpoint import CheckpointError, CheckpointNotFoundError, CheckpointStore, has_checkpoint
 from ramavt_jax.training.interrupts import StopSignals, TrainingInterrupted
 from ramavt_jax.training.metrics import Log, aggregate, diverged, split_loss
+from ramavt_jax.training.program import _compiled, _Program
 
 __all__ = ["run", "RunSummary", "aggregate", "read_metrics", "TrainingInterrupted"]
 
@@ -61,8 +61,10 @@ def _resolve_resume(resume, ckpt_dir: Path, subdir: str | None = None) -> Path |
     for cand in (path, path / folders.CHECKPOINTS):
         if has_checkpoint(cand):
             return cand
-    raise CheckpointNotFoundError(f"resume={str(resume)!r}: no checkpoint there (looked in {path} and "
-                                  f"{path / folders.CHECKPOINTS}); start afresh with --no-resume")
+    raise CheckpointNotFoundError(
+        f"resume={str(resume)!r}: no checkpoint there (looked in {path} and "
+        f"{path / folders.CHECKPOINTS}); start afresh with --no-resume"
+    )
 
 
 def _default_json() -> dict:
@@ -90,11 +92,12 @@ def _open_folders(config_json: dict, out: Path, seed: int, num_seeds: int, resum
     folders.check_writable(out)
     lock = folders.RunLock(out) if primary else None
     try:
-        sources = [_resolve_resume(resume, d / folders.CHECKPOINTS, None if num_seeds == 1 else d.name)
-                   for d in dirs]
+        sources = [_resolve_resume(resume, d / folders.CHECKPOINTS, None if num_seeds == 1 else d.name) for d in dirs]
         if any(s is None for s in sources) and any(s is not None for s in sources):
-            raise CheckpointNotFoundError(f"only some seed folders in {out} have checkpoints "
-                                          f"({[str(s) for s in sources]}); resume them together or use --no-resume")
+            raise CheckpointNotFoundError(
+                f"only some seed folders in {out} have checkpoints "
+                f"({[str(s) for s in sources]}); resume them together or use --no-resume"
+            )
         for s, d, src in zip(seeds, dirs, sources):
             if src is not None and (d / folders.CONFIG_FILE).is_file():
                 folders.check_config(d, config_json, s, _default_json())
@@ -114,15 +117,21 @@ def _restore(prog: _Program, state, config: TrainConfig, config_json: dict, f: _
         like = like if config.run.checkpoint_replay else like.replace(replay=None)
         st, meta, _ = CheckpointStore(src, create=False).restore_newest_loadable(like, log)
         saved = meta.get("config", {})
-        diff = {k: v for k, v in folders.config_differences(saved, config_json, _default_json()).items()
-                if k not in folders.RESUMABLE_FIELDS}
+        diff = {
+            k: v
+            for k, v in folders.config_differences(saved, config_json, _default_json()).items()
+            if k not in folders.RESUMABLE_FIELDS
+        }
         if diff:
-            raise CheckpointError(f"the checkpoint in {src} was written with another config (differs in "
-                                  f"{', '.join(diff)}); train into a new --out or start afresh with --no-resume")
+            raise CheckpointError(
+                f"the checkpoint in {src} was written with another config (differs in "
+                f"{', '.join(diff)}); train into a new --out or start afresh with --no-resume"
+            )
         loaded.append(st)
     if len({_host_int(st.chunk) for st in loaded}) > 1:
-        raise CheckpointError(f"the seed folders in {f.out} were checkpointed at different chunks; resume them "
-                              f"with --no-resume")
+        raise CheckpointError(
+            f"the seed folders in {f.out} were checkpointed at different chunks; resume them with --no-resume"
+        )
     if num_seeds > 1:
         loaded = [jax.tree.map(lambda *xs: np.stack([np.asarray(x) for x in xs]), *loaded)]
     restored = loaded[0]
@@ -149,8 +158,13 @@ class _Loop:
         num_seeds = len(self.f.seeds)
         for k, (s, store) in enumerate(zip(self.f.seeds, self.stores)):
             one = _seed_slice(state, k, num_seeds)
-            meta = {"config": self.config_json, "seed": s, "chunk": self.chunk_no,
-                    "env_steps": _host_int(one.env_steps), "updates": _host_int(one.learner.updates)}
+            meta = {
+                "config": self.config_json,
+                "seed": s,
+                "chunk": self.chunk_no,
+                "env_steps": _host_int(one.env_steps),
+                "updates": _host_int(one.learner.updates),
+            }
             store.save(self.chunk_no, one if self.config.run.checkpoint_replay else one.replace(replay=None), meta)
         self.last_saved = self.chunk_no
 
@@ -161,28 +175,37 @@ class _Loop:
         for k in range(num_seeds):
             record = {"chunk": self.chunk_no, **aggregate(_seed_slice(m, k, num_seeds), wall, c.env_steps_per_chunk)}
             record["trained_frames_per_s"] = record["updates_per_s"] * c.replay.batch_size * c.replay.train_len
-            record = split_loss(record, c.learner.aux_weight, c.learner.expert_margin_weight,
-                                c.learner.policy_weight if c.network.policy_head else 0.0)
+            record = split_loss(
+                record,
+                c.learner.aux_weight,
+                c.learner.expert_margin_weight,
+                c.learner.policy_weight if c.network.policy_head else 0.0,
+            )
             record["compile_s"] = self.prog.compile_s
             record["since_start_s"] = since_start
             record["started_at"] = self.clock_start  # epoch second: tells one process's records from a resume's
             if num_seeds > 1:
                 record["seeds_in_program"] = num_seeds
             if diverged(record):
-                where = (f"the last good checkpoint is chunk {self.last_saved} in {self.f.dirs[k] / folders.CHECKPOINTS}"
-                         if self.last_saved is not None else "no checkpoint was saved yet")
+                where = (
+                    f"the last good checkpoint is chunk {self.last_saved} in {self.f.dirs[k] / folders.CHECKPOINTS}"
+                    if self.last_saved is not None
+                    else "no checkpoint was saved yet"
+                )
                 raise TrainingDivergedError(
                     f"training diverged at chunk {record['chunk']} (seed {self.f.seeds[k]}, env step "
                     f"{record['env_steps']}): loss={record['loss']}, mean Q={record['q_mean']}. The diverged state "
                     f"was NOT saved; {where}. Try a lower learner.lr (now {c.learner.lr}), gradient clipping "
-                    f"(learner.max_grad_norm) or a smaller learner.reward_scale.")
+                    f"(learner.max_grad_norm) or a smaller learner.reward_scale."
+                )
             self.log.add(k, record)
         self.log.advance(c.env_steps_per_chunk * num_seeds)
 
 
 def _finite_params(state) -> bool:
-    return all(bool(np.isfinite(np.asarray(x)).all()) for x in jax.tree.leaves(distributed.local_copy(
-        state.learner.params)))
+    return all(
+        bool(np.isfinite(np.asarray(x)).all()) for x in jax.tree.leaves(distributed.local_copy(state.learner.params))
+    )
 
 
 def _train_chunks(loop: _Loop, state, end: int, stop: StopSignals, say):
@@ -198,8 +221,11 @@ def _train_chunks(loop: _Loop, state, end: int, stop: StopSignals, say):
             if (every and loop.chunk_no % every == 0) or stop.signum is not None:
                 loop.save(state)
             if stop.signum is not None:
-                raise TrainingInterrupted(f"{stop.name}: checkpoint of chunk {loop.chunk_no} saved under "
-                                          f"{loop.f.out}; run the same command again to resume", stop.signum)
+                raise TrainingInterrupted(
+                    f"{stop.name}: checkpoint of chunk {loop.chunk_no} saved under "
+                    f"{loop.f.out}; run the same command again to resume",
+                    stop.signum,
+                )
     except TrainingInterrupted:
         loop.log.close()
         raise
@@ -225,18 +251,33 @@ def _start(config: TrainConfig, f: _Folders, num_devices, tracking_env, say, deb
     distributed.check_seeds_divisible(len(f.seeds), mesh)
     t = time.time()
     where = "1 device" if mesh is None else f"{mesh.devices.size} devices"
-    say(f"compiling the training chunk ({config.network.variant}, {config.env.obs_shape}, {len(f.seeds)} seed(s), "
-        f"{where}) ...")
+    say(
+        f"compiling the training chunk ({config.network.variant}, {config.env.obs_shape}, {len(f.seeds)} seed(s), "
+        f"{where}) ..."
+    )
     prog = _compiled(config, tracking_env, len(f.seeds), mesh, debug_nan_at_update)
     say(f"compiled in {time.time() - t:.1f} s")
-    keys = (np.stack([np.asarray(jax.random.PRNGKey(s)) for s in f.seeds]) if len(f.seeds) > 1
-            else jax.random.PRNGKey(f.seeds[0]))
+    keys = (
+        np.stack([np.asarray(jax.random.PRNGKey(s)) for s in f.seeds])
+        if len(f.seeds) > 1
+        else jax.random.PRNGKey(f.seeds[0])
+    )
     return prog, prog.init(keys), mesh
 
 
-def run(config: TrainConfig, out_dir, seed: int = 0, resume=True, progress: bool = True,
-        max_chunks: int | None = None, tracking_env=None, num_seeds: int = 1,
-        num_devices: int | None = None, debug_nan_at_update: int = -1, clock_start: float | None = None) -> RunSummary:
+def run(
+    config: TrainConfig,
+    out_dir,
+    seed: int = 0,
+    resume=True,
+    progress: bool = True,
+    max_chunks: int | None = None,
+    tracking_env=None,
+    num_seeds: int = 1,
+    num_devices: int | None = None,
+    debug_nan_at_update: int = -1,
+    clock_start: float | None = None,
+) -> RunSummary:
     """Train ``config`` into ``out_dir``; returns a :class:`RunSummary` (a JSON-friendly dict: counters, timings,
     memory, the last metrics record) whose ``.state`` is the final RunnerState.
 
@@ -269,15 +310,41 @@ def run(config: TrainConfig, out_dir, seed: int = 0, resume=True, progress: bool
     f = _open_folders(config_json, Path(out_dir), seed, num_seeds, resume, primary)
     try:
         with StopSignals(say if primary else (lambda msg: None)) as stop:
-            return _run_locked(config, f, config_json, resume, max_chunks, tracking_env, num_devices, progress,
-                               primary, stop, say, debug_nan_at_update, clock_start)
+            return _run_locked(
+                config,
+                f,
+                config_json,
+                resume,
+                max_chunks,
+                tracking_env,
+                num_devices,
+                progress,
+                primary,
+                stop,
+                say,
+                debug_nan_at_update,
+                clock_start,
+            )
     finally:
         if f.lock is not None:
             f.lock.close()
 
 
-def _run_locked(config, f: _Folders, config_json, resume, max_chunks, tracking_env, num_devices, progress, primary,
-                stop: StopSignals, say, debug_nan_at_update: int, clock_start: float) -> RunSummary:
+def _run_locked(
+    config,
+    f: _Folders,
+    config_json,
+    resume,
+    max_chunks,
+    tracking_env,
+    num_devices,
+    progress,
+    primary,
+    stop: StopSignals,
+    say,
+    debug_nan_at_update: int,
+    clock_start: float,
+) -> RunSummary:
     stop.hard_exit = "while compiling or allocating"
     prog, state, mesh = _start(config, f, num_devices, tracking_env, say, debug_nan_at_update)
     jax.block_until_ready(state)  # the allocation is done before a signal is deferred
@@ -314,24 +381,41 @@ def _run_locked(config, f: _Folders, config_json, resume, max_chunks, tracking_e
     return _summary(config, f, loop, state, prog, mesh, train_s, train_t0 - clock_start)
 
 
-def _summary(config, f: _Folders, loop: _Loop, state, prog: _Program, mesh, train_s: float,
-             startup_s: float) -> RunSummary:
+def _summary(
+    config, f: _Folders, loop: _Loop, state, prog: _Program, mesh, train_s: float, startup_s: float
+) -> RunSummary:
     num_seeds = len(f.seeds)
     per_seed = []
     for k, (s, d) in enumerate(zip(f.seeds, f.dirs)):
-        per_seed.append({"seed": s, "chunks_done": loop.chunk_no, "num_chunks": config.num_chunks,
-                         "env_steps": _host_int(_seed_slice(state.env_steps, k, num_seeds)),
-                         "updates": _host_int(_seed_slice(state.learner.updates, k, num_seeds)),
-                         "train_wall_s": train_s, "compile_s": prog.compile_s, "startup_s": startup_s,
-                         "last": loop.log.records[k][-1] if loop.log.records[k] else None, "out_dir": str(d)})
+        per_seed.append(
+            {
+                "seed": s,
+                "chunks_done": loop.chunk_no,
+                "num_chunks": config.num_chunks,
+                "env_steps": _host_int(_seed_slice(state.env_steps, k, num_seeds)),
+                "updates": _host_int(_seed_slice(state.learner.updates, k, num_seeds)),
+                "train_wall_s": train_s,
+                "compile_s": prog.compile_s,
+                "startup_s": startup_s,
+                "last": loop.log.records[k][-1] if loop.log.records[k] else None,
+                "out_dir": str(d),
+            }
+        )
     if num_seeds == 1:
         summary = per_seed[0]
     else:
-        summary = {k: v for k, v in per_seed[0].items() if k in ("chunks_done", "num_chunks", "train_wall_s",
-                                                                 "compile_s", "startup_s")}
+        summary = {
+            k: v
+            for k, v in per_seed[0].items()
+            if k in ("chunks_done", "num_chunks", "train_wall_s", "compile_s", "startup_s")
+        }
         summary.update(out_dir=str(f.out), seeds=per_seed)
-    summary.update(memory=prog.memory, devices=1 if mesh is None else int(mesh.devices.size),
-                   processes=jax.process_count(), finished=loop.chunk_no >= config.num_chunks)
+    summary.update(
+        memory=prog.memory,
+        devices=1 if mesh is None else int(mesh.devices.size),
+        processes=jax.process_count(),
+        finished=loop.chunk_no >= config.num_chunks,
+    )
     summary = RunSummary(summary)
     summary.state = state
     return summary

@@ -41,21 +41,26 @@ class StopSignals:
 
     def _handle(self, signum, frame) -> None:
         if self.hard_exit is not None:  # compiling or allocating: nothing to save, and XLA cannot be interrupted
-            print(f"\n{signal.Signals(signum).name} {self.hard_exit}: stopped; nothing was trained or written",
-                  file=sys.stderr, flush=True)
+            print(
+                f"\n{signal.Signals(signum).name} {self.hard_exit}: stopped; nothing was trained or written",
+                file=sys.stderr,
+                flush=True,
+            )
             os._exit(128 + signum)
         if self.signum is not None and signum == signal.SIGINT:
             raise KeyboardInterrupt
         if self.signum is None:
-            self._log(f"\n{signal.Signals(signum).name}: stopping at the next safe point (a chunk in flight is "
-                      f"finished, logged and checkpointed first); Ctrl-C again to stop now")
+            self._log(
+                f"\n{signal.Signals(signum).name}: stopping at the next safe point (a chunk in flight is "
+                f"finished, logged and checkpointed first); Ctrl-C again to stop now"
+            )
         self.signum = signum
 
     @property
     def name(self) -> str:
         return signal.Signals(self.signum).name if self.signum is not None else ""
 
-    def __enter__(self) -> "StopSignals":
+    def __enter__(self) -> StopSignals:
         if threading.current_thread() is threading.main_thread():
             for sig in (signal.SIGINT, signal.SIGTERM):
                 self._old[sig] = signal.signal(sig, self._handle)

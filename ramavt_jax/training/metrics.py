@@ -11,8 +11,8 @@ from pathlib import Path
 import jax
 import numpy as np
 
-from ramavt_jax.train_state import ChunkMetrics
 from ramavt_jax.train_config import TrainConfig
+from ramavt_jax.train_state import ChunkMetrics
 from ramavt_jax.training import run_folder as folders
 
 __all__ = ["aggregate", "split_loss", "diverged", "process_start_time", "Log"]
@@ -101,8 +101,10 @@ class Log:
         """``resumed_at``: the restored chunk (its earlier records are kept, later ones dropped), None = fresh."""
         self.primary = primary
         self.paths = [d / folders.METRICS_FILE for d in dirs]
-        self.records = [[r for r in folders.read_metrics(p) if r["chunk"] <= resumed_at] if resumed_at is not None
-                        else [] for p in self.paths]
+        self.records = [
+            [r for r in folders.read_metrics(p) if r["chunk"] <= resumed_at] if resumed_at is not None else []
+            for p in self.paths
+        ]
         self.writers = [None] * len(dirs)
         self.bar = None
         if not primary:
@@ -117,8 +119,14 @@ class Log:
             from tqdm.auto import tqdm
 
             n, start = len(dirs), resumed_at or 0
-            self.bar = tqdm(total=config.run.total_env_steps * n, initial=start * config.env_steps_per_chunk * n,
-                            unit="step", unit_scale=True, dynamic_ncols=True, desc="train")
+            self.bar = tqdm(
+                total=config.run.total_env_steps * n,
+                initial=start * config.env_steps_per_chunk * n,
+                unit="step",
+                unit_scale=True,
+                dynamic_ncols=True,
+                desc="train",
+            )
 
     def add(self, k: int, record: dict) -> None:
         self.records[k].append(record)
@@ -133,7 +141,9 @@ class Log:
         if self.bar is not None:
             self.bar.update(steps)
             r = self.records[0][-1]
-            self.bar.set_postfix(ep_len=f"{r['episode_length']:.0f}", loss=f"{r['loss']:.3g}", eps=f"{r['epsilon']:.2f}")
+            self.bar.set_postfix(
+                ep_len=f"{r['episode_length']:.0f}", loss=f"{r['loss']:.3g}", eps=f"{r['epsilon']:.2f}"
+            )
 
     def close(self) -> None:
         if self.bar is not None:

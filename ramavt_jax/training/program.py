@@ -13,8 +13,7 @@ import numpy as np
 
 from ramavt_jax import distributed
 from ramavt_jax.train import Trainer
-from ramavt_jax.train_config import TrainConfig
-from ramavt_jax.train_config import RunConfig
+from ramavt_jax.train_config import RunConfig, TrainConfig
 from ramavt_jax.training import memory as memplan
 
 __all__ = ["compiled_program"]
@@ -74,10 +73,13 @@ def check_state_fits(config: TrainConfig, abstract, num_seeds: int, mesh, chunk_
     device = jax.local_devices()[0]
     shares = 1 if mesh is None or device.platform == "cpu" else int(mesh.devices.size)
     working = f" and {memplan.human(chunk_temp)} of working memory" if chunk_temp else ""
-    memplan.check_fits(total // shares + chunk_temp,
-                       f"the training state ({num_seeds} seed(s); replay {memplan.human(replay)} for "
-                       f"replay.capacity_steps={config.replay.capacity_steps}{working})",
-                       "lower --replay.capacity-steps (or --acting.num-envs, --seeds, --replay.batch-size)", device)
+    memplan.check_fits(
+        total // shares + chunk_temp,
+        f"the training state ({num_seeds} seed(s); replay {memplan.human(replay)} for "
+        f"replay.capacity_steps={config.replay.capacity_steps}{working})",
+        "lower --replay.capacity-steps (or --acting.num-envs, --seeds, --replay.batch-size)",
+        device,
+    )
 
 
 def _cache_key(config: TrainConfig) -> TrainConfig:
@@ -86,14 +88,17 @@ def _cache_key(config: TrainConfig) -> TrainConfig:
     total_env_steps. learning_starts does change it; it is zeroed here (and kept in the cache key beside) only
     because a shortened total_env_steps would fail validation with it."""
     length_dependent = config.learner.lr_final is not None
-    run = RunConfig(total_env_steps=config.run.total_env_steps if length_dependent else config.env_steps_per_chunk,
-                    iterations_per_chunk=config.run.iterations_per_chunk,
-                    policy_average_from=config.run.policy_average_from)
+    run = RunConfig(
+        total_env_steps=config.run.total_env_steps if length_dependent else config.env_steps_per_chunk,
+        iterations_per_chunk=config.run.iterations_per_chunk,
+        policy_average_from=config.run.policy_average_from,
+    )
     return config.override(run=run, learning_starts=0)
 
 
-def _compiled(config: TrainConfig, tracking_env, num_seeds: int = 1, mesh=None,
-              debug_nan_at_update: int = -1) -> _Program:
+def _compiled(
+    config: TrainConfig, tracking_env, num_seeds: int = 1, mesh=None, debug_nan_at_update: int = -1
+) -> _Program:
     """Trainer, AOT-compiled init and chunk for a config: one program for ``num_seeds`` seeds (vmapped when
     > 1), with the envs and replay split over ``mesh`` when given. Cached per (config, seeds, mesh).
     ``debug_nan_at_update``: the Trainer's test hook."""
@@ -116,9 +121,11 @@ def _compiled(config: TrainConfig, tracking_env, num_seeds: int = 1, mesh=None,
         except Exception:  # noqa: BLE001 (not every backend reports it)
             temp = -1
         check_state_fits(config, abstract, num_seeds, mesh, max(temp, 0))  # now with the chunk's working memory
-        memory = {"state_bytes_per_seed": memplan.tree_bytes(abstract) // num_seeds,
-                  "replay_bytes_per_seed": memplan.tree_bytes(abstract.replay) // num_seeds,
-                  "chunk_temp_bytes": temp}
+        memory = {
+            "state_bytes_per_seed": memplan.tree_bytes(abstract) // num_seeds,
+            "replay_bytes_per_seed": memplan.tree_bytes(abstract.replay) // num_seeds,
+            "chunk_temp_bytes": temp,
+        }
         if len(_COMPILED) >= 4:
             _COMPILED.pop(next(iter(_COMPILED)))
         _COMPILED[key] = _Program(trainer, init, compiled, time.time() - t0, staged.shardings, memory)

@@ -25,31 +25,80 @@ import numpy as np
 
 from ramavt_jax.train_config import TrainConfig
 
-__all__ = ["CONFIG_FILE", "METRICS_FILE", "CHECKPOINTS", "EVAL_FILE", "CURVES_FILE", "RESUMABLE_FIELDS",
-           "seed_dir", "seed_folders", "is_seed_dir", "to_strict_json", "dumps", "read_metrics", "append_metrics",
-           "write_metrics", "write_atomic", "replace_atomic", "config_differences", "missing_fields", "read_config",
-           "check_config", "RunFolderError", "RunLock", "check_writable"]
+__all__ = [
+    "CONFIG_FILE",
+    "METRICS_FILE",
+    "CHECKPOINTS",
+    "EVAL_FILE",
+    "CURVES_FILE",
+    "RESUMABLE_FIELDS",
+    "seed_dir",
+    "seed_folders",
+    "is_seed_dir",
+    "to_strict_json",
+    "dumps",
+    "read_metrics",
+    "append_metrics",
+    "write_metrics",
+    "write_atomic",
+    "replace_atomic",
+    "config_differences",
+    "missing_fields",
+    "read_config",
+    "check_config",
+    "RunFolderError",
+    "RunLock",
+    "check_writable",
+]
 
 CONFIG_FILE, METRICS_FILE, CHECKPOINTS, EVAL_FILE = "config.json", "metrics.jsonl", "checkpoints", "eval.json"
 CURVES_FILE = "training_curves.png"
 LOCK_FILE = ".lock"
 # TrainConfig fields that may change when a run is resumed: they do not change the checkpointed state (a larger
 # total_env_steps extends the run; with lr_final its cosine schedule is stretched over the new length)
-RESUMABLE_FIELDS = ("run.total_env_steps", "run.eval_episodes", "run.eval_max_steps", "run.checkpoint_every_chunks",
-                    "run.keep_checkpoints", "run.tensorboard")
+RESUMABLE_FIELDS = (
+    "run.total_env_steps",
+    "run.eval_episodes",
+    "run.eval_max_steps",
+    "run.checkpoint_every_chunks",
+    "run.keep_checkpoints",
+    "run.tensorboard",
+)
 # Fields added to TrainConfig after run folders of earlier versions were written, each defaulting to what those
 # runs were trained with: a config.json without such a field reads as its default. Any other missing field means a
 # file cut short or edited, and is refused.
-ADDED_FIELDS = ("network.depth_centre", "network.depth_gain", "learner.polyak_tau_start",
-                "learner.polyak_tau_decay", "network.silhouette_stats", "replay.priority_exponent",
-                "replay.importance_exponent", "replay.priority_max_share", "network.standoff_input",
-                "network.command_gain_input", "network.quantiles", "learner.quantile_kappa",
-                "learner.bootstrap_from", "learner.td_lambda", "run.policy_average_from",
-                "network.dense_norm", "acting.eps_ladder", "acting.teacher_envs", "network.state_input",
-                "learner.command_cost", "network.frame_difference",
-                "network.state_input_gain", "network.exposure_rate", "learner.expert_margin_weight",
-                "learner.expert_margin", "learner.blind_label", "network.policy_head", "learner.policy_weight",
-                "network.state_input_entries", "network.state_input_point")
+ADDED_FIELDS = (
+    "network.depth_centre",
+    "network.depth_gain",
+    "learner.polyak_tau_start",
+    "learner.polyak_tau_decay",
+    "network.silhouette_stats",
+    "replay.priority_exponent",
+    "replay.importance_exponent",
+    "replay.priority_max_share",
+    "network.standoff_input",
+    "network.command_gain_input",
+    "network.quantiles",
+    "learner.quantile_kappa",
+    "learner.bootstrap_from",
+    "learner.td_lambda",
+    "run.policy_average_from",
+    "network.dense_norm",
+    "acting.eps_ladder",
+    "acting.teacher_envs",
+    "network.state_input",
+    "learner.command_cost",
+    "network.frame_difference",
+    "network.state_input_gain",
+    "network.exposure_rate",
+    "learner.expert_margin_weight",
+    "learner.expert_margin",
+    "learner.blind_label",
+    "network.policy_head",
+    "learner.policy_weight",
+    "network.state_input_entries",
+    "network.state_input_point",
+)
 _SEED_DIR = re.compile(r"seed_\d+")
 
 
@@ -181,12 +230,16 @@ def read_config(run_dir: str | os.PathLike, defaults: dict | None = None) -> dic
         saved = json.loads(path.read_text())
         config = saved["config"]
     except (OSError, ValueError, KeyError, TypeError) as e:
-        raise RunFolderError(f"cannot read {path} ({type(e).__name__}: {e}); the checkpoints' metadata hold the "
-                             f"config too (pass --no-resume to train the folder afresh)") from None
+        raise RunFolderError(
+            f"cannot read {path} ({type(e).__name__}: {e}); the checkpoints' metadata hold the "
+            f"config too (pass --no-resume to train the folder afresh)"
+        ) from None
     groups = ("acting", "replay", "learner", "run")
     if not (isinstance(config, dict) and all(isinstance(config.get(g), dict) for g in groups)):
-        raise RunFolderError(f"{path} holds a config without the groups {', '.join(groups)} (the flat form of early "
-                             f"versions, which this version does not read); train the run again")
+        raise RunFolderError(
+            f"{path} holds a config without the groups {', '.join(groups)} (the flat form of early "
+            f"versions, which this version does not read); train the run again"
+        )
     if defaults is None:
         defaults = json.loads(json.dumps(TrainConfig().to_dict(), default=str))
     missing = missing_fields(config, defaults)
@@ -196,8 +249,10 @@ def read_config(run_dir: str | os.PathLike, defaults: dict | None = None) -> dic
         missing.remove(name)
     if missing:
         more = f" (and {len(missing) - 1} more)" if len(missing) > 1 else ""
-        raise RunFolderError(f"{path} is incomplete: it lacks {missing[0]}{more}; it was cut short or edited (the "
-                             f"checkpoints' metadata hold the full config); a default is not filled in silently")
+        raise RunFolderError(
+            f"{path} is incomplete: it lacks {missing[0]}{more}; it was cut short or edited (the "
+            f"checkpoints' metadata hold the full config); a default is not filled in silently"
+        )
     return saved
 
 
@@ -215,7 +270,8 @@ def check_config(run_dir: Path, config_json: dict, seed: int, defaults: dict | N
         raise RunFolderError(
             f"{run_dir} holds a run with another config: {shown}{more}. Train into a new --out, or pass --no-resume "
             f"to start this folder afresh (its checkpoints are replaced); on resume only "
-            f"{', '.join(RESUMABLE_FIELDS)} may change")
+            f"{', '.join(RESUMABLE_FIELDS)} may change"
+        )
 
 
 # ============================================================================================ lock and paths
@@ -258,7 +314,7 @@ class RunLock:
         if not self._file.closed:
             self._file.close()
 
-    def __enter__(self) -> "RunLock":
+    def __enter__(self) -> RunLock:
         return self
 
     def __exit__(self, *exc) -> None:
