@@ -3,7 +3,7 @@
 Everything here is shape-agnostic in the spatial size so one set of parameters works for any resolution
 with the same channel count. Layout is NHWC throughout.
 
-Speed notes (2-core CPU, measured with ``benchmarks/bench_network.py`` and ``benchmarks/bench_conv.py``):
+Speed notes (2-core CPU, measured with ``benchmarks/bench_network.py`` and ``lab/benchmarks/bench_conv.py``):
 - The im2col conv (pad + k*k strided slices + one matmul) is much faster than XLA's convolution on CPU in the
   backward pass, XLA's about twice as fast in a forward pass alone: ``conv2d_hybrid`` (the default) takes each
   one's fast pass. Every implementation stores its kernel exactly like ``flax.linen.Conv`` (``kernel``,

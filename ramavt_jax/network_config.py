@@ -109,7 +109,7 @@ class NetworkConfig:
     policy_head: bool = False
     # LayerNorm between the dense layer and its ReLU, and between the head and its ReLU (PQN's normalisation of the
     # value network, Gallici et al. 2024, who credit it with stable bootstrapping from the online net; on the quick
-    # preset it lost, docs/experiments.md arm dense-norm). Recurrent variants only.
+    # preset it lost, lab/experiments.md arm dense-norm). Recurrent variants only.
     dense_norm: bool = False
     # A diagnostic, not a tracker: the true tracking error and relative velocity (TRUE_STATE_SIZE numbers in
     # stand-off distances, greedy.true_tracking_state) beside the encoder's features at the LSTM's input, read from

@@ -80,7 +80,7 @@ def _quick() -> TrainConfig:
 def _long() -> TrainConfig:
     """The quick preset, its margin loss included, trained longer: 2.30M env steps (72 chunks), the policy still the
     tail average over the last 12 chunks (61-72). Higher AER on validation than the same without the labels (arm
-    long-margin against avg-2304k, docs/experiments.md), level with the quick preset; five seeds train as one
+    long-margin against avg-2304k, lab/experiments.md), level with the quick preset; five seeds train as one
     program in 37 min on 2 CPU cores (one seed, before the labels, trained and evaluated in 7 min 53 s). The earlier
     long preset (3x3 convs with max-pools, the earlier shipped agent's, ramavt_depth_long) is ``--preset long`` with
     docs/reproduce.md's $L10."""
@@ -94,7 +94,7 @@ def _sizes() -> TrainConfig:
     (39 % start with the target out of view, against 4 %), and until the target is first in view the margin loss's
     label is "back off along the camera axis" (env.RETREAT), a search that widens the view, instead of the
     look-ahead's action, which a blank image cannot show. Everything else is the quick preset's, its margin loss and 1.54M env steps
-    included (48 chunks, the policy averaged over 37-48), as chosen (docs/experiments.md, arms size-quick,
+    included (48 chunks, the policy averaged over 37-48), as chosen (lab/experiments.md, arms size-quick,
     size-res64, size-1536k, size-margin, size-wide-retreat and size-wider-retreat: on the resized validation models
     71 % of the ceiling over five seeds, 0.6 % of the blind starts lost against 16.4 % for size-margin)."""
     return at_64x64(_quick()).override(
@@ -107,7 +107,7 @@ def _robust() -> TrainConfig:
     0.3, a time delay of up to 0.5 s a step and a 3-frame blur, each drawn on in half the training episodes (so an
     eighth are clean and an eighth have all three), with the 3-frame history the blur needs. Under all three it keeps
     about half the ceiling's return on validation where the quick preset's falls far below zero, at a small cost
-    without perturbation (docs/experiments.md, arm perturb-05-margin)."""
+    without perturbation (lab/experiments.md, arm perturb-05-margin)."""
     return under_table2_perturbations(_quick(), share=0.5)
 
 

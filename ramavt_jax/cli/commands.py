@@ -18,7 +18,7 @@ from ramavt_jax.evaluation.rollouts import resolve_targets
 from ramavt_jax.figures import episode
 from ramavt_jax.training import run_folder
 
-BENCHMARKS = ("env", "train", "gpu", "conv", "network", "render", "scaling", "mjx_ray")
+BENCHMARKS = ("env", "train", "gpu", "network", "render", "scaling", "mjx_ray")
 
 
 def targets_cmd(split: Literal["all", "train", "val", "test", "val-sizes"] = "all") -> None:
@@ -97,8 +97,7 @@ def bench_main(argv: list[str]) -> None:
         f"checkout; ARGS go to benchmarks/bench_WHAT.py (see `ramavt bench WHAT --help`). Each prints a table "
         f"and writes JSON (default benchmarks/results_WHAT.json).\n  env: env steps/s and frames/s vs envs "
         f"and resolution\n  train: trainer throughput per network\n  gpu: the accelerator check in one command "
-        f"(env steps/s up to 64k envs, the quick and paper presets' chunks)\n  conv: the encoder's conv "
-        f"implementations against im2col, per layer and in a learner update\n  network: inference and train-step "
+        f"(env steps/s up to 64k envs, the quick and paper presets' chunks)\n  network: inference and train-step "
         f"speed\n  render: renderer frames/s\n  scaling: env steps/s and trained frames/s vs envs per device "
         f"and devices (one worker process per device count)\n  mjx_ray: MuJoCo MJX ray casting for comparison"
     )
