@@ -20,8 +20,8 @@ from pathlib import Path
 
 import jax
 import numpy as np
-from lab.lost_episodes import load
 
+from lab.lost_episodes import load
 from ramavt_jax import env as env_lib
 from ramavt_jax import greedy, imitation
 from ramavt_jax.evaluation import rollouts, statistics, tables

@@ -40,10 +40,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import optax
-from lab.centre_precision import offset_ceiling
 from flax import struct
 from tqdm import tqdm
 
+from lab.centre_precision import offset_ceiling
 from ramavt_jax import baselines, greedy, presets
 from ramavt_jax import env as env_lib
 from ramavt_jax.baselines import Policy

@@ -35,6 +35,7 @@ from pathlib import Path
 
 import jax
 import numpy as np
+
 from lab.centre_estimator import (
     DESIRED,
     collect,
@@ -43,7 +44,6 @@ from lab.centre_estimator import (
     visible_centroid,
     write_results,
 )
-
 from ramavt_jax import env as env_lib
 from ramavt_jax.evaluation import rollouts
 from ramavt_jax.render.camera import camera_rays

@@ -1,8 +1,5 @@
 """lab/aux_error.py's after-the-fact linear probe: it recovers what the features hold and nothing else."""
 
-import sys
-from pathlib import Path
-
 import numpy as np
 
 from lab import aux_error  # noqa: E402

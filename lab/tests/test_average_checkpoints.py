@@ -1,17 +1,13 @@
 """lab/average_checkpoints.py: the written run folder's policy is the mean of the chosen chunks' policy params,
 `ramavt eval` reads it, and a missing chunk is refused."""
 
-import sys
-from pathlib import Path
-
 import jax
 import numpy as np
 import pytest
 
+from lab import average_checkpoints  # noqa: E402
 from ramavt_jax import cli
 from ramavt_jax.evaluation.runs import load_policy
-
-from lab import average_checkpoints  # noqa: E402
 
 
 @pytest.fixture(scope="module")

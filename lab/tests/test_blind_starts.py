@@ -1,8 +1,5 @@
 """lab/blind_starts.py's counts on hand-made episodes whose answers are known."""
 
-import sys
-from pathlib import Path
-
 import numpy as np
 import pytest
 

@@ -2,17 +2,13 @@
 centroid is greedy's, the desired point scores the error itself, a few updates fit the labels better than guessing
 the desired point, and networks the fit cannot train are refused."""
 
-import sys
-from pathlib import Path
-
 import jax
 import numpy as np
 import pytest
 
+from lab import centre_estimator  # noqa: E402
 from ramavt_jax import env as env_lib
 from ramavt_jax import greedy
-
-from lab import centre_estimator  # noqa: E402
 
 CAMERA = env_lib.CameraConfig(resolution=16)
 TARGETS = ("Asteroid-v0", "Capsule-v0")

@@ -2,8 +2,6 @@
 is the env's chaser, the centre from the flow's motions solves exact motions from the past alone, and the
 time-averaged centroid follows a drifting track, with the chaser's own motion taken out."""
 
-import sys
-from pathlib import Path
 from types import SimpleNamespace
 
 import jax
@@ -11,7 +9,6 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from lab import centre_from_motion as cfm  # noqa: E402
-
 from ramavt_jax import env as env_lib  # noqa: E402
 from ramavt_jax.render.camera import CameraConfig, camera_rays  # noqa: E402
 

@@ -2,18 +2,14 @@
 for and in the camera frame; the ceiling told its own centre flies as the ceiling; told a wrong one, it scores less
 by about the error per step once it holds station."""
 
-import sys
-from pathlib import Path
-
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from lab import centre_precision  # noqa: E402
 from ramavt_jax import env as env_lib
 from ramavt_jax import greedy
-
-from lab import centre_precision  # noqa: E402
 
 CAMERA = env_lib.CameraConfig(resolution=16)
 

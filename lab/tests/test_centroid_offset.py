@@ -1,14 +1,10 @@
 """lab/centroid_offset.py: a sphere about its centre is seen centred; moved off it, it is seen off centre."""
 
-import sys
-from pathlib import Path
-
 import jax.numpy as jnp
 import numpy as np
 
-from ramavt_jax import render, targets
-
 from lab import centroid_offset  # noqa: E402
+from ramavt_jax import render, targets
 
 SPHERE = (
     '<mujoco><worldbody><body name="target"><freejoint/><geom type="sphere" size="0.6"/></body></worldbody></mujoco>'

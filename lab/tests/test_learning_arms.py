@@ -3,7 +3,6 @@ prints what the JSON says."""
 
 import dataclasses
 import json
-import sys
 from pathlib import Path
 
 import pytest

@@ -1,8 +1,6 @@
 """lab/lost_episodes.py's account of a lost episode, on a hand-built record whose answers are known."""
 
-import sys
 import types
-from pathlib import Path
 
 import numpy as np
 

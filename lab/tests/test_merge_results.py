@@ -2,13 +2,10 @@
 episodes or repeated seeds are refused."""
 
 import json
-import sys
-from pathlib import Path
 
 import pytest
 
 from lab import merge_results  # noqa: E402
-
 from ramavt_jax.evaluation import seeds  # noqa: E402
 
 

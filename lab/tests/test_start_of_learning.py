@@ -2,7 +2,6 @@
 curves flown on different episodes refused."""
 
 import json
-import sys
 from pathlib import Path
 
 import pytest
