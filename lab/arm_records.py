@@ -66,7 +66,7 @@ def _rows_of(path: Path, root: Path) -> list[dict]:
             for target, stats in per_target.items():
                 values = {k: stats.get(v) for k, v in _METRICS.items()}
                 rows.append({"record": record, "policy": name, "arm": arm, "seed": seed, "split": split,
-                             "setting": setting, "target": target, "episodes": stats.get("episodes"),
+                             "setting": setting, "target": target, "episodes": str(stats.get("episodes")),
                              **{k: "" if v is None else f"{v:.6g}" for k, v in values.items()}, "commit": commit})  # fmt: skip
     return rows
 

@@ -335,48 +335,6 @@ def test_report_prints_the_seeds(tmp_path, capsys):
     assert "| x [target params] | 990.0 ± 10.0 | 188.5 ± 223.5 | 0 | " + " | ".join(["990 / 188"] * len(names)) in out
 
 
-def test_arm_table_refuses_arms_flown_under_other_speed_rules(capsys):
-    """The committed val-sizes results: the preset flown at 1 m/s against a ceiling flown under the speed rule is
-    refused; the same arm against its own rule's ceiling is tabled; catalogue-only results of either age compare."""
-    from lab import arm_table
-
-    sizes = ROOT / "results" / "val" / "sizes"
-    arm = f"{sizes / 'fixed-speed' / 'quick_now' / 'results.json'}:quick_now"
-    with pytest.raises(SystemExit, match="speed_standoff_power"):
-        arm_table.main([arm, "--ceiling", str(sizes / "baselines" / "results.json")])
-    arm_table.main([arm, "--ceiling", str(sizes / "fixed-speed" / "baselines" / "results.json")])
-    arms = ROOT / "results" / "val" / "arms"
-    arm_table.main(
-        [
-            f"{arms / 'patch-768k' / 'results.json'}:patch2_768k",
-            f"{arms / 'size-small-1152k' / 'results.json'}:size_small_1152k",
-            "--ceiling",
-            str(ROOT / "results" / "val" / "mpc_h12" / "results.json"),
-        ]
-    )
-    rows = [line for line in capsys.readouterr().out.splitlines() if line.startswith("| ") and "| seeds |" not in line]
-    assert [r.split(" | ")[0] for r in rows] == ["| quick_now", "| patch2_768k", "| size_small_1152k"]
-
-
-def test_arm_table_tabulates_one_table2_setting(capsys):
-    """The committed Table II results on validation: --setting picks the setting's returns and the ceiling's under
-    it; a setting the results lack, or a missing file, is one line."""
-    from lab import arm_table
-
-    v = ROOT / "results" / "val" / "table2"
-    arms = [f"{v / 'avg-12' / 'results.json'}:avg12", f"{v / 'perturb-05' / 'results.json'}:perturb_05"]
-    ceiling = ["--ceiling", str(v / "mpc_h12" / "results.json")]
-    arm_table.main([*arms, *ceiling, "--setting", "all"])
-    arm_table.main([*arms, *ceiling])
-    rows = [line for line in capsys.readouterr().out.splitlines() if line.startswith("| perturb_05 |")]
-    assert [r.split(" | ")[2] for r in rows] == ["+177.4", "+478.8"]
-    assert "| 25 % |" in rows[0] and "| 55 % |" in rows[1]  # of +704.7 under all three, of +865.7 without
-    with pytest.raises(SystemExit, match="no setting 'all'"):
-        arm_table.main([f"{ROOT / 'results' / 'val' / 'arms' / 'avg-12' / 'results.json'}:avg12", "--setting", "all"])
-    with pytest.raises(SystemExit, match="no such results file"):
-        arm_table.main([f"{v / 'nothing' / 'results.json'}:x"])
-
-
 def test_arm_table_reads_arm_names_with_a_colon(capsys):
     """'pretrained:ramavt_depth' names the shipped agent's row: the path ends at '.json:', not at the last colon."""
     from lab import arm_table
