@@ -104,7 +104,7 @@ ARMS["se"] = lambda c: _net(ARMS["all"](c), variant="se")
 ARMS["mha"] = lambda c: _net(ARMS["all"](c), variant="mha")
 # The longer CPU budget: 'all' with 3x the env steps, slower exploration decay, a bigger replay (the first `long`
 # preset; 'long-lr2' below was the preset until 'avg-2304k' replaced it, and `ramavt train --preset long $L10`
-# gives it back, docs/reproduce.md; a test checks both).
+# gives it back, lab/reproduce.md; a test checks both).
 _LONGER = dict(total_env_steps=1_152_000, eps_decay_steps=400_000, capacity_steps=128_000, checkpoint_every_chunks=6)
 ARMS["long"] = lambda c: ARMS["all"](c).override(**_LONGER)
 # The same budget with the previous-action input ('prev', the quick preset's network).

@@ -487,9 +487,7 @@ def test_config_json_round_trips_to_the_same_train_config(name):
 
 def test_the_shipped_config_jsons_load_as_the_presets_they_were_trained_with():
     """The shipped agent's config.json reads back into the config it was trained with: the quick preset (without its
-    end-of-training evaluation); the agent before it, the quick preset from before its targets came from the online
-    net, its policy was a tail average and it had the margin loss. The earliest agent's is checked in
-    test_learning_arms (arm 'long-lr2', the long preset until 2026-12-06)."""
+    end-of-training evaluation)."""
     from ramavt_jax.presets import preset
     from ramavt_jax.train_config import TrainConfig
 
@@ -498,15 +496,6 @@ def test_the_shipped_config_jsons_load_as_the_presets_they_were_trained_with():
         return TrainConfig.from_dict(record["config"])
 
     assert shipped(pretrained.DEFAULT_AGENT) == preset("quick", eval_episodes=0)
-    assert shipped("ramavt_depth_clip1152k") == preset(
-        "quick",
-        eval_episodes=0,
-        bootstrap_from="target",
-        policy_params="target",
-        policy_average_from=None,
-        total_env_steps=1_152_000,
-        expert_margin_weight=0.0,
-    )
 
 
 def test_seed_params_picks_one_seed_of_the_named_set():

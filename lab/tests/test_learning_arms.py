@@ -207,20 +207,20 @@ def test_sizes_preset_is_the_arm_chosen_for_other_sizes():
 
 
 def test_reproduce_flags_give_the_sizes_preset_before_the_blind_starts_back(monkeypatch):
-    """docs/reproduce.md's $WR0 after `--preset sizes` parses to arm 'size-margin', the sizes preset until
+    """lab/reproduce.md's $WR0 after `--preset sizes` parses to arm 'size-margin', the sizes preset until
     'size-wide-retreat' (the preset's wider starts removed, not set to their default)."""
     assert _config_of_reproduce_flags(monkeypatch, "WR0", "sizes") == learning_arms.arm_config("size-margin")
 
 
 def _config_of_reproduce_flags(monkeypatch, names: str, preset: str):
     """The TrainConfig that `ramavt train --preset PRESET $NAME ...` builds for the space-separated NAMEs, with each
-    one's flags as docs/reproduce.md sets them (NAME="..." on a line of its own)."""
+    one's flags as lab/reproduce.md sets them (NAME="..." on a line of its own)."""
     import re
 
     from ramavt_jax import cli
     from ramavt_jax.cli import train as cli_train
 
-    text = (ROOT / "docs" / "reproduce.md").read_text()
+    text = (ROOT / "lab" / "reproduce.md").read_text()
     flags = [f for name in names.split() for f in re.search(rf'^{name}="([^"]*)"$', text, re.M).group(1).split()]
     seen = {}
     monkeypatch.setattr(cli_train, "train_and_evaluate", lambda config, out, **kw: seen.update(config=config))
@@ -230,7 +230,7 @@ def _config_of_reproduce_flags(monkeypatch, names: str, preset: str):
 
 
 def test_reproduce_flags_give_the_earlier_sizes_preset_back(monkeypatch):
-    """docs/reproduce.md's $S10, put after `--preset sizes`, parses (through the CLI) to the earlier sizes preset,
+    """lab/reproduce.md's $S10, put after `--preset sizes`, parses (through the CLI) to the earlier sizes preset,
     arm 'size-small-1152k', so the commands recorded before the preset changed still run as they ran."""
     assert _config_of_reproduce_flags(monkeypatch, "S10", "sizes") == learning_arms.arm_config("size-small-1152k")
 
@@ -245,62 +245,56 @@ def test_long_preset_is_the_arm_chosen_for_a_longer_budget():
 
 
 def test_reproduce_flags_give_the_earlier_long_preset_back(monkeypatch):
-    """docs/reproduce.md's $L10, put after `--preset long`, parses to arm 'long-lr2', the long preset until
-    2026-12-06, whose seed 0 is the earlier shipped agent: its config.json reads back into that config."""
-    from ramavt_jax.evaluation import pretrained
-    from ramavt_jax.train_config import TrainConfig
-
+    """lab/reproduce.md's $L10, put after `--preset long`, parses to arm 'long-lr2', the long preset until
+    2026-12-06, whose seed 0 was the earlier shipped agent (retired from the wheel; its files are in git history)."""
     earlier = learning_arms.arm_config("long-lr2")
     assert _config_of_reproduce_flags(monkeypatch, "L10", "long") == earlier
-    record = json.loads((Path(pretrained.AGENTS_DIR) / "ramavt_depth_long" / "config.json").read_text())
-    im2col = dataclasses.replace(earlier.network, conv_impl="im2col")  # the default conv before the hybrid one
-    assert TrainConfig.from_dict(record["config"]) == earlier.override(network=im2col)
 
 
 def test_table2_training_flags_give_the_perturb_arm(monkeypatch):
-    """docs/reproduce.md's $T2 flags, after `--preset quick $Q36`, parse to arm 'perturb-05' (Table II in training)."""
+    """lab/reproduce.md's $T2 flags, after `--preset quick $Q36`, parse to arm 'perturb-05' (Table II in training)."""
     assert _config_of_reproduce_flags(monkeypatch, "Q36 T2", "quick") == learning_arms.arm_config("perturb-05")
 
 
 def test_reproduce_flags_give_the_quick_preset_before_the_clip_back(monkeypatch):
-    """docs/reproduce.md's $Q10 and $Q768, which carry `--preset quick` themselves, parse to arms 'patch-768k' (the
+    """lab/reproduce.md's $Q10 and $Q768, which carry `--preset quick` themselves, parse to arms 'patch-768k' (the
     quick preset at norm 10) and 'clip-1'."""
     assert _config_of_reproduce_flags(monkeypatch, "Q10", "quick") == learning_arms.arm_config("patch-768k")
     assert _config_of_reproduce_flags(monkeypatch, "Q768", "quick") == learning_arms.arm_config("clip-1")
 
 
 def test_reproduce_flags_give_the_earlier_quick_preset_back(monkeypatch):
-    """docs/reproduce.md's $Q36, put after `--preset quick`, parses to arm 'avg-12', the quick preset until
+    """lab/reproduce.md's $Q36, put after `--preset quick`, parses to arm 'avg-12', the quick preset until
     'avg-1536k', so the commands recorded before still run as they ran."""
     assert _config_of_reproduce_flags(monkeypatch, "Q36", "quick") == learning_arms.arm_config("avg-12")
 
 
 def test_robust_preset_is_the_arm_chosen_under_perturbations(monkeypatch):
-    """The robust preset is arm 'perturb-05-margin', and so is docs/reproduce.md's $T2 after `--preset quick`."""
+    """The robust preset is arm 'perturb-05-margin', and so is lab/reproduce.md's $T2 after `--preset quick`."""
     robust = learning_arms.presets.preset("robust", eval_episodes=0)
     assert learning_arms.arm_config("perturb-05-margin") == robust
     assert _config_of_reproduce_flags(monkeypatch, "T2", "quick") == robust
 
 
 def test_reproduce_flags_give_the_long_preset_before_the_margin_loss_back(monkeypatch):
-    """docs/reproduce.md's $M0 after `--preset long` parses to arm 'avg-2304k', the long preset until 'long-margin'."""
+    """lab/reproduce.md's $M0 after `--preset long` parses to arm 'avg-2304k', the long preset until 'long-margin'."""
     assert _config_of_reproduce_flags(monkeypatch, "M0", "long") == learning_arms.arm_config("avg-2304k")
 
 
 def test_reproduce_flags_give_the_sizes_preset_before_the_margin_loss_back(monkeypatch):
-    """docs/reproduce.md's $WR0 $M0 after `--preset sizes` parses to arm 'size-1536k', the sizes preset until
+    """lab/reproduce.md's $WR0 $M0 after `--preset sizes` parses to arm 'size-1536k', the sizes preset until
     'size-margin'."""
     assert _config_of_reproduce_flags(monkeypatch, "WR0 M0", "sizes") == learning_arms.arm_config("size-1536k")
 
 
 def test_reproduce_flags_give_the_quick_preset_before_the_margin_loss_back(monkeypatch):
-    """docs/reproduce.md's $M0 after `--preset quick` parses to arm 'avg-1536k', the quick preset until
+    """lab/reproduce.md's $M0 after `--preset quick` parses to arm 'avg-1536k', the quick preset until
     'expert-margin'."""
     assert _config_of_reproduce_flags(monkeypatch, "M0", "quick") == learning_arms.arm_config("avg-1536k")
 
 
 def test_reproduce_flags_give_the_blind_start_arms(monkeypatch):
-    """docs/reproduce.md's $W, $WS and $WR after `--preset sizes` parse to arms 'size-wide-starts', 'size-wide-search'
+    """lab/reproduce.md's $W, $WS and $WR after `--preset sizes` parse to arms 'size-wide-starts', 'size-wide-search'
     and 'size-wide-retreat', $WR0 $R to 'size-retreat' and $WR3 to 'size-wider-retreat' (the preset since)."""
     assert _config_of_reproduce_flags(monkeypatch, "W", "sizes") == learning_arms.arm_config("size-wide-starts")
     assert _config_of_reproduce_flags(monkeypatch, "WS", "sizes") == learning_arms.arm_config("size-wide-search")

@@ -203,7 +203,7 @@ def with_preset_pairs(preset_pairs: tuple, flag_pairs: tuple) -> dict:
 
 def joined_env_params(args: list[str]) -> list[str]:
     """A `ramavt train` command line with every --env-params joined into the first one, pairs in order (a later
-    pair of a name wins): flags kept in shell variables (docs/reproduce.md's $WR0, then a command's own
+    pair of a name wins): flags kept in shell variables (lab/reproduce.md's $WR0, then a command's own
     --env-params) add up instead of the last one replacing the others."""
     pairs, rest, first, i = [], [], None, 0
     while i < len(args):
