@@ -105,3 +105,18 @@ def test_the_repository_speaks_of_the_project_not_of_who_worked_when(tmp_path):
     line = f"measured in the fifth {_WORDS[0]}"
     (tmp_path / "notes.md").write_text(line + "\n")  # the check can fail
     assert words_about_who_worked_when(tmp_path) == [f"notes.md:1: {line}"]
+
+
+def test_the_top_level_names_resolve_lazily():
+    """`import ramavt_jax` imports no JAX; each curated name resolves to its module's object; others fail."""
+    code = (
+        "import sys, ramavt_jax as rv; assert 'jax' not in sys.modules; "
+        "from ramavt_jax import env, evaluation; import ramavt_jax.evaluation.pretrained as p; "
+        "assert rv.TrackingEnv is env.TrackingEnv and rv.load_pretrained is p.load; "
+        "[getattr(rv, n) for n in rv.__all__]; "
+        "assert sorted(rv.__all__) == sorted(set(rv.__all__)) and 'make_train' in dir(rv)\n"
+        "try:\n    rv.no_such_name\nexcept AttributeError as e:\n    print(e)"
+    )
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300, cwd=ROOT)
+    assert result.returncode == 0, result.stderr[-3000:]
+    assert "no attribute 'no_such_name'" in result.stdout
