@@ -212,8 +212,15 @@ class RunConfig:
     # Counted from the run's start, so a run extended on resume keeps averaging and one that ends by chunk S has
     # averaged nothing.
     policy_average_from: int | None = None
+    # The divergence guard: training stops (the diverged state unsaved; exit status 2 from `ramavt train`) after a
+    # chunk whose mean loss is above this bound, or whose loss, mean Q or gradient norm is not a finite number.
+    # None: only the non-finite figures stop it.
+    max_loss: float | None = 1e10
 
     def __post_init__(self):
+        check_floats("RunConfig", self)
+        if self.max_loss is not None and not self.max_loss > 0:
+            raise ValueError(f"RunConfig: max_loss must be > 0 (None: no bound on the loss), got {self.max_loss}")
         check_ints(
             "RunConfig",
             self,

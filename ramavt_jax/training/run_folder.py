@@ -39,9 +39,13 @@ __all__ = [
     "dumps",
     "read_metrics",
     "append_metrics",
+    "resumed_rows",
     "write_metrics",
     "write_atomic",
     "replace_atomic",
+    "replace_files",
+    "fsync_file",
+    "WriteError",
     "config_differences",
     "missing_fields",
     "read_config",
@@ -63,6 +67,7 @@ RESUMABLE_FIELDS = (
     "run.checkpoint_every_chunks",
     "run.keep_checkpoints",
     "run.tensorboard",
+    "run.max_loss",
 )
 # Fields added to TrainConfig after run folders of earlier versions were written, each defaulting to what those
 # runs were trained with: a config.json without such a field reads as its default. Any other missing field means a
@@ -98,6 +103,7 @@ ADDED_FIELDS = (
     "learner.policy_weight",
     "network.state_input_entries",
     "network.state_input_point",
+    "run.max_loss",
 )
 _SEED_DIR = re.compile(r"seed_\d+")
 
@@ -139,18 +145,29 @@ def dumps(x: Any, **kwargs) -> str:
     return json.dumps(to_strict_json(x), allow_nan=False, **kwargs)
 
 
+def _decoded(raw: bytes) -> str:
+    try:
+        return raw.decode("utf-8")
+    except UnicodeDecodeError as e:
+        raise ValueError(f"byte {raw[e.start]:#04x} at column {e.start + 1} is not UTF-8 text") from None
+
+
 def read_metrics(path: str | os.PathLike, log=print) -> list[dict]:
     """The records of a metrics.jsonl ([] when missing); null numbers come back as NaN. A torn last line (a crash
-    while it was written) is skipped and reported through ``log`` in one line; a damaged line before it is a
-    RunFolderError naming the file and line."""
+    while it was written) is skipped and reported through ``log`` in one line; a damaged line before it (not JSON,
+    or not UTF-8 text) is a RunFolderError naming the file and line."""
     path = Path(path)
     if not path.exists():
         return []
-    lines = [(i, line) for i, line in enumerate(path.read_text().splitlines(), 1) if line.strip()]
+    try:
+        data = path.read_bytes()
+    except OSError as e:
+        raise RunFolderError(f"cannot read {path}: {e.strerror or e}") from None
+    lines = [(i, raw) for i, raw in enumerate(data.split(b"\n"), 1) if raw.strip()]
     records = []
-    for i, line in lines:
+    for i, raw in lines:
         try:
-            records.append(json.loads(line))
+            records.append(json.loads(_decoded(raw)))
         except ValueError as e:
             if i != lines[-1][0]:
                 raise RunFolderError(f"{path} line {i} is not a JSON record ({e}); fix or delete that line") from None
@@ -158,22 +175,74 @@ def read_metrics(path: str | os.PathLike, log=print) -> list[dict]:
     return [{k: float("nan") if v is None else v for k, v in r.items()} for r in records]
 
 
-def replace_atomic(path: str | os.PathLike, write) -> Path:
-    """``write(tmp)`` a file under a name unique to this process beside ``path`` (same suffix: the format), then
-    rename it over ``path``: a crash at any byte leaves the old file or the new one, and two processes writing the
-    same path each leave a whole file, never a mix."""
-    path = Path(path)
-    tmp = path.with_name(f".{path.stem}.{os.getpid()}.tmp{path.suffix}")
+class WriteError(OSError):
+    """A file could not be written (a full disk, a missing permission); the message names it and says what was kept."""
+
+    def __str__(self) -> str:
+        return str(self.strerror)
+
+
+def _write_error(path: Path, e: OSError, kept: str) -> WriteError:
+    return WriteError(e.errno, f"cannot write {path}: {e.strerror or e}; {kept}")
+
+
+def fsync_file(path: str | os.PathLike) -> None:
+    """Flush the file ``path`` to the disk (its data, whoever wrote it)."""
+    fd = os.open(path, os.O_RDONLY)
     try:
-        write(tmp)
-        os.replace(tmp, path)
+        os.fsync(fd)
     finally:
-        tmp.unlink(missing_ok=True)
-    return path
+        os.close(fd)
+
+
+def _fsync_folder(folder: Path) -> None:
+    """Flush a folder's entries (a rename into it) to the disk; a file system that cannot is left as it is."""
+    try:
+        fsync_file(folder)
+    except OSError:
+        pass
+
+
+def replace_files(writes: dict) -> list[Path]:
+    """Every file the project writes goes through here. ``{path: write}``: ``write(tmp)`` writes each file under a
+    name unique to this process beside its ``path`` (same suffix: the format), which is flushed to the disk; only
+    when every one is written whole are they renamed over their paths, and the folders flushed. A crash or a full
+    disk at any byte leaves the old files or the new ones (files written together, such as tables.md and
+    results.json, agree), and two processes writing one path each leave a whole file, never a mix. An OSError is a
+    WriteError naming the file, the earlier files left as they were."""
+    paths = [Path(p) for p in writes]
+    temps = [p.with_name(f".{p.stem}.{os.getpid()}.tmp{p.suffix}") for p in paths]
+    done = 0
+    try:
+        for path, tmp, write in zip(paths, temps, writes.values()):
+            try:
+                write(tmp)
+                fsync_file(tmp)
+            except OSError as e:
+                raise _write_error(path, e, "the files there were left as they were") from None
+        for path, tmp in zip(paths, temps):
+            try:
+                os.replace(tmp, path)
+            except OSError as e:
+                raise _write_error(
+                    path, e, f"{done} of the {len(paths)} file(s) written together were replaced"
+                ) from None
+            done += 1
+        for folder in dict.fromkeys(p.parent for p in paths):
+            _fsync_folder(folder)
+    finally:
+        for tmp in temps:
+            tmp.unlink(missing_ok=True)
+    return paths
+
+
+def replace_atomic(path: str | os.PathLike, write) -> Path:
+    """``write(tmp)`` one file and put it in place of ``path``, whole or not at all (:func:`replace_files`)."""
+    return replace_files({path: write})[0]
 
 
 def write_atomic(path: Path, text: str) -> None:
-    """Write the text file ``path`` whole or not at all (:func:`replace_atomic`)."""
+    """Write the text file ``path`` whole or not at all (:func:`replace_files`)."""
     replace_atomic(path, lambda tmp: tmp.write_text(text))
 
 
@@ -182,8 +251,34 @@ def write_metrics(path: Path, records: list[dict]) -> None:
 
 
 def append_metrics(path: Path, record: dict) -> None:
-    with path.open("a") as f:
-        f.write(dumps(record) + "\n")
+    """Append one record (a line) to a metrics.jsonl; :func:`fsync_file` flushes it with its chunk's checkpoint."""
+    try:
+        with path.open("a") as f:
+            f.write(dumps(record) + "\n")
+    except OSError as e:
+        raise _write_error(path, e, "a row cut short there is skipped on resume") from None
+
+
+def resumed_rows(path: Path, chunk: int, saved: list[dict] | None, log=print) -> list[dict]:
+    """The rows of a metrics.jsonl a run resumed from checkpoint ``chunk`` keeps: its rows up to that chunk, with
+    those the file lost (a row torn or never flushed when the power went) rebuilt from ``saved``, the rows the
+    checkpoint holds (those of the chunks since the checkpoint before it). A row that can be neither read nor
+    rebuilt is a RunFolderError, in one line: the log and the checkpoints never disagree."""
+    rows = {int(r["chunk"]): r for r in read_metrics(path, log) if r["chunk"] <= chunk}
+    rebuilt = [int(r["chunk"]) for r in saved or () if int(r["chunk"]) not in rows and r["chunk"] <= chunk]
+    for r in saved or ():
+        if int(r["chunk"]) in rebuilt:
+            rows[int(r["chunk"])] = {k: float("nan") if v is None else v for k, v in r.items()}
+    missing = [c for c in range(1, chunk + 1) if c not in rows]
+    if missing:
+        shown = ", ".join(map(str, missing[:5])) + (f" (and {len(missing) - 5} more)" if len(missing) > 5 else "")
+        raise RunFolderError(
+            f"{path} lacks the rows of chunk(s) {shown}, which checkpoint {chunk} covers, and the checkpoint cannot "
+            f"rebuild them; restore the file, or train the folder afresh with --no-resume"
+        )
+    if rebuilt:
+        log(f"{path}: rebuilt the row(s) of chunk(s) {', '.join(map(str, rebuilt))} from checkpoint {chunk}")
+    return [rows[c] for c in sorted(rows)]
 
 
 # ============================================================================================ config check
