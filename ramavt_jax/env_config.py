@@ -165,65 +165,136 @@ class EnvParams:
     ambient: jax.Array = 0.15
 
 
+# The range of every traced setting: {name: (low, high, what)}, the bounds included unless `what` says "(" or ")".
+# Wide enough for every preset and the evaluation settings (Table II: actuator noise 0.3, a delay of up to 0.5 s, a
+# 3-frame blur), narrow enough that the task stays the one the docs describe: a chaser holding a target a few
+# metres ahead in view, stepped at a few hertz, on a near-circular orbit. The camera-dependent bounds (init_z_min,
+# blur_frames, the blurs, desired_pos) are checked against the EnvConfig.
+RANGES: dict[str, tuple[float, float, str]] = {
+    "dt": (0.0, 1.0, "in (0, 1] s (a step of the control loop)"),
+    "speed": (0.0, 10.0, "in (0, 10] m/s per unit command"),
+    "actuator_tau": (0.0, 10.0, "in [0, 10] s (0: instant)"),
+    "dist_weight": (0.0, 10.0, "in [0, 10] (reward per metre off the desired position)"),
+    "lost_patience": (0, 100_000, "a whole number in [0, 100000] steps"),
+    "max_steps": (1, 1_000_000, "a whole number in [1, 1000000] steps"),
+    "lost_distance": (0.0, 1000.0, "in (0, 1000] m"),
+    "standoff_per_radius": (0.0, 100.0, "in (0, 100] (stand-off per bounding radius)"),
+    "standoff_min_radius": (0.0, 100.0, "in (0, 100] m"),
+    "standoff_min_scale": (0.0, 1.0, "in (0, 1]"),
+    "speed_standoff_power": (0.0, 1.0, "in [0, 1]"),
+    "small_standoff_power": (0.0, 1.0, "in [0, 1]"),
+    "size_scale_min": (0.01, 100.0, "in [0.01, 100] (a size factor)"),
+    "size_scale_max": (0.01, 100.0, "in [0.01, 100] (a size factor)"),
+    "size_scale_prob": (0.0, 1.0, "in [0, 1]"),
+    "stretch_max": (1.0, 10.0, ">= 1 (1: off) and <= 10"),
+    "stretch_prob": (0.0, 1.0, "in [0, 1]"),
+    "offset_max": (0.0, 1.0, "in [0, 1] (bounding radii; 0: off)"),
+    "offset_prob": (0.0, 1.0, "in [0, 1]"),
+    "init_xy_std": (0.0, 100.0, "in [0, 100] m"),
+    "init_z_min": (0.0, 1000.0, "in (camera.near, 1000] m"),
+    "init_z_max": (0.0, 1000.0, "in (camera.near, 1000] m"),
+    "target_vel_std": (0.0, 10.0, "in [0, 10] m/s"),
+    "target_spin_std": (0.0, 10.0, "in [0, 10] rad/s"),
+    "target_accel_std": (0.0, 10.0, "in [0, 10] m/s^2"),
+    "mean_motion": (0.0, 0.01, "in [0, 0.01] rad/s (an orbit of 10 minutes or longer; 0.00113 at 400 km)"),
+    "actuator_noise": (0.0, 10.0, "in [0, 10]"),
+    "delay_max": (0.0, 10.0, "in [0, 10] s"),
+    "blur_frames": (1, 16, "a whole number in [1, EnvConfig.frame_history]"),
+    "gaussian_blur_sigma": (0.0, 1024.0, "in [0, camera.resolution] px"),
+    "motion_blur_px": (0.0, 1024.0, "in [0, camera.resolution] px"),
+    "depth_noise_std": (0.0, 1.0, "in [0, 1] (observation units)"),
+    "frame_drop_prob": (0.0, 1.0, "in [0, 1]"),
+    "perturb_prob": (0.0, 1.0, "in [0, 1]"),
+    "ambient": (0.0, 1.0, "in [0, 1]"),
+}
+_WHOLE = ("lost_patience", "max_steps", "blur_frames")
+
+
+def _defaults() -> dict:
+    """EnvParams' default values by name (catalogue and target_probs, which have none, left out)."""
+    out = {}
+    for f in dataclasses.fields(EnvParams):
+        if f.default is not dataclasses.MISSING:
+            out[f.name] = f.default
+        elif f.default_factory is not dataclasses.MISSING:
+            out[f.name] = f.default_factory()
+    return out
+
+
+def _check_values(values: dict, names, config: EnvConfig | None, owner: str) -> None:
+    """The checks of :func:`validate_params` on the settings ``names`` of ``values`` (every setting by name, as
+    numpy arrays); ``config`` None skips the camera-dependent bounds. Raises ValueError naming the first."""
+
+    def fail(name, what):
+        raise ValueError(f"{owner}{name} must be {what}, got {values[name]}")
+
+    for name in names:
+        v = values[name]
+        if not (v.dtype.kind in "biuf" and np.isfinite(v).all()):
+            fail(name, "finite numbers")
+        if name in RANGES:
+            lo, hi, what = RANGES[name]
+            if what.startswith("in (camera.near"):
+                lo = config.camera.near if config is not None else 0.0
+            if name == "blur_frames" and config is not None:
+                hi = config.frame_history
+            if name in ("gaussian_blur_sigma", "motion_blur_px") and config is not None:
+                hi = config.camera.resolution
+            open_low = what.startswith("in (")
+            if not (np.all((v > lo) if open_low else (v >= lo)) and np.all(v <= hi)):
+                if config is not None:
+                    what = what.replace("camera.near", f"camera.near={lo:g}").replace(
+                        "camera.resolution", f"camera.resolution={hi:g}"
+                    )
+                fail(name, what.replace("EnvConfig.frame_history", f"EnvConfig.frame_history={hi}"))
+            if name in _WHOLE and not np.all(v == np.round(v)):
+                fail(name, what)
+    pairs = (("size_scale_max", "size_scale_min", ">="), ("init_z_max", "init_z_min", ">"))
+    for high, low, op in pairs:
+        if (high in names or low in names) and high in values and low in values:
+            if not np.all(values[high] >= values[low] if op == ">=" else values[high] > values[low]):
+                fail(high, f"{op} {low} ({values[low]})")
+    if "sun_dir" in names:
+        v = values["sun_dir"]
+        if v.shape != (3,) or not np.linalg.norm(v) > 0:
+            fail("sun_dir", "a direction: 3 numbers, not all 0")
+    if "desired_pos" in names:
+        v = values["desired_pos"]
+        if v.shape != (3,) or not v[2] > 0:
+            fail("desired_pos", "3 numbers [x, y, z] in metres with z > 0 (ahead of the camera)")
+        if config is not None:
+            cam = config.camera
+            edge = float(v[2]) * np.tan(np.deg2rad(cam.fov_deg) / 2.0)
+            if not (cam.near < v[2] < cam.far and abs(v[0]) <= edge and abs(v[1]) <= edge):
+                fail(
+                    "desired_pos",
+                    f"in view: z in ({cam.near:g}, {cam.far:g}) m (camera.near, camera.far), |x| and |y| <= z * "
+                    f"tan(fov / 2)",
+                )
+    if "target_probs" in names and config is not None:
+        v = values["target_probs"]
+        if not (v.shape == (len(config.targets),) and (v >= 0).all() and abs(v.sum() - 1) < 1e-4):
+            fail("target_probs", f"[{len(config.targets)}] non-negative probabilities summing to 1")
+
+
+def check_settings(overrides: dict, config: EnvConfig | None = None, owner: str = "EnvParams.") -> None:
+    """Check EnvParams overrides ``{name: value}`` before any params are built (the ranges of :data:`RANGES`, the
+    settings' relations, taken with the defaults of those not given; ``config``: the camera-dependent bounds too).
+    Raises ValueError in one line naming the setting and its range."""
+    values = {k: np.asarray(v) for k, v in {**_defaults(), **overrides}.items()}
+    _check_values(values, [k for k in overrides if k not in ("catalogue",)], config, owner)
+
+
 def validate_params(params: EnvParams, config: EnvConfig) -> EnvParams:
-    """Host-side checks of concrete parameter values (skipped for traced values). Raises ValueError."""
-    import numpy as np
-
-    def check(name, ok, what):
-        value = getattr(params, name)
-        try:
-            arr = np.asarray(value)
-        except Exception:  # traced inside jit: nothing to check
-            return
-        if not np.all(ok(arr)):
-            raise ValueError(f"EnvParams.{name} must be {what}, got {arr}")
-
+    """Host-side checks of concrete parameter values (skipped for traced values): every setting in its range
+    (:data:`RANGES`). Raises ValueError naming the setting and its range."""
+    values = {}
     for field in dataclasses.fields(params):
-        if field.name != "catalogue":
-            check(field.name, lambda v: v.dtype.kind in "biuf" and np.isfinite(v).all(), "finite numbers")
-    check("dt", lambda v: v > 0, "> 0")
-    check("speed", lambda v: v > 0, "> 0")
-    check("actuator_tau", lambda v: v >= 0, ">= 0")
-    check("lost_patience", lambda v: v >= 0, ">= 0")
-    check("max_steps", lambda v: v >= 1, ">= 1")
-    check("lost_distance", lambda v: v > 0, "> 0")
-    check("standoff_per_radius", lambda v: v > 0, "> 0")
-    check("standoff_min_radius", lambda v: v > 0, "> 0 (m)")
-    check("standoff_min_scale", lambda v: (v > 0) & (v <= 1), "in (0, 1]")
-    check("speed_standoff_power", lambda v: (v >= 0) & (v <= 1), "in [0, 1]")
-    check("small_standoff_power", lambda v: (v >= 0) & (v <= 1), "in [0, 1]")
-    check("size_scale_min", lambda v: v > 0, "> 0")
-    check("size_scale_max", lambda v: v >= np.asarray(params.size_scale_min), ">= size_scale_min")
-    check("size_scale_prob", lambda v: (v >= 0) & (v <= 1), "in [0, 1]")
-    check("stretch_max", lambda v: v >= 1, ">= 1 (1: off)")
-    check("stretch_prob", lambda v: (v >= 0) & (v <= 1), "in [0, 1]")
-    check("offset_max", lambda v: (v >= 0) & (v <= 1), "in [0, 1] (bounding radii; 0: off)")
-    check("offset_prob", lambda v: (v >= 0) & (v <= 1), "in [0, 1]")
-    check("init_z_max", lambda v: v > np.asarray(params.init_z_min), "> init_z_min")
-    check("init_z_min", lambda v: v > config.camera.near, f"> camera.near ({config.camera.near})")
-    check(
-        "blur_frames",
-        lambda v: (v >= 1) & (v <= config.frame_history),
-        f"in [1, EnvConfig.frame_history={config.frame_history}]",
-    )
-    check(
-        "target_probs",
-        lambda v: (v >= 0).all() & (abs(v.sum() - 1) < 1e-4) & (v.shape == (len(config.targets),)),
-        f"[{len(config.targets)}] non-negative probabilities summing to 1",
-    )
-    check("frame_drop_prob", lambda v: (v >= 0) & (v <= 1), "in [0, 1]")
-    check("perturb_prob", lambda v: (v >= 0) & (v <= 1), "in [0, 1]")
-    for name in (
-        "actuator_noise",
-        "delay_max",
-        "gaussian_blur_sigma",
-        "motion_blur_px",
-        "depth_noise_std",
-        "target_vel_std",
-        "target_spin_std",
-        "target_accel_std",
-        "init_xy_std",
-        "mean_motion",
-    ):
-        check(name, lambda v: v >= 0, ">= 0")
+        if field.name == "catalogue":
+            continue
+        try:
+            values[field.name] = np.asarray(getattr(params, field.name))
+        except Exception:  # traced inside jit: nothing to check
+            continue
+    _check_values(values, list(values), config, "EnvParams.")
     return params

@@ -11,6 +11,7 @@ This module sits above the figures layer and below the command line (contracts i
 
 from __future__ import annotations
 
+import contextlib
 from collections.abc import Callable
 from pathlib import Path
 
@@ -35,26 +36,31 @@ def train_and_evaluate(
     **run_kwargs,
 ) -> driver.RunSummary:
     """Train into ``out`` (see ``driver.run``), then write each seed folder's ``training_curves.png`` and, when the
-    run reached ``total_env_steps`` and ``config.run.eval_episodes > 0``, its ``eval.json``. Returns the summary;
-    with ``seeds > 1`` its ``"seeds"`` list holds one summary per seed folder ``out/seed_<k>``."""
-    summary = driver.run(
-        config,
-        Path(out),
-        seed=seed,
-        resume=resume,
-        progress=progress,
-        num_seeds=seeds,
-        num_devices=devices or None,
-        **run_kwargs,
-    )
-    if not distributed.is_primary():
-        return summary
-    per_seed = summary.get("seeds", [summary])
-    quiet = log if progress else (lambda msg: None)
-    for k, one in enumerate(per_seed):
-        if one["last"] is not None:
-            plot_run(one["out_dir"], title=f"{config.network.variant} seed {one['seed']}")
-        if summary["finished"] and config.run.eval_episodes > 0:
-            params = driver.seed_params(summary.state, k, len(per_seed), config.run.policy_params)
-            one["eval"] = evaluate_run(config, one["out_dir"], one["seed"], params, quiet)
+    run reached ``total_env_steps`` and ``config.run.eval_episodes > 0``, its ``eval.json``. The folder stays locked
+    against a second command until all of it is written. Returns the summary; with ``seeds > 1`` its ``"seeds"``
+    list holds one summary per seed folder ``out/seed_<k>``."""
+    distributed.make_mesh(devices or None)  # a bad device count fails before the folder is created
+    primary = distributed.is_primary()
+    with driver.lock_folder(out) if primary else contextlib.nullcontext() as lock:
+        summary = driver.run(
+            config,
+            Path(out),
+            seed=seed,
+            resume=resume,
+            progress=progress,
+            num_seeds=seeds,
+            num_devices=devices or None,
+            lock=lock,
+            **run_kwargs,
+        )
+        if not primary:
+            return summary
+        per_seed = summary.get("seeds", [summary])
+        quiet = log if progress else (lambda msg: None)
+        for k, one in enumerate(per_seed):
+            if one["last"] is not None:
+                plot_run(one["out_dir"], title=f"{config.network.variant} seed {one['seed']}")
+            if summary["finished"] and config.run.eval_episodes > 0:
+                params = driver.seed_params(summary.state, k, len(per_seed), config.run.policy_params)
+                one["eval"] = evaluate_run(config, one["out_dir"], one["seed"], params, quiet)
     return summary

@@ -17,6 +17,7 @@ import numpy as np
 
 from ramavt_jax import env as env_lib
 from ramavt_jax.augment import AugmentConfig
+from ramavt_jax.env_config import check_settings
 from ramavt_jax.losses import TDConfig
 from ramavt_jax.network import NetworkConfig
 from ramavt_jax.render import CameraConfig
@@ -331,6 +332,10 @@ class TrainConfig:
                 check_finite(f"env_params: {item[0]}", item[1])
             except ValueError as e:
                 _fail(str(e))
+        try:  # each in its range (env_config.RANGES), before anything compiles
+            check_settings(dict(self.env_params), self.env, owner="env_params: ")
+        except ValueError as e:
+            _fail(str(e))
 
     def _check_sizes(self) -> None:
         """How the groups' sizes fit together: chunks, replay rows, windows, gradient steps per iteration."""

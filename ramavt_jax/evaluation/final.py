@@ -53,7 +53,7 @@ def final_evaluation(config: TrainConfig, params: Any, key: jax.Array, log: Call
     held-out (test) split; one compiled rollout per policy serves every split."""
     splits = {"train": tuple(config.env.targets), "val": targets_lib.VAL_TARGETS, "test": targets_lib.TEST_TARGETS}
     tracking_env, split_params = split_envs(config, splits, config.run.eval_max_steps)
-    greedy = greedy_policy(config.network, params, tuple(config.env.obs_shape), camera=config.env.camera)
+    greedy = greedy_policy(config.network, params, tuple(config.env.obs_shape))
     policies = {"greedy": greedy, "random": baselines.random_policy(), "mpc": baselines.mpc_policy(tracking_env.config)}
     key_index = {"greedy": 0, "random": 1, "mpc": 0}  # the ceiling flies the greedy policy's episodes
     out = {}
@@ -84,7 +84,7 @@ def evaluate_run(
     config: TrainConfig, run_dir: str | Path, seed: int, params: Any, log: Callable[[str], None] = print
 ) -> dict:
     """Evaluate a finished run's params (the set ``config.run.policy_params`` names; key: seed + 10,000) and write
-    ``run_dir/eval.json``; returns the results."""
+    ``run_dir/eval.json`` (whole or not at all: a full disk leaves the earlier one); returns the results."""
     t = time.time()
     log(
         f"final evaluation of {run_dir} ({config.run.policy_params} params): {config.run.eval_episodes} episodes per "
@@ -93,5 +93,5 @@ def evaluate_run(
     results = final_evaluation(config, params, jax.random.PRNGKey(seed + 10_000), log)
     results["policy_params"] = config.run.policy_params
     results["eval_wall_s"] = time.time() - t
-    (Path(run_dir) / folders.EVAL_FILE).write_text(folders.dumps(results, indent=1))
+    folders.write_atomic(Path(run_dir) / folders.EVAL_FILE, folders.dumps(results, indent=1))
     return results

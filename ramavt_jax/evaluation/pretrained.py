@@ -23,6 +23,7 @@ from ramavt_jax.evaluation.runs import load_policy
 from ramavt_jax.greedy import greedy_policy
 from ramavt_jax.network import init_params
 from ramavt_jax.train_config import TrainConfig
+from ramavt_jax.training import run_folder
 
 __all__ = [
     "AGENTS_DIR",
@@ -81,9 +82,7 @@ def load(name: str = DEFAULT_AGENT, agents_dir: Path = AGENTS_DIR, search: str =
         return jax.numpy.asarray(stored[key], like.dtype)
 
     params = jax.tree_util.tree_map_with_path(fill, template)
-    policy = greedy_policy(
-        config.network, params, obs_shape, name=f"pretrained:{name}", search=search, camera=config.env.camera
-    )
+    policy = greedy_policy(config.network, params, obs_shape, name=f"pretrained:{name}", search=search)
     return PretrainedAgent(name=name, policy=policy, config=config, params=params, info=saved.get("info", {}))
 
 
@@ -96,15 +95,21 @@ def export(
     policy_params: str | None = None,
 ) -> Path:
     """Copy a run folder's latest network parameters (the set its config's RunConfig.policy_params names, unless
-    ``policy_params`` says) and config into an agent folder ``out_dir/name``."""
+    ``policy_params`` says) and config into an agent folder ``out_dir/name`` (both files replaced together, whole or
+    not at all)."""
     run = load_policy(run_dir, policy_params=policy_params)
     folder = Path(out_dir) / name
     folder.mkdir(parents=True, exist_ok=True)
     flat = {_path_key(p): np.asarray(v) for p, v in jax.tree_util.tree_flatten_with_path(run.params)[0]}
-    np.savez_compressed(folder / "params.npz", **flat)
     record = {
         "config": run.config.to_dict(),
         "info": {"command": command, "run": str(run_dir), "seed": run.seed, "chunks": run.step, **(info or {})},
     }
-    (folder / "config.json").write_text(json.dumps(record, indent=1))
+    text = json.dumps(record, indent=1)
+    run_folder.replace_files(
+        {
+            folder / "params.npz": lambda tmp: np.savez_compressed(tmp, **flat),
+            folder / "config.json": lambda tmp: tmp.write_text(text),
+        }
+    )
     return folder

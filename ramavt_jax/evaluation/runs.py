@@ -65,8 +65,10 @@ def load_policy(
     run's config (RunConfig.policy_params) says (check_policy_params refuses a set the run does not keep). The
     returned config records the set that was read. Without ``step``, a damaged newest checkpoint is skipped (reported through
     ``log`` in one line, left on disk) for the newest that loads. An incomplete config.json is refused
-    (RunFolderError naming the missing field). ``search``: what the policy commands before the target is first in
-    view (greedy.greedy_policy)."""
+    (RunFolderError naming the missing field), and so is a config.json that no longer fits the checkpoints (an
+    edited network, resolution or observation mode: CheckpointError, in the words ``ramavt train`` uses, before
+    any array is read). ``search``: what the policy commands before the target is first in view
+    (greedy.greedy_policy)."""
     run_dir = Path(run_dir)
     cfg_file = run_dir / folders.CONFIG_FILE
     if not cfg_file.is_file():
@@ -83,12 +85,13 @@ def load_policy(
     if not config.run.checkpoint_replay:
         like = like.replace(replay=None)
     pick = lambda s: s.learner.policy_params(config.run.policy_params)  # noqa: E731
+    read_with = saved["config"]  # a checkpoint that does not fit it is refused in one line, naming the fields
     try:
         if step is None:  # the newest step that loads, as a resumed training run uses (a damaged one is skipped)
-            params, meta, step = store.restore_subtree_newest_loadable(like, pick, log)
+            params, meta, step = store.restore_subtree_newest_loadable(like, pick, log, read_with)
         else:
             step = int(step)
-            params, meta = store.restore_subtree(like, pick, step), store.read_meta(step)
+            params, meta = store.restore_subtree(like, pick, step, read_with), store.read_meta(step)
     finally:
         store.close()
     params = jax.tree.map(jnp.asarray, params)
@@ -98,7 +101,6 @@ def load_policy(
         tuple(config.env.obs_shape),
         name=name or run_dir.name,
         search=search,
-        camera=config.env.camera,
     )
     meta = {k: v for k, v in meta.items() if k not in ("_num_leaves", "_leaf_paths", "config")}
     return LoadedRun(

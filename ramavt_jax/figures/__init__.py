@@ -20,9 +20,14 @@ def pyplot():
 
 
 def save_figure(fig, out, dpi: int = 110) -> Path:
-    """Write ``fig`` to ``out`` (its folder created), close it, and return the path."""
+    """Write ``fig`` to ``out`` (its folder created; whole or not at all, run_folder.replace_atomic), close it, and
+    return the path."""
+    from ramavt_jax.training.run_folder import replace_atomic
+
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(out, dpi=dpi)
-    pyplot().close(fig)
+    try:
+        replace_atomic(out, lambda tmp: fig.savefig(tmp, dpi=dpi))
+    finally:
+        pyplot().close(fig)
     return out

@@ -13,8 +13,9 @@ from flax import struct
 from ramavt_jax import env as env_lib
 from ramavt_jax import network, render
 from ramavt_jax.baselines import Policy
-from ramavt_jax.figures import pyplot
+from ramavt_jax.figures import pyplot, save_figure
 from ramavt_jax.figures.training import plot_training_runs
+from ramavt_jax.training.run_folder import replace_atomic
 
 
 @struct.dataclass
@@ -149,10 +150,8 @@ def episode_video(frames: EpisodeFrames, out: str | Path, size: int = 256, fps: 
             right = pad
         images.append(np.concatenate([left, middle, right], axis=1))
     if out.suffix.lower() == ".gif":
-        imageio.mimsave(out, images, duration=1.0 / fps, loop=0)
-    else:
-        imageio.mimsave(out, images, fps=fps)
-    return out
+        return replace_atomic(out, lambda tmp: imageio.mimsave(tmp, images, duration=1.0 / fps, loop=0))
+    return replace_atomic(out, lambda tmp: imageio.mimsave(tmp, images, fps=fps))
 
 
 def plot_tracking_error(frames: EpisodeFrames, out: str | Path, desired_z: float = 5.0) -> Path:
@@ -166,10 +165,7 @@ def plot_tracking_error(frames: EpisodeFrames, out: str | Path, desired_z: float
         ax.plot(err[:, axis], label=f"{name} error")
     ax.set_xlabel("step"), ax.set_ylabel("m"), ax.legend(), ax.grid(alpha=0.3)
     fig.tight_layout()
-    out = Path(out)
-    fig.savefig(out, dpi=120)
-    plt.close(fig)
-    return out
+    return save_figure(fig, out, dpi=120)
 
 
 def plot_trajectory_3d(frames: EpisodeFrames, out: str | Path) -> Path:
@@ -185,21 +181,12 @@ def plot_trajectory_3d(frames: EpisodeFrames, out: str | Path) -> Path:
     ax.set_xlabel("radial x (m)"), ax.set_ylabel("along-track y (m)"), ax.set_zlabel("cross-track z (m)")
     ax.legend()
     fig.tight_layout()
-    out = Path(out)
-    fig.savefig(out, dpi=120)
-    plt.close(fig)
-    return out
+    return save_figure(fig, out, dpi=120)
 
 
 # ============================================================================================ paper figures
 def _save(fig, out: str | Path, dpi: int = 120) -> Path:
-    plt = pyplot()
-
-    out = Path(out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(out, dpi=dpi)
-    plt.close(fig)
-    return out
+    return save_figure(fig, out, dpi=dpi)
 
 
 def _display(image: np.ndarray) -> tuple[np.ndarray, str | None]:

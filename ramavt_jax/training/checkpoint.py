@@ -2,13 +2,21 @@
 replay buffer, env/actor state, RNG key, counters) plus JSON metadata (config, step counters).
 
 Saves are synchronous (a checkpoint on disk is complete when ``save`` returns), written atomically by orbax
-(a temporary directory renamed at the end), and older ones are pruned to ``keep``. Resuming restores every leaf
-bit-for-bit, so a resumed run continues exactly like an uninterrupted one.
+(a temporary directory renamed at the end), and older ones are pruned to ``keep``. A save that fails (a full disk)
+removes its temporary directory and is one CheckpointWriteError line, without orbax's thread tracebacks. Before a
+restore the stored arrays' shapes are compared with the state read into: a config that no longer fits the
+checkpoint (an edited network, resolution or observation mode) is one CheckpointError line, for ``ramavt train``
+and ``ramavt eval`` alike. Resuming restores every leaf bit-for-bit, so a resumed run continues exactly like an
+uninterrupted one.
 """
 
 from __future__ import annotations
 
+import contextlib
+import logging
 import os
+import re
+import shutil
 import sys
 from pathlib import Path
 from typing import Any
@@ -16,8 +24,11 @@ from typing import Any
 import jax
 import numpy as np
 import orbax.checkpoint as ocp
+from etils import epath
 
-__all__ = ["CheckpointStore", "CheckpointNotFoundError", "CheckpointError", "has_checkpoint"]
+from ramavt_jax.training import run_folder
+
+__all__ = ["CheckpointStore", "CheckpointNotFoundError", "CheckpointError", "CheckpointWriteError", "has_checkpoint"]
 
 
 class CheckpointNotFoundError(FileNotFoundError):
@@ -26,6 +37,10 @@ class CheckpointNotFoundError(FileNotFoundError):
 
 class CheckpointError(ValueError):
     """A checkpoint exists but cannot be used (no step loads, or it holds another state)."""
+
+
+class CheckpointWriteError(run_folder.WriteError):
+    """A checkpoint could not be written (a full disk); the checkpoints before it are kept."""
 
 
 def has_checkpoint(directory) -> bool:
@@ -103,6 +118,37 @@ def _drop_closed_loop_noise(previous):
     return hook
 
 
+class _DropThreadErrors(logging.Filter):
+    """Drops the errors orbax's writer threads log, each with a traceback, while a failing save winds down: the
+    save's own exception says the same in one line."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        return record.levelno < logging.ERROR
+
+
+@contextlib.contextmanager
+def _quiet_save():
+    """While a save runs: the closed-loop noise of its failed writes is dropped (for good, as after a failed
+    restore) and its threads' error logs are held back."""
+    _quiet_after_failed_restore()
+    logger, quiet = logging.getLogger("absl"), _DropThreadErrors()
+    logger.addFilter(quiet)
+    try:
+        yield
+    finally:
+        logger.removeFilter(quiet)
+
+
+def _os_error(e: BaseException) -> tuple[int | None, str]:
+    """(errno, reason) of a failed write: an OSError's own, or the OS error code tensorstore puts in its text."""
+    if isinstance(e, OSError) and e.errno:
+        return e.errno, e.strerror or str(e)
+    code = re.search(r"os_error_code='?(\d+)", str(e))
+    if code:
+        return int(code[1]), os.strerror(int(code[1]))
+    return None, _first_line(e)
+
+
 def _quiet_after_failed_restore() -> None:
     """After a failed restore, tensorstore's reads still in flight complete into orbax's closed event loop and
     Python reports each as an unraisable 'Event loop is closed' traceback (about 100 per damaged step, some at
@@ -138,15 +184,59 @@ class CheckpointStore:
         # else: a multi-host run; orbax writes each process's shards of the global arrays itself
         flat, count = _flat(state)
         meta = dict(meta, _num_leaves=count, _leaf_paths=_paths(state))
-        self.manager.save(
-            int(step),
-            args=ocp.args.Composite(state=ocp.args.StandardSave(flat), meta=ocp.args.JsonSave(meta)),
-            force=force,
-        )
-        self.manager.wait_until_finished()
+        try:
+            with _quiet_save():
+                self.manager.save(
+                    int(step),
+                    args=ocp.args.Composite(state=ocp.args.StandardSave(flat), meta=ocp.args.JsonSave(meta)),
+                    force=force,
+                )
+                self.manager.wait_until_finished()
+        except Exception as e:  # noqa: BLE001 (orbax and tensorstore raise ValueError, OSError, ... for a full disk)
+            for tmp in self.directory.glob(f"{int(step)}.orbax-checkpoint-tmp*"):
+                shutil.rmtree(tmp, ignore_errors=True)  # the space it took, back
+            number, reason = _os_error(e)
+            kept = [s for s in self.all_steps() if s != int(step)]
+            raise CheckpointWriteError(
+                number,
+                f"cannot write checkpoint {step} in {self.directory}: {reason}; "
+                + (f"the checkpoints before it are kept (newest: {max(kept)})" if kept else "no checkpoint was kept"),
+            ) from None
 
-    def restore(self, like: Any, step: int | None = None) -> tuple[Any, dict]:
-        """Restore into the structure/shapes/dtypes of ``like`` (a pytree of arrays). Returns (state, meta)."""
+    def _check_shapes(self, step: int, like: Any, pairs, meta: dict, config: dict | None) -> None:
+        """CheckpointError (one line) when an array to read, ``(leaf index in like, index in the checkpoint)``, is
+        stored with another shape than ``like`` gives it: the state is read with a config that does not fit the
+        checkpoint. ``config``: the config dict read with, to name the fields in which the checkpoint's differs. A
+        step whose shapes cannot be read is left to the restore (a damaged step)."""
+        try:
+            tree = ocp.PyTreeCheckpointHandler().metadata(epath.Path(self.directory / str(int(step)) / "state"))
+            shapes = {k: tuple(v.shape) for k, v in dict(getattr(tree, "tree", tree)).items()}
+        except Exception:  # noqa: BLE001 (a damaged step: the restore reports it)
+            return
+        leaves, paths = jax.tree.leaves(like), _paths(like)
+        for i, j in pairs:
+            have, want = shapes.get(_leaf_key(j)), tuple(np.shape(leaves[i]))
+            if have is None or have == want:
+                continue
+            differs = ""
+            if config is not None and isinstance(meta.get("config"), dict):
+                fields = [
+                    k
+                    for k in run_folder.config_differences(meta["config"], config, run_folder.default_json())
+                    if k not in run_folder.RESUMABLE_FIELDS
+                ]
+                differs = f"; the checkpoint's config differs in {', '.join(fields[:4])}" if fields else ""
+            raise CheckpointError(
+                f"checkpoint {step} in {self.directory} does not fit the config it is read with: {paths[i]} is "
+                f"stored as {list(have)}, the config makes it {list(want)}{differs}. The run's config.json was "
+                f"edited (network, camera resolution or observation mode): restore it, or train the folder afresh "
+                f"with --no-resume"
+            )
+
+    def restore(self, like: Any, step: int | None = None, config: dict | None = None) -> tuple[Any, dict]:
+        """Restore into the structure/shapes/dtypes of ``like`` (a pytree of arrays). Returns (state, meta).
+        ``config``: the config dict the state is built from (a checkpoint that does not fit it names the fields in
+        which the checkpoint's config differs)."""
         step = self.latest_step() if step is None else step
         if step is None:
             raise CheckpointNotFoundError(f"no checkpoint found in {self.directory}")
@@ -154,6 +244,7 @@ class CheckpointStore:
         meta = self.read_meta(step)
         saved = _saved_indices(like, meta, f"checkpoint {step} in {self.directory}")
         stored = [(i, j) for i, j in enumerate(saved) if j is not None and np.size(leaves[i]) > 0]
+        self._check_shapes(step, like, stored, meta, config)
         abstract = {_leaf_key(j): ocp.utils.to_shape_dtype_struct(leaves[i]) for i, j in stored}
         restored = self.manager.restore(int(step), args=ocp.args.Composite(state=ocp.args.StandardRestore(abstract)))
         out = list(leaves)
@@ -192,30 +283,34 @@ class CheckpointStore:
             f"no checkpoint in {self.directory} loads ({'; '.join(failures) or 'none found'}); {advice}"
         )
 
-    def restore_newest_loadable(self, like: Any, log=print) -> tuple[Any, dict, int]:
+    def restore_newest_loadable(self, like: Any, log=print, config: dict | None = None) -> tuple[Any, dict, int]:
         """Restore the newest step that loads, newest first. A step that fails (a truncated or missing file) is
         reported in one line and deleted, so the run continues from the older one. Returns (state, meta, step)."""
-        (state, meta), step = self._newest_loadable(lambda s: self.restore(like, s), log, delete=True)
+        (state, meta), step = self._newest_loadable(lambda s: self.restore(like, s, config), log, delete=True)
         return state, meta, step
 
-    def restore_subtree_newest_loadable(self, like: Any, pick, log=print) -> tuple[Any, dict, int]:
+    def restore_subtree_newest_loadable(
+        self, like: Any, pick, log=print, config: dict | None = None
+    ) -> tuple[Any, dict, int]:
         """:meth:`restore_subtree` and :meth:`read_meta` of the newest step that loads (a reader's fallback: the
         damaged steps are reported in one line and left on disk). Returns (sub-tree, meta, step)."""
         (sub, meta), step = self._newest_loadable(
-            lambda s: (self.restore_subtree(like, pick, s), self.read_meta(s)), log, delete=False
+            lambda s: (self.restore_subtree(like, pick, s, config), self.read_meta(s)), log, delete=False
         )
         return sub, meta, step
 
-    def restore_subtree(self, like: Any, pick, step: int | None = None) -> Any:
+    def restore_subtree(self, like: Any, pick, step: int | None = None, config: dict | None = None) -> Any:
         """Restore only ``pick(like)`` (a sub-tree of the saved state, e.g. the network params) from ``step``
-        (default the latest) without reading the other arrays."""
+        (default the latest) without reading the other arrays (``config`` as in :meth:`restore`)."""
         step = self.latest_step() if step is None else step
         leaves, treedef = jax.tree.flatten(like)
         where = f"checkpoint {step} in {self.directory}"
-        saved = _saved_indices(like, self.read_meta(step), where)
+        meta = self.read_meta(step)
+        saved = _saved_indices(like, meta, where)
         wanted = jax.tree.leaves(pick(jax.tree.unflatten(treedef, list(range(len(leaves))))))
         if any(saved[i] is None for i in wanted):
             raise CheckpointError(f"{where} predates a leaf asked for: it was written by an earlier code version")
+        self._check_shapes(step, like, [(i, saved[i]) for i in wanted if np.size(leaves[i]) > 0], meta, config)
         keys = [_leaf_key(saved[i]) for i in wanted]
         abstract = {k: jax.ShapeDtypeStruct(leaves[i].shape, leaves[i].dtype) for k, i in zip(keys, wanted)}
         restored = self.manager.restore(

@@ -24,10 +24,10 @@ from ramavt_jax.train_state import TrainingDivergedError
 from ramavt_jax.training import run_folder as folders
 from ramavt_jax.training.checkpoint import CheckpointError, CheckpointNotFoundError, CheckpointStore, has_checkpoint
 from ramavt_jax.training.interrupts import StopSignals, TrainingInterrupted
-from ramavt_jax.training.metrics import Log, aggregate, diverged, split_loss
+from ramavt_jax.training.metrics import Log, aggregate, divergence, split_loss
 from ramavt_jax.training.program import _compiled, _Program
 
-__all__ = ["run", "RunSummary", "aggregate", "read_metrics", "TrainingInterrupted"]
+__all__ = ["run", "lock_folder", "RunSummary", "aggregate", "read_metrics", "TrainingInterrupted"]
 
 read_metrics = folders.read_metrics
 
@@ -78,19 +78,36 @@ class _Folders:
     seeds: list[int]
     dirs: list[Path]
     sources: list[Path | None]  # checkpoint folder to resume each seed from
-    lock: Any  # RunLock of the primary process, or None
+    lock: Any  # RunLock of the primary process taken by run (released when training ends), or None
 
     @property
     def resuming(self) -> bool:
         return self.sources[0] is not None
 
+    @property
+    def own_checkpoints(self) -> bool:
+        """Resuming from the folders' own checkpoints (their metrics rows must cover them), not another's."""
+        return all(src == d / folders.CHECKPOINTS for src, d in zip(self.sources, self.dirs))
 
-def _open_folders(config_json: dict, out: Path, seed: int, num_seeds: int, resume, primary: bool) -> _Folders:
-    """Check ``out`` (writable, not locked, same config when resuming) before anything is written into it."""
+
+def lock_folder(out) -> folders.RunLock:
+    """The run folder ``out``, created if needed and checked writable, locked against a second command (one-line
+    RunFolderError otherwise). ``ramavt train`` holds it through the training, the final evaluation and the plots
+    (experiment.train_and_evaluate passes it to :func:`run`)."""
+    folders.check_writable(out)
+    return folders.RunLock(Path(out))
+
+
+def _open_folders(
+    config_json: dict, out: Path, seed: int, num_seeds: int, resume, primary: bool, held=None
+) -> _Folders:
+    """Check ``out`` (writable, not locked, same config when resuming) before anything is written into it;
+    ``held``: its lock, taken by the caller."""
     seeds = [seed + k for k in range(num_seeds)]
     dirs = folders.seed_folders(out, seeds)
-    folders.check_writable(out)
-    lock = folders.RunLock(out) if primary else None
+    if held is None:
+        folders.check_writable(out)
+    lock = lock_folder(out) if primary and held is None else None
     try:
         sources = [_resolve_resume(resume, d / folders.CHECKPOINTS, None if num_seeds == 1 else d.name) for d in dirs]
         if any(s is None for s in sources) and any(s is not None for s in sources):
@@ -109,13 +126,15 @@ def _open_folders(config_json: dict, out: Path, seed: int, num_seeds: int, resum
 
 
 def _restore(prog: _Program, state, config: TrainConfig, config_json: dict, f: _Folders, log):
-    """The checkpointed RunnerState of every seed (newest loadable step), placed like ``state``."""
+    """The checkpointed RunnerState of every seed (newest loadable step), placed like ``state``, and per seed the
+    metrics rows its checkpoint holds (None for a checkpoint written before they were kept)."""
     num_seeds = len(f.seeds)
-    loaded = []
+    loaded, rows = [], []
     for k, src in enumerate(f.sources):
         like = _seed_slice(state, k, num_seeds)
         like = like if config.run.checkpoint_replay else like.replace(replay=None)
-        st, meta, _ = CheckpointStore(src, create=False).restore_newest_loadable(like, log)
+        st, meta, _ = CheckpointStore(src, create=False).restore_newest_loadable(like, log, config_json)
+        rows.append(meta.get("metrics"))
         saved = meta.get("config", {})
         diff = {
             k: v
@@ -137,7 +156,7 @@ def _restore(prog: _Program, state, config: TrainConfig, config_json: dict, f: _
     restored = loaded[0]
     if not config.run.checkpoint_replay:
         restored = restored.replace(replay=state.replay)
-    return restored if prog.shardings is None else jax.device_put(restored, prog.shardings)
+    return (restored if prog.shardings is None else jax.device_put(restored, prog.shardings)), rows
 
 
 @dataclasses.dataclass
@@ -155,8 +174,14 @@ class _Loop:
     clock_start: float  # epoch second from which the records' since_start_s count (see run)
 
     def save(self, state) -> None:
+        """Checkpoint ``state`` as chunk ``chunk_no`` in every seed folder, after flushing the metrics rows to the
+        disk; each checkpoint holds its seed's rows since the previous checkpoint, which a resume rebuilds when the
+        file lost them (call inside StopSignals.writing: a second Ctrl-C waits until the checkpoint is whole)."""
         num_seeds = len(self.f.seeds)
+        self.log.sync()
         for k, (s, store) in enumerate(zip(self.f.seeds, self.stores)):
+            if (store.directory / str(self.chunk_no)).is_dir():  # already written whole (orbax renames at the end)
+                continue
             one = _seed_slice(state, k, num_seeds)
             meta = {
                 "config": self.config_json,
@@ -164,12 +189,14 @@ class _Loop:
                 "chunk": self.chunk_no,
                 "env_steps": _host_int(one.env_steps),
                 "updates": _host_int(one.learner.updates),
+                "metrics": self.log.rows_since(k, self.last_saved),
             }
             store.save(self.chunk_no, one if self.config.run.checkpoint_replay else one.replace(replay=None), meta)
         self.last_saved = self.chunk_no
 
     def record(self, m, wall: float) -> None:
-        """Log the metrics of the chunk just finished (raises TrainingDivergedError on a NaN/inf loss)."""
+        """Log the metrics of the chunk just finished (raises TrainingDivergedError on a diverging learner: a loss,
+        mean Q or gradient norm that is not finite, or a loss above run.max_loss)."""
         c, num_seeds = self.config, len(self.f.seeds)
         since_start = time.time() - self.clock_start
         for k in range(num_seeds):
@@ -186,7 +213,8 @@ class _Loop:
             record["started_at"] = self.clock_start  # epoch second: tells one process's records from a resume's
             if num_seeds > 1:
                 record["seeds_in_program"] = num_seeds
-            if diverged(record):
+            why = divergence(record, c.run.max_loss)
+            if why is not None:
                 where = (
                     f"the last good checkpoint is chunk {self.last_saved} in {self.f.dirs[k] / folders.CHECKPOINTS}"
                     if self.last_saved is not None
@@ -194,12 +222,25 @@ class _Loop:
                 )
                 raise TrainingDivergedError(
                     f"training diverged at chunk {record['chunk']} (seed {self.f.seeds[k]}, env step "
-                    f"{record['env_steps']}): loss={record['loss']}, mean Q={record['q_mean']}. The diverged state "
-                    f"was NOT saved; {where}. Try a lower learner.lr (now {c.learner.lr}), gradient clipping "
-                    f"(learner.max_grad_norm) or a smaller learner.reward_scale."
+                    f"{record['env_steps']}): {why} (loss={record['loss']:.3g}, mean Q={record['q_mean']:.3g}, "
+                    f"grad_norm={record['grad_norm']:.3g}). The diverged state was NOT saved; {where}. Try a lower "
+                    f"learner.lr (now {c.learner.lr}), gradient clipping (learner.max_grad_norm) or a smaller "
+                    f"learner.reward_scale; --run.max-loss sets the bound on the loss."
                 )
             self.log.add(k, record)
         self.log.advance(c.env_steps_per_chunk * num_seeds)
+
+
+def _save_on_interrupt(loop: _Loop, state, pending) -> None:
+    """After a second Ctrl-C: let the chunk in flight finish (XLA cannot cancel it), log it when its metrics are
+    at hand, and checkpoint the state when every chunk it covers has its row (and its parameters are finite)."""
+    jax.block_until_ready(state)
+    done = _host_int(state.chunk)  # may be one ahead of the host mirror: the chunk in flight
+    if done == loop.chunk_no + 1 and pending is not None:
+        loop.chunk_no = done
+        loop.record(distributed.local_copy(pending[0]), time.time() - pending[1])
+    if done == loop.chunk_no and loop.chunk_no != loop.last_saved and _finite_params(state):
+        loop.save(state)
 
 
 def _finite_params(state) -> bool:
@@ -209,17 +250,22 @@ def _finite_params(state) -> bool:
 
 
 def _train_chunks(loop: _Loop, state, end: int, stop: StopSignals, say):
-    """Run chunks until ``end`` or a stop signal (then the chunk in flight is logged and saved first)."""
+    """Run chunks until ``end`` or a stop signal (then the chunk in flight is logged and saved first). A chunk's
+    rows and checkpoint are written inside ``stop.writing()``: a second Ctrl-C waits until they are whole."""
     every = loop.config.run.checkpoint_every_chunks
+    pending = None  # the metrics of the chunk dispatched and not yet logged, with its start
     try:
         while loop.chunk_no < end:
             t = time.time()
             state, m = loop.prog.chunk(state)
-            m = distributed.local_copy(m)  # the one host sync per chunk
-            loop.chunk_no += 1
-            loop.record(m, time.time() - t)
-            if (every and loop.chunk_no % every == 0) or stop.signum is not None:
-                loop.save(state)
+            pending = (m, t)
+            m = distributed.local_copy(m)  # the one host sync per chunk (a Ctrl-C lands here)
+            with stop.writing():
+                loop.chunk_no += 1
+                pending = None
+                loop.record(m, time.time() - t)
+                if (every and loop.chunk_no % every == 0) or stop.signum is not None:
+                    loop.save(state)
             if stop.signum is not None:
                 raise TrainingInterrupted(
                     f"{stop.name}: checkpoint of chunk {loop.chunk_no} saved under "
@@ -230,15 +276,15 @@ def _train_chunks(loop: _Loop, state, end: int, stop: StopSignals, say):
         loop.log.close()
         raise
     except KeyboardInterrupt:  # a second Ctrl-C (or one outside the main thread): save what is complete
-        loop.log.close()
-        if any(getattr(x, "is_deleted", lambda: False)() for x in jax.tree.leaves(state)):
-            say(f"\ninterrupted while a chunk was dispatched; last checkpoint: chunk {loop.last_saved} in {loop.f.out}")
-        else:
-            jax.block_until_ready(state)  # the chunk in flight finishes (XLA cannot cancel it)
-            loop.chunk_no = _host_int(state.chunk)  # may be one ahead of the host mirror (not logged)
-            if _finite_params(state) and loop.chunk_no != loop.last_saved:
-                loop.save(state)
-            say(f"\ninterrupted: checkpoint of chunk {loop.last_saved} saved under {loop.f.out}; run again to resume")
+        with stop.writing(stop_after=False):  # a further Ctrl-C cannot cut this checkpoint short either
+            if any(getattr(x, "is_deleted", lambda: False)() for x in jax.tree.leaves(state)):
+                loop.log.close()
+                last = f"chunk {loop.last_saved} in {loop.f.out}"
+                say(f"\ninterrupted while a chunk was dispatched; last checkpoint: {last}")
+                raise
+            _save_on_interrupt(loop, state, pending)
+            loop.log.close()
+        say(f"\ninterrupted: checkpoint of chunk {loop.last_saved} saved under {loop.f.out}; run again to resume")
         raise
     return state
 
@@ -277,6 +323,7 @@ def run(
     num_devices: int | None = None,
     debug_nan_at_update: int = -1,
     clock_start: float | None = None,
+    lock: folders.RunLock | None = None,
 ) -> RunSummary:
     """Train ``config`` into ``out_dir``; returns a :class:`RunSummary` (a JSON-friendly dict: counters, timings,
     memory, the last metrics record) whose ``.state`` is the final RunnerState.
@@ -295,7 +342,11 @@ def run(
     clock_start: the epoch second from which each metrics record's ``since_start_s`` (and the summary's
       ``startup_s``, to the first chunk's dispatch) count: ``ramavt train`` passes its process's start, so that
       imports, compiling and building the state are counted; None = the start of this call.
-    Raises TrainingDivergedError on a NaN/inf loss (the last good checkpoint is kept), RunFolderError when the
+    lock: the lock of ``out_dir`` (:func:`lock_folder`), held by the caller, who lets it go after what it does
+      with the run (``ramavt train``: the final evaluation and plots); None = this call takes it and lets it go
+      when training ends.
+    Raises TrainingDivergedError on a diverging learner (a loss, mean Q or gradient norm that is not finite, or a
+    loss above ``config.run.max_loss``; the last good checkpoint is kept), RunFolderError when the
     folder is locked by another process, not writable or holds another config. SIGINT / SIGTERM: the chunk in
     flight is logged and checkpointed, then TrainingInterrupted (a KeyboardInterrupt) is raised. In a multi-host
     run only process 0 writes logs; every process takes part in checkpointing.
@@ -307,7 +358,7 @@ def run(
     say = (lambda msg: print(msg, flush=True)) if (progress and primary) else (lambda msg: None)
     config_json = json.loads(json.dumps(config.to_dict(), default=str))
     distributed.make_mesh(num_devices)  # a bad device count fails before the folder is touched
-    f = _open_folders(config_json, Path(out_dir), seed, num_seeds, resume, primary)
+    f = _open_folders(config_json, Path(out_dir), seed, num_seeds, resume, primary, lock)
     try:
         with StopSignals(say if primary else (lambda msg: None)) as stop:
             return _run_locked(
@@ -349,9 +400,10 @@ def _run_locked(
     prog, state, mesh = _start(config, f, num_devices, tracking_env, say, debug_nan_at_update)
     jax.block_until_ready(state)  # the allocation is done before a signal is deferred
     distributed.barrier("ramavt_compiled")  # processes compile at different speeds; the next step is collective
+    saved_rows = None
     if f.resuming:
         stop.hard_exit = "while restoring the checkpoint"  # reads (a damaged step cut off mid-delete is skipped again)
-        state = _restore(prog, state, config, config_json, f, print if primary else (lambda msg: None))
+        state, saved_rows = _restore(prog, state, config, config_json, f, print if primary else (lambda msg: None))
     stop.hard_exit = None  # from here on files are written: a signal is deferred to the next safe point
     if stop.signum is not None:  # came while the run folder was checked, before compiling began
         raise TrainingInterrupted(f"{stop.name} before training began: nothing was trained or written", stop.signum)
@@ -359,12 +411,15 @@ def _run_locked(
         for d in f.dirs:
             if (d / folders.CHECKPOINTS).is_dir():
                 shutil.rmtree(d / folders.CHECKPOINTS)
+    start = _host_int(state.chunk)
+    for d in f.dirs if primary else ():
+        d.mkdir(parents=True, exist_ok=True)
+    # a resume first settles its metrics rows (rebuilt from the checkpoint, or refused in one line)
+    rows = saved_rows if f.resuming and f.own_checkpoints else None
+    log = Log(config, f.dirs, start if f.resuming else None, primary, progress, rows)
     if primary:
         for s, d in zip(f.seeds, f.dirs):
-            d.mkdir(parents=True, exist_ok=True)
             folders.write_atomic(d / folders.CONFIG_FILE, json.dumps({"seed": s, "config": config_json}, indent=1))
-    start = _host_int(state.chunk)
-    log = Log(config, f.dirs, start if f.resuming else None, primary, progress)
     stores = [CheckpointStore(d / folders.CHECKPOINTS, keep=config.run.keep_checkpoints) for d in f.dirs]
     loop = _Loop(config, prog, f, log, stores, config_json, start, start if f.resuming else None, clock_start)
     end = config.num_chunks if max_chunks is None else min(config.num_chunks, start + max_chunks)
@@ -375,7 +430,8 @@ def _run_locked(
         log.close()
     train_s = time.time() - train_t0
     if loop.chunk_no != loop.last_saved:
-        loop.save(state)
+        with stop.writing():
+            loop.save(state)
     for store in stores:
         store.close()
     return _summary(config, f, loop, state, prog, mesh, train_s, train_t0 - clock_start)

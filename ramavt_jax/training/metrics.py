@@ -15,7 +15,7 @@ from ramavt_jax.train_config import TrainConfig
 from ramavt_jax.train_state import ChunkMetrics
 from ramavt_jax.training import run_folder as folders
 
-__all__ = ["aggregate", "split_loss", "diverged", "process_start_time", "Log"]
+__all__ = ["aggregate", "split_loss", "divergence", "process_start_time", "Log"]
 
 
 def aggregate(m: ChunkMetrics, wall_s: float, env_steps: int) -> dict:
@@ -90,21 +90,46 @@ def split_loss(record: dict, aux_weight: float, margin_weight: float = 0.0, poli
     return record
 
 
-def diverged(record: dict) -> bool:
-    return record["updates"] > 0 and not (math.isfinite(record["loss"]) and math.isfinite(record["q_mean"]))
+def divergence(record: dict, max_loss: float | None = None) -> str | None:
+    """Why a chunk's record shows a diverging learner, in a few words naming the figure (``'grad_norm=nan is not a
+    finite number'``, ``'loss=6.2e+29 is above run.max_loss=1e+10'``), or None for a healthy one (and for a chunk
+    without gradient steps, whose loss is NaN by construction)."""
+    if not record["updates"] > 0:
+        return None
+    for name in ("loss", "q_mean", "grad_norm"):
+        value = record.get(name)
+        if value is not None and not math.isfinite(value):
+            return f"{name}={value} is not a finite number"
+    if max_loss is not None and record["loss"] > max_loss:
+        return f"loss={record['loss']:.3g} is above run.max_loss={max_loss:g}"
+    return None
 
 
 class Log:
     """Per-seed metric files and TensorBoard writers, and the progress bar (primary process only)."""
 
-    def __init__(self, config: TrainConfig, dirs: list[Path], resumed_at: int | None, primary: bool, progress: bool):
-        """``resumed_at``: the restored chunk (its earlier records are kept, later ones dropped), None = fresh."""
+    def __init__(
+        self,
+        config: TrainConfig,
+        dirs: list[Path],
+        resumed_at: int | None,
+        primary: bool,
+        progress: bool,
+        saved_rows: list[list[dict] | None] | None = None,
+    ):
+        """``resumed_at``: the restored chunk (its earlier records are kept, later ones dropped), None = fresh.
+        ``saved_rows``: per folder, the rows its restored checkpoint holds: a row of a chunk up to ``resumed_at``
+        that the file lost is rebuilt from them, or refused in one line (run_folder.resumed_rows); None (resuming
+        from another folder's checkpoints): the file's rows are kept as they are."""
         self.primary = primary
         self.paths = [d / folders.METRICS_FILE for d in dirs]
-        self.records = [
-            [r for r in folders.read_metrics(p) if r["chunk"] <= resumed_at] if resumed_at is not None else []
-            for p in self.paths
-        ]
+        if resumed_at is None:
+            self.records = [[] for _ in self.paths]
+        elif saved_rows is None:
+            self.records = [[r for r in folders.read_metrics(p) if r["chunk"] <= resumed_at] for p in self.paths]
+        else:
+            log = print if primary else (lambda msg: None)
+            self.records = [folders.resumed_rows(p, resumed_at, rows, log) for p, rows in zip(self.paths, saved_rows)]
         self.writers = [None] * len(dirs)
         self.bar = None
         if not primary:
@@ -136,6 +161,17 @@ class Log:
             for name, v in record.items():
                 if isinstance(v, (int, float)) and math.isfinite(v):
                     self.writers[k].add_scalar(f"train/{name}", v, record["env_steps"])
+
+    def rows_since(self, k: int, chunk: int | None) -> list[dict]:
+        """Folder ``k``'s rows of the chunks after ``chunk`` (None: all), as strict JSON (a checkpoint keeps them)."""
+        return [folders.to_strict_json(r) for r in self.records[k] if chunk is None or r["chunk"] > chunk]
+
+    def sync(self) -> None:
+        """Flush the rows appended so far to the disk: called before each checkpoint, so that no checkpoint exists
+        whose rows a power cut could take."""
+        if self.primary:
+            for p in self.paths:
+                folders.sync_metrics(p)
 
     def advance(self, steps: int) -> None:
         if self.bar is not None:

@@ -40,6 +40,7 @@ __all__ = [
     "read_metrics",
     "append_metrics",
     "resumed_rows",
+    "sync_metrics",
     "write_metrics",
     "write_atomic",
     "replace_atomic",
@@ -47,6 +48,7 @@ __all__ = [
     "fsync_file",
     "WriteError",
     "config_differences",
+    "default_json",
     "missing_fields",
     "read_config",
     "check_config",
@@ -259,6 +261,17 @@ def append_metrics(path: Path, record: dict) -> None:
         raise _write_error(path, e, "a row cut short there is skipped on resume") from None
 
 
+def sync_metrics(path: Path) -> None:
+    """Flush a metrics.jsonl's appended rows to the disk (before the checkpoint of their chunks is written)."""
+    try:
+        if path.exists():
+            fsync_file(path)
+    except OSError as e:
+        raise _write_error(
+            path, e, "its rows since the last checkpoint may be cut short; they are rebuilt on resume"
+        ) from None
+
+
 def resumed_rows(path: Path, chunk: int, saved: list[dict] | None, log=print) -> list[dict]:
     """The rows of a metrics.jsonl a run resumed from checkpoint ``chunk`` keeps: its rows up to that chunk, with
     those the file lost (a row torn or never flushed when the power went) rebuilt from ``saved``, the rows the
@@ -301,6 +314,11 @@ def _sorted_pairs(config: dict) -> dict:
     return {**config, "env_params": sorted(([*p] for p in pairs), key=lambda p: str(p[0]))}
 
 
+def default_json() -> dict:
+    """TrainConfig's default values as a config dict (the fields an older config.json lacks take these)."""
+    return json.loads(json.dumps(TrainConfig().to_dict(), default=str))
+
+
 def config_differences(saved: dict, current: dict, defaults: dict | None = None) -> dict[str, tuple]:
     """{dotted field: (saved value, current value)} for every field that differs between two config dicts. A field
     the saved config lacks (written before the field existed) counts as its value in ``defaults`` (a config dict
@@ -336,7 +354,7 @@ def read_config(run_dir: str | os.PathLike, defaults: dict | None = None) -> dic
             f"versions, which this version does not read); train the run again"
         )
     if defaults is None:
-        defaults = json.loads(json.dumps(TrainConfig().to_dict(), default=str))
+        defaults = default_json()
     missing = missing_fields(config, defaults)
     for name in [k for k in missing if k in ADDED_FIELDS]:  # written before the field existed
         group, field = name.split(".")
