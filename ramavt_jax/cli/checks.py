@@ -14,9 +14,13 @@ class UsageError(ValueError):
     """A bad command-line argument."""
 
 
-def positive(name: str, value: int, minimum: int = 1) -> int:
+def positive(name: str, value: int, minimum: int = 1, maximum: int | None = None) -> int:
+    """An integer flag: at least ``minimum`` and, where given, at most ``maximum`` (a count that a 32-bit counter
+    or the simulator's ranges must hold)."""
     if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
         raise UsageError(f"{name} must be an integer >= {minimum}, got {value!r}")
+    if maximum is not None and value > maximum:
+        raise UsageError(f"{name} must be an integer in [{minimum}, {maximum}], got {value}")
     return value
 
 

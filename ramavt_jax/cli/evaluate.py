@@ -15,6 +15,7 @@ from ramavt_jax import baselines as baselines_lib
 from ramavt_jax import env as env_lib
 from ramavt_jax import greedy, render
 from ramavt_jax.cli.checks import UsageError, finite, keeps_policy_params, output_folder, positive
+from ramavt_jax.env_config import RANGES, check_settings
 from ramavt_jax.evaluation import pretrained, rollouts
 from ramavt_jax.evaluation import tables as tables_lib
 from ramavt_jax.evaluation.runs import LoadedRun, load_policy, row_name
@@ -22,6 +23,7 @@ from ramavt_jax.figures import episode, training
 from ramavt_jax.training import run_folder
 
 OTHER_WRITER = "wait for that command to finish, stop it, or write into another --out"
+MAX_EPISODES = 1_000_000  # per target: the episode counters are 32-bit
 LABELS = {
     "mpc": "mpc ceiling (true state)",
     "proportional": "proportional (true state)",
@@ -159,9 +161,9 @@ def _check_eval_args(
     policy, agent, run, targets, episodes, max_steps, tables, blur_frames, out, policy_params=None
 ) -> tuple[str, ...]:
     """Every argument of `ramavt eval` checked before anything compiles; returns the resolved target names."""
-    positive("--episodes", episodes)
-    positive("--max-steps", max_steps)
-    positive("--blur-frames", blur_frames)
+    positive("--episodes", episodes, maximum=MAX_EPISODES)
+    positive("--max-steps", max_steps, maximum=int(RANGES["max_steps"][1]))
+    positive("--blur-frames", blur_frames, maximum=int(RANGES["blur_frames"][1]))
     if any(t not in (1, 2, 3) for t in tables):
         raise UsageError(f"--tables must be among 1 2 3, got {' '.join(map(str, tables))}")
     if policy == "pretrained" and agent not in pretrained.available():
@@ -227,8 +229,9 @@ def eval_cmd(
         baselines: with --policy checkpoint, also evaluate mpc, proportional, depth tracker and random in every table (a
             baseline given as --policy is evaluated alone).
         targets: 'test' (held-out split), 'val' (validation split), 'val-sizes' (validation models resized to
-            0.3-12 m), 'train', 'all', or comma-separated catalogue names / MJCF files, each optionally resized to
-            a bounding radius with '@<radius>m' (Satellite-v2@0.3m).
+            0.3-12 m), 'train', 'all', or comma-separated catalogue names / MJCF files, each (and each split but
+            val-sizes) optionally resized to a bounding radius with '@<radius>m' (Satellite-v2@0.3m; val@0.3m:
+            every validation model at 0.3 m).
         episodes: episodes per target (run side by side; the paper's protocol: 100).
         max_steps: episode length cap (the paper: 1000).
         tables: which tables to produce (2 runs the five perturbation settings, 5x the episodes).
@@ -261,6 +264,12 @@ def eval_cmd(
             raise UsageError(f"--{name.replace('_', '-')} must be in [0, 1], got {value}")
     finite("--actuator-noise", actuator_noise)
     finite("--delay-max", delay_max)
+    for flag, value in (("--actuator-noise", actuator_noise), ("--delay-max", delay_max)):
+        try:  # the range of the EnvParams setting (env_config.RANGES)
+            check_settings({flag[2:].replace("-", "_"): value}, owner="EnvParams.")
+        except ValueError as e:
+            raise UsageError(f"{flag}: {e}") from None
+    positive("--speed-steps", speed_steps, minimum=0, maximum=MAX_EPISODES)
     names = _check_eval_args(policy, agent, run, targets, episodes, max_steps, tables, blur_frames, out, policy_params)
     if ensemble and len(run) < 2:
         raise UsageError(f"--ensemble needs at least two --run folders, got {len(run)}")

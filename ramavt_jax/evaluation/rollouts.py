@@ -411,7 +411,8 @@ def perturbation_overrides(name: str, values: dict | None = None) -> dict:
 # ============================================================================================ targets
 def resolve_targets(spec: str | Sequence[str]) -> tuple[str, ...]:
     """A split (targets_lib.SPLITS: 'test', 'val', 'val-sizes', ...) | comma-separated catalogue names and/or MJCF
-    file paths, each with an optional size suffix ``@<radius>m`` (``Satellite-v2@0.3m``).
+    file paths, each with an optional size suffix ``@<radius>m`` (``Satellite-v2@0.3m``); a split of models at their
+    own sizes takes one too (``val@0.3m``: each of its models at that size).
 
     Raises ValueError naming the entry that is neither a catalogue name nor a readable MJCF file, or has a bad size."""
     items = [s.strip() for s in spec.split(",")] if isinstance(spec, str) else [str(s).strip() for s in spec]
@@ -424,6 +425,16 @@ def resolve_targets(spec: str | Sequence[str]) -> tuple[str, ...]:
     for item in items:
         if item in targets_lib.SPLITS:
             out.extend(targets_lib.split(item))
+            continue
+        base, radius = targets_lib.sized_spec(item)  # a bad size: TargetError naming the range
+        if radius is not None and base in targets_lib.SPLITS:
+            members = targets_lib.split(base)
+            if any(targets_lib.sized_spec(m)[1] is not None for m in members):
+                raise targets_lib.TargetError(
+                    f"target {item!r}: the split {base!r} holds resized models already; a size suffix goes on a "
+                    f"split of models at their own sizes ({', '.join(s for s in targets_lib.SPLITS if s != base)})"
+                )
+            out.extend(targets_lib.sized_name(f"{m}@{radius:g}m") for m in members)
             continue
         try:
             targets_lib.resolve(item)

@@ -204,10 +204,6 @@ def load_numpy(name_or_path: str | os.PathLike, pad_to: int | None = None) -> tu
         )
 
     # Composite mass properties of all bodies, about the common centre of mass.
-    masses = np.asarray(model.body_mass, dtype=np.float64)
-    total_mass = float(masses.sum())
-    if not total_mass > 0.0:
-        raise TargetError(f"{path}: the model has zero mass; put the geoms in a <body> (not <worldbody> directly)")
     in_world = [
         mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_GEOM, g) or f"#{g}"
         for g in range(model.ngeom)
@@ -216,6 +212,13 @@ def load_numpy(name_or_path: str | os.PathLike, pad_to: int | None = None) -> tu
     if in_world:
         raise TargetError(
             f"{path}: geom(s) {in_world} are placed directly in <worldbody>; put every geom of the target in a <body>"
+        )
+    masses = np.asarray(model.body_mass, dtype=np.float64)
+    total_mass = float(masses.sum())
+    if not total_mass > 0.0:
+        raise TargetError(
+            f'{path}: the model has zero mass (its geoms in <body> elements weigh nothing: density="0" or '
+            f'mass="0"); give the geoms a density or a mass'
         )
     com = (masses[:, None] * data.xipos).sum(0) / total_mass
     inertia_world = np.zeros((3, 3))

@@ -125,16 +125,31 @@ def _open_folders(
     return _Folders(out, seeds, dirs, sources, lock)
 
 
+def _saved_rows(store: CheckpointStore, step: int) -> list[dict]:
+    """The metrics rows the checkpoints up to ``step`` hold (each its chunks since the one before it; none in a
+    checkpoint written before they were kept, or one whose metadata no longer reads)."""
+    found = {}
+    for s in store.all_steps():
+        if s <= step:
+            try:
+                meta = store.read_meta(s)
+            except Exception:  # noqa: BLE001 (a damaged step: its rows are not there to rebuild from)
+                continue
+            found.update({r["chunk"]: r for r in meta.get("metrics") or ()})
+    return [found[c] for c in sorted(found)]
+
+
 def _restore(prog: _Program, state, config: TrainConfig, config_json: dict, f: _Folders, log):
-    """The checkpointed RunnerState of every seed (newest loadable step), placed like ``state``, and per seed the
-    metrics rows its checkpoint holds (None for a checkpoint written before they were kept)."""
+    """The checkpointed RunnerState of every seed (newest loadable step), placed like ``state``, and per seed a
+    function reading the metrics rows its checkpoints hold (run_folder.resumed_rows)."""
     num_seeds = len(f.seeds)
     loaded, rows = [], []
     for k, src in enumerate(f.sources):
         like = _seed_slice(state, k, num_seeds)
         like = like if config.run.checkpoint_replay else like.replace(replay=None)
-        st, meta, _ = CheckpointStore(src, create=False).restore_newest_loadable(like, log, config_json)
-        rows.append(meta.get("metrics"))
+        store = CheckpointStore(src, create=False)
+        st, meta, step = store.restore_newest_loadable(like, log, config_json)
+        rows.append(lambda store=store, step=step: _saved_rows(store, step))
         saved = meta.get("config", {})
         diff = {
             k: v

@@ -115,12 +115,12 @@ class Log:
         resumed_at: int | None,
         primary: bool,
         progress: bool,
-        saved_rows: list[list[dict] | None] | None = None,
+        saved_rows: list | None = None,
     ):
         """``resumed_at``: the restored chunk (its earlier records are kept, later ones dropped), None = fresh.
-        ``saved_rows``: per folder, the rows its restored checkpoint holds: a row of a chunk up to ``resumed_at``
-        that the file lost is rebuilt from them, or refused in one line (run_folder.resumed_rows); None (resuming
-        from another folder's checkpoints): the file's rows are kept as they are."""
+        ``saved_rows``: per folder, the rows its checkpoints hold (or a function reading them): a row of a chunk up
+        to ``resumed_at`` that the file lost is rebuilt from them, or refused in one line (run_folder.resumed_rows);
+        None (resuming from another folder's checkpoints): the file's rows are kept as they are."""
         self.primary = primary
         self.paths = [d / folders.METRICS_FILE for d in dirs]
         if resumed_at is None:

@@ -272,12 +272,15 @@ def sync_metrics(path: Path) -> None:
         ) from None
 
 
-def resumed_rows(path: Path, chunk: int, saved: list[dict] | None, log=print) -> list[dict]:
+def resumed_rows(path: Path, chunk: int, saved, log=print) -> list[dict]:
     """The rows of a metrics.jsonl a run resumed from checkpoint ``chunk`` keeps: its rows up to that chunk, with
     those the file lost (a row torn or never flushed when the power went) rebuilt from ``saved``, the rows the
-    checkpoint holds (those of the chunks since the checkpoint before it). A row that can be neither read nor
-    rebuilt is a RunFolderError, in one line: the log and the checkpoints never disagree."""
+    checkpoints hold (each those of its chunks since the one before it): a list, or a function that reads them,
+    called only when a row is missing. A row that can be neither read nor rebuilt is a RunFolderError, in one line:
+    the log and the checkpoints never disagree."""
     rows = {int(r["chunk"]): r for r in read_metrics(path, log) if r["chunk"] <= chunk}
+    if callable(saved):
+        saved = saved() if any(c not in rows for c in range(1, chunk + 1)) else None
     rebuilt = [int(r["chunk"]) for r in saved or () if int(r["chunk"]) not in rows and r["chunk"] <= chunk]
     for r in saved or ():
         if int(r["chunk"]) in rebuilt:
