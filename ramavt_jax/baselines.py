@@ -65,8 +65,8 @@ def proportional_policy(gain: float = 1.0) -> Policy:
 
 # ----------------------------------------------------------------------------------------- mpc (the ceiling)
 # Default look-ahead steps (see mpc_policy): every pair of the next two commands, the second held for 10 more steps
-# scoring the view only. On the validation split (120 episodes, results/val/mpc_h*) horizons from 2 to 24 scored
-# within 0.2 AER of each other and lost no episode; the tail is there for targets that leave the view.
+# scoring the view only. Longer or shorter horizons (2 to 24) track alike (the sweep: lab/experiments.md); the tail is
+# there for targets that leave the view.
 MPC_HORIZON = 12
 
 

@@ -102,12 +102,6 @@ def command_speed(state: EnvState, params: EnvParams) -> jax.Array:
     return params.speed * large**params.speed_standoff_power * small**params.small_standoff_power
 
 
-def command_gain(state: EnvState, params: EnvParams) -> jax.Array:
-    """[] How far a command moves the chaser in the episode's stand-off units against a catalogue target (k = 1):
-    command_speed / (speed * k). 1 / k for small targets; 1 for large ones under the default speed rule."""
-    return command_speed(state, params) / (params.speed * state.scale)
-
-
 def desired_position(state: EnvState, params: EnvParams) -> jax.Array:
     """Where the target centre should be in the camera frame [3] for this episode's target (m)."""
     return params.desired_pos * state.scale
@@ -199,12 +193,14 @@ class TrackingEnv:
         times the stand-off scale k of the episode's target (standoff_scale, after randomisation.stretch and
         size_factor, before randomisation.shift), velocity N(0, 0.2) m/s, random orientation, spin N(0, 0.1) rad/s
         per body axis; chaser at rest at the origin. Frame history zeros (``reset`` fills it with the first obs)."""
-        k_tgt, k_xy, k_z, k_vel, k_quat, k_spin, k_acc = jax.random.split(key, 7)
+        k_tgt, k_xy, k_z, k_vel, k_quat, k_spin, k_acc, k_stretch, k_size, k_shift, k_perturb = jax.random.split(
+            key, 11
+        )
         index = jax.random.categorical(k_tgt, jnp.log(params.target_probs))
-        target = randomisation.stretch(key, targets_lib.select(params.catalogue, index), params)
-        target = targets_lib.scaled(target, randomisation.size_factor(key, params))
+        target = randomisation.stretch(k_stretch, targets_lib.select(params.catalogue, index), params)
+        target = targets_lib.scaled(target, randomisation.size_factor(k_size, params))
         scale = standoff_scale(target, params)
-        target = randomisation.shift(key, target, params)  # after the stand-off: k is the unshifted target's
+        target = randomisation.shift(k_shift, target, params)  # after the stand-off: k is the unshifted target's
         xy = params.init_xy_std * jax.random.normal(k_xy, (2,))
         z = jax.random.uniform(k_z, (), minval=params.init_z_min, maxval=params.init_z_max)
         pos_cam = jnp.array([xy[0], xy[1], z]) * scale
@@ -230,7 +226,7 @@ class TrackingEnv:
             episode_return=jnp.zeros(()),
             done=jnp.zeros((), bool),
             scale=scale,
-            perturbed=randomisation.perturbed(key, params),
+            perturbed=randomisation.perturbed(k_perturb, params),
         )
 
     # ----------------------------------------------------------------------------------------- step
@@ -239,7 +235,7 @@ class TrackingEnv:
         k_noise, k_delay = jax.random.split(key)
         command_cam = jnp.asarray(ACTIONS)[action] * command_speed(state, params)
         on, noise = state.perturbed > 0, 1.0 + params.actuator_noise * jax.random.normal(k_noise, (3,))
-        command_cam = command_cam * jnp.where(on[0], noise, 1.0)  # selected, not multiplied: rounds as before the draws
+        command_cam = command_cam * jnp.where(on[0], noise, 1.0)  # an episode without the noise flies the command
         duration = jnp.where(on[1], params.dt + params.delay_max * jax.random.uniform(k_delay, ()), params.dt)
         command = HILL_FROM_CAM @ command_cam
 

@@ -1,4 +1,4 @@
-"""Value-learning losses for the recurrent DQN (R2D2-style), as pure functions.
+"""Value-learning losses for the recurrent DQN (R2D2-style), as pure functions, and the trainer's loss terms.
 
 Conventions (shared with :mod:`ramavt_jax.replay`):
 
@@ -17,10 +17,17 @@ Conventions (shared with :mod:`ramavt_jax.replay`):
   (which stops at ``terminated | truncated``) never reaches it.
 
 Batching: the sequence functions are written for one sequence and vmapped over the batch (rlax style);
-:func:`sequence_td_loss` takes ``[B, ...]`` arrays, :func:`td_loss` the same arrays named in a :class:`TDBatch`.
+:func:`sequence_td_loss` takes ``[B, ...]`` arrays.
+
+Loss terms (the trainer's extension point): a *loss term* is a pure function of a :class:`LossBatch` returning
+``(loss [], metrics {name: []})``; the trainer sums the terms' losses and logs their metrics per update. The TD loss
+(:func:`td_term`) and the auxiliary loss (:func:`aux_term`) are terms, and so is the large-margin expert loss
+(``imitation.margin_term``); ``Trainer(loss_terms=...)`` takes any tuple of them (docs/extending.md).
 """
 
 from __future__ import annotations
+
+from collections.abc import Callable
 
 import chex
 import jax
@@ -28,37 +35,18 @@ import jax.numpy as jnp
 from flax import struct
 
 __all__ = [
-    "signed_hyperbolic",
-    "signed_parabolic",
     "n_step_targets",
-    "lambda_targets",
     "TDConfig",
-    "TDBatch",
+    "sequence_td_targets",
     "sequence_td_loss",
-    "quantile_huber",
-    "sequence_quantile_loss",
-    "td_loss",
+    "sequence_priority",
     "masked_mean",
+    "LossBatch",
+    "LossTerm",
+    "PRIORITY_KEY",
+    "td_term",
+    "aux_term",
 ]
-
-
-def signed_hyperbolic(x: jax.Array, eps: float = 1e-3) -> jax.Array:
-    """R2D2 value rescaling h(x) = sign(x) (sqrt(|x| + 1) - 1) + eps x.  Any shape, elementwise."""
-    # sqrt(|x| + 1) - 1 written as |x| / (sqrt(|x| + 1) + 1): no float32 cancellation for small |x|.
-    return x / (jnp.sqrt(jnp.abs(x) + 1.0) + 1.0) + eps * x
-
-
-def signed_parabolic(x: jax.Array, eps: float = 1e-3) -> jax.Array:
-    """Inverse of :func:`signed_hyperbolic`: h^-1(x) = sign(x) (((sqrt(1 + 4 eps (|x| + 1 + eps)) - 1) / 2 eps)^2 - 1).
-
-    Any shape, elementwise.  ``signed_parabolic(signed_hyperbolic(x)) == x`` up to float rounding.
-    """
-    # With s = sqrt(1 + 4 eps (eps + 1 + |x|)) and z = (s - 1) / (2 eps):  z^2 - 1 = (z - 1)(z + 1) and
-    # z - 1 = 2 |x| / (s + 1 + 2 eps), z = 2 (eps + 1 + |x|) / (s + 1).  This form has no float32 cancellation
-    # (rlax's literal formula loses ~1e-4 relative accuracy at |x| ~ 1 and all of it at |x| < 1e-3).
-    s = jnp.sqrt(1.0 + 4.0 * eps * (eps + 1.0 + jnp.abs(x)))
-    z = 2.0 * (eps + 1.0 + jnp.abs(x)) / (s + 1.0)
-    return x * 2.0 * (z + 1.0) / (s + 1.0 + 2.0 * eps)
 
 
 def n_step_targets(
@@ -106,99 +94,26 @@ def n_step_targets(
     return returns
 
 
-def lambda_targets(
-    rewards: jax.Array,  # [T]
-    discounts: jax.Array,  # [T]
-    q_boot: jax.Array,  # [T]
-    lam: float,
-    stop: jax.Array | None = None,  # [T] bool
-) -> jax.Array:  # [T]
-    """Peng's Q(lambda) returns over one window, the arguments as in :func:`n_step_targets`::
-
-        G[t] = rewards[t] + discounts[t] * (q_boot[t] if end[t] else (1 - lam) q_boot[t] + lam G[t + 1])
-
-    with ``end[t]`` at the window's last transition and where ``stop[t]``: the mixture over k of the k-step returns
-    with weights ``(1 - lam) lam^(k-1)``, the longest one (to the episode or window end) taking the rest. ``lam = 0``
-    is the one-step target, ``lam = 1`` the return to the end. No off-policy correction (as PQN and R2D2's n-step).
-    """
-    chex.assert_rank([rewards, discounts, q_boot], 1)
-    chex.assert_equal_shape([rewards, discounts, q_boot])
-    T = rewards.shape[0]
-    end = jnp.arange(T) == T - 1
-    if stop is not None:
-        end = end | stop.astype(bool)
-
-    def backward(g_next, step):
-        r, d, v, e = step
-        g = r + d * jnp.where(e, v, (1.0 - lam) * v + lam * g_next)
-        return g, g
-
-    start = jnp.zeros((), jnp.result_type(rewards, discounts, q_boot))  # the carry's dtype: the mixed inputs'
-    _, returns = jax.lax.scan(backward, start, (rewards, discounts, q_boot, end), reverse=True)
-    return returns
-
-
 @struct.dataclass
 class TDConfig:
     """Configuration of :func:`sequence_td_loss` (all fields static, so it can be a jit argument).
 
     Attributes:
       gamma: discount per step.
-      n_step: number of steps of the bootstrapped return (1 = one-step Q-learning).
-      td_lambda: None for n-step returns; else Peng's Q(lambda) returns over the window (:func:`lambda_targets`),
-        which take the place of the n-step ones (``n_step`` must then be 1).
+      n_step: number of steps of the bootstrapped return (1 = one-step Q-learning, the paper's DRQN targets).
       double_q: choose the bootstrap action with the online network, evaluate it with the target network.
         Otherwise bootstrap from ``max_a q_target``.
-      value_rescale: R2D2 invertible value rescaling: target = h(n-step return of h^-1(q)); the networks then
-        predict rescaled values.
-      rescale_eps: the eps of h.
-      huber_delta: ``None`` for the squared loss ``0.5 td^2`` ("MSE"); otherwise the Huber loss with this delta
-        (``0.5 td^2`` for ``|td| <= delta``, ``delta (|td| - delta / 2)`` beyond), so both agree for small errors.
-      advantage_alpha: advantage learning (Bellemare et al. 2016, "Increasing the action gap"): the target of a
-        taken action is lowered by ``alpha * (max_a q_target(s, a) - q_target(s, a_taken))``, which widens the gaps
-        between the best action's value and the others' (0 = plain Q-learning targets).
-      quantile_kappa: the Huber threshold of the quantile loss (:func:`sequence_quantile_loss`), in the targets'
-        units. Below it the loss is quadratic and fits expectiles, not quantiles, so it should be small against the
-        gaps between the return's quantiles.
     """
 
     gamma: float = struct.field(pytree_node=False, default=0.99)
     n_step: int = struct.field(pytree_node=False, default=1)
-    td_lambda: float | None = struct.field(pytree_node=False, default=None)
     double_q: bool = struct.field(pytree_node=False, default=True)
-    value_rescale: bool = struct.field(pytree_node=False, default=False)
-    rescale_eps: float = struct.field(pytree_node=False, default=1e-3)
-    huber_delta: float | None = struct.field(pytree_node=False, default=None)
-    quantile_kappa: float = struct.field(pytree_node=False, default=0.05)
-    advantage_alpha: float = struct.field(pytree_node=False, default=0.0)
 
     def __post_init__(self):
         if not 0.0 <= self.gamma <= 1.0:
             raise ValueError(f"TDConfig.gamma must be in [0, 1], got {self.gamma}")
         if int(self.n_step) != self.n_step or self.n_step < 1:
             raise ValueError(f"TDConfig.n_step must be an integer >= 1, got {self.n_step}")
-        if self.td_lambda is not None and not (0.0 <= self.td_lambda <= 1.0 and self.n_step == 1):
-            raise ValueError(
-                f"TDConfig.td_lambda must be None (n-step returns) or in [0, 1] with n_step=1 (the "
-                f"lambda-returns replace the n-step ones), got td_lambda={self.td_lambda}, "
-                f"n_step={self.n_step}"
-            )
-        if self.huber_delta is not None and not self.huber_delta > 0:
-            raise ValueError(f"TDConfig.huber_delta must be None (squared loss) or > 0, got {self.huber_delta}")
-        if not 0.0 <= self.advantage_alpha < 1.0:
-            raise ValueError(f"TDConfig.advantage_alpha must be in [0, 1), got {self.advantage_alpha}")
-        if not self.quantile_kappa > 0:
-            raise ValueError(f"TDConfig.quantile_kappa must be > 0, got {self.quantile_kappa}")
-        if not self.rescale_eps > 0:
-            raise ValueError(f"TDConfig.rescale_eps must be > 0, got {self.rescale_eps}")
-
-
-def _elementwise_loss(td: jax.Array, huber_delta: float | None) -> jax.Array:
-    if huber_delta is None:
-        return 0.5 * jnp.square(td)
-    abs_td = jnp.abs(td)
-    quadratic = jnp.minimum(abs_td, huber_delta)
-    return 0.5 * jnp.square(quadratic) + huber_delta * (abs_td - quadratic)
 
 
 def masked_mean(per_step: jax.Array, mask: jax.Array, weights: jax.Array | None = None) -> jax.Array:
@@ -209,13 +124,6 @@ def masked_mean(per_step: jax.Array, mask: jax.Array, weights: jax.Array | None 
     return per_step.sum() / jnp.maximum(mask_f.sum(), 1.0)
 
 
-def _returns(rewards: jax.Array, discounts: jax.Array, q_boot: jax.Array, stop: jax.Array, cfg: TDConfig) -> jax.Array:
-    """[T] the bootstrapped returns of one window that cfg asks for: n-step or lambda."""
-    if cfg.td_lambda is None:
-        return n_step_targets(rewards, discounts, q_boot, cfg.n_step, stop=stop)
-    return lambda_targets(rewards, discounts, q_boot, cfg.td_lambda, stop=stop)
-
-
 def _sequence_targets(
     q_online_t: jax.Array,  # [T, A]  online Q at obs t+1 (for double-Q action selection)
     q_target_t: jax.Array,  # [T, A]  target Q at obs t+1
@@ -224,20 +132,35 @@ def _sequence_targets(
     truncated: jax.Array,  # [T]
     cfg: TDConfig,
 ) -> jax.Array:  # [T]
-    """Targets for one sequence (vmapped over the batch by :func:`sequence_td_loss`)."""
+    """Targets for one sequence (vmapped over the batch by :func:`sequence_td_targets`)."""
     if cfg.double_q:
         a_t = jnp.argmax(q_online_t, axis=-1)
         v_t = jnp.take_along_axis(q_target_t, a_t[:, None], axis=-1)[:, 0]
     else:
         v_t = jnp.max(q_target_t, axis=-1)
-    if cfg.value_rescale:
-        v_t = signed_parabolic(v_t, cfg.rescale_eps)
     discount_t = cfg.gamma * (1.0 - terminated.astype(v_t.dtype))
     stop = terminated.astype(bool) | truncated.astype(bool)
-    target = _returns(r_t.astype(v_t.dtype), discount_t, v_t, stop, cfg)
-    if cfg.value_rescale:
-        target = signed_hyperbolic(target, cfg.rescale_eps)
-    return target
+    return n_step_targets(r_t.astype(v_t.dtype), discount_t, v_t, cfg.n_step, stop=stop)
+
+
+def sequence_td_targets(
+    q_online: jax.Array,  # [B, T+1, A]
+    q_target: jax.Array,  # [B, T+1, A]
+    rewards: jax.Array,  # [B, T]
+    terminated: jax.Array,  # [B, T] bool
+    truncated: jax.Array,  # [B, T] bool
+    cfg: TDConfig,
+) -> jax.Array:  # [B, T]
+    """``[B, T]`` (double-)Q n-step targets of the T transitions of each window, gradient stopped; the arguments as
+    in :func:`sequence_td_loss`. A loss term with other targets can start from these (docs/extending.md)."""
+    chex.assert_rank([q_online, q_target], 3)
+    chex.assert_equal_shape([q_online, q_target])
+    q_online_t = jax.lax.stop_gradient(q_online[:, 1:])  # [B, T, A]
+    q_target_t = jax.lax.stop_gradient(q_target[:, 1:])  # [B, T, A]
+    target = jax.vmap(_sequence_targets, in_axes=(0, 0, 0, 0, 0, None))(
+        q_online_t, q_target_t, rewards, terminated, truncated, cfg
+    )
+    return jax.lax.stop_gradient(target)
 
 
 def sequence_td_loss(
@@ -251,14 +174,13 @@ def sequence_td_loss(
     cfg: TDConfig,
     weights: jax.Array | None = None,  # [B]
 ) -> tuple[jax.Array, dict[str, jax.Array]]:
-    """Masked (double-)Q n-step TD loss over a batch of sequences.
+    """Masked (double-)Q n-step TD loss over a batch of sequences: the mean of ``0.5 td^2`` ("MSE").
 
     Args:
       q_online: ``[B, T+1, A]`` online-network Q-values for observations 0..T of each window.  Gradients flow
         through ``q_online[:, t, actions[:, t]]`` only (the action selection at t+1 is not differentiated).
       q_target: ``[B, T+1, A]`` bootstrap values for the same observations (gradient stopped): the target net's, or
         the online pass's own (LearnerConfig.bootstrap_from = 'online').
-        ``q_target[:, 0]`` is used by advantage learning only.
       actions: ``[B, T]`` action of transition t (obs t -> obs t+1).
       rewards: ``[B, T]`` reward of transition t.
       terminated: ``[B, T]`` obs t+1 is terminal: no bootstrap.
@@ -276,81 +198,15 @@ def sequence_td_loss(
       ``aux`` holds ``td_error``, ``q_taken`` and ``target``, each ``[B, T]`` (``td_error = target - q_taken``,
       unmasked values, for logging and priorities).
     """
-    chex.assert_rank([q_online, q_target], 3)
     chex.assert_rank([actions, rewards, terminated, truncated, mask], 2)
-    chex.assert_equal_shape([q_online, q_target])
     chex.assert_equal_shape([actions, rewards, terminated, truncated, mask])
     B, T = actions.shape
     chex.assert_shape(q_online, (B, T + 1, None))
-
-    q_tm1 = q_online[:, :-1]  # [B, T, A]
-    q_taken = jnp.take_along_axis(q_tm1, actions[..., None].astype(jnp.int32), axis=-1)[..., 0]  # [B, T]
-
-    q_online_t = jax.lax.stop_gradient(q_online[:, 1:])  # [B, T, A]
-    q_target_t = jax.lax.stop_gradient(q_target[:, 1:])  # [B, T, A]
-    target = jax.vmap(_sequence_targets, in_axes=(0, 0, 0, 0, 0, None))(
-        q_online_t, q_target_t, rewards, terminated, truncated, cfg
-    )
-    if cfg.advantage_alpha:
-        q_target_tm1 = q_target[:, :-1]
-        gap = q_target_tm1.max(-1) - jnp.take_along_axis(q_target_tm1, actions[..., None].astype(jnp.int32), -1)[..., 0]
-        target = target - cfg.advantage_alpha * gap
-    target = jax.lax.stop_gradient(target)
-
+    q_taken = jnp.take_along_axis(q_online[:, :-1], actions[..., None].astype(jnp.int32), axis=-1)[..., 0]  # [B, T]
+    target = sequence_td_targets(q_online, q_target, rewards, terminated, truncated, cfg)
     td_error = target - q_taken
-    loss = masked_mean(_elementwise_loss(td_error, cfg.huber_delta), mask, weights)
+    loss = masked_mean(0.5 * jnp.square(td_error), mask, weights)
     return loss, {"td_error": td_error, "q_taken": q_taken, "target": target}
-
-
-def quantile_huber(td: jax.Array, taus: jax.Array, kappa: float) -> jax.Array:
-    """QR-DQN's quantile Huber loss per pair: ``td [..., N, M]`` (target sample j minus predicted quantile i, on the
-    last two axes), ``taus [N]`` the predicted quantiles' fractions -> ``[..., N, M]``. The Huber loss divided by
-    kappa, weighted |tau_i - 1(td < 0)|: its minimiser over a quantile is the tau-quantile of the targets."""
-    weight = jnp.abs(taus[:, None] - (td < 0).astype(td.dtype))
-    return weight * _elementwise_loss(td, kappa) / kappa
-
-
-def sequence_quantile_loss(
-    z_online: jax.Array,  # [B, T+1, A, N]
-    z_target: jax.Array,  # [B, T+1, A, N]
-    actions: jax.Array,  # [B, T] int
-    rewards: jax.Array,  # [B, T]
-    terminated: jax.Array,  # [B, T] bool
-    truncated: jax.Array,  # [B, T] bool
-    mask: jax.Array,  # [B, T] bool or 0/1
-    cfg: TDConfig,
-    weights: jax.Array | None = None,  # [B]
-) -> tuple[jax.Array, dict[str, jax.Array]]:
-    """Masked (double-)Q quantile regression loss (QR-DQN, Dabney et al. 2018) over a batch of sequences.
-
-    The networks predict N quantiles of the return per action (fractions ``(2i + 1) / 2N``), Q being their mean. The
-    target of transition t is the n-step (or lambda) return of each of the bootstrap quantiles at the bootstrap obs,
-    for the action the online net's mean picks there (double-Q) or the target values' (plain), exactly as
-    :func:`sequence_td_loss` builds one expected value (the same returns per quantile). Every predicted quantile is
-    regressed on every target quantile with :func:`quantile_huber` (kappa = ``cfg.quantile_kappa``), averaged over
-    both (QR-DQN sums over the predicted ones: the mean keeps the loss on one quantile's scale, beside other losses).
-    The other arguments and ``aux`` are as in :func:`sequence_td_loss`, ``aux`` holding the means (``td_error`` =
-    target mean minus Q of the taken action).
-    Value rescaling and advantage learning are not defined here (TrainConfig refuses them with quantiles).
-    """
-    chex.assert_rank([z_online, z_target], 4)
-    chex.assert_equal_shape([z_online, z_target])
-    B, T = actions.shape
-    chex.assert_shape(z_online, (B, T + 1, None, None))
-    n = z_online.shape[-1]
-    taken = actions[..., None, None].astype(jnp.int32)
-    z_taken = jnp.take_along_axis(z_online[:, :-1], taken, axis=2)[:, :, 0]  # [B, T, N]
-    q_pick = (z_online[:, 1:] if cfg.double_q else z_target[:, 1:]).mean(-1)  # [B, T, A]; argmax: no gradient
-    boot = jnp.take_along_axis(z_target[:, 1:], jnp.argmax(q_pick, -1)[..., None, None], axis=2)[:, :, 0]  # [B, T, N]
-    discount = cfg.gamma * (1.0 - terminated.astype(boot.dtype))
-    stop = terminated.astype(bool) | truncated.astype(bool)
-    per_window = jax.vmap(lambda r, d, z, s: jax.vmap(lambda zq: _returns(r, d, zq, s, cfg), in_axes=1, out_axes=1)(z))
-    target = jax.lax.stop_gradient(per_window(rewards.astype(boot.dtype), discount, boot, stop))  # [B, T, N]
-    taus = (jnp.arange(n, dtype=z_taken.dtype) + 0.5) / n
-    pairs = quantile_huber(target[:, :, None, :] - z_taken[..., None], taus, cfg.quantile_kappa)
-    loss = masked_mean(pairs.mean((-2, -1)), mask, weights)
-    q_taken, target_mean = z_taken.mean(-1), target.mean(-1)
-    return loss, {"td_error": target_mean - q_taken, "q_taken": q_taken, "target": target_mean}
 
 
 def sequence_priority(td_error: jax.Array, mask: jax.Array, max_share: float) -> jax.Array:
@@ -363,21 +219,30 @@ def sequence_priority(td_error: jax.Array, mask: jax.Array, max_share: float) ->
 
 
 @struct.dataclass
-class TDBatch:
-    """The inputs of :func:`sequence_td_loss` that take no gradient, for ``B`` windows of ``T`` transitions.
+class LossBatch:
+    """What a loss term reads from one update: ``B`` sampled windows of ``T`` trained transitions (after burn-in),
+    ``A`` actions. Observation-indexed arrays have ``T + 1`` entries (obs t and its successor), transition-indexed
+    ones ``T`` (transition t: obs t -> obs t+1, as in :func:`sequence_td_loss`).
 
     Attributes:
-      q_target: ``[B, T+1, A]`` bootstrap values (target net, or the online pass under stop_gradient) for
-        observations 0..T, or ``[B, T+1, A, N]`` their N quantiles (a quantile network: :func:`td_loss` then takes
-        the online net's quantiles too).
-      action: ``[B, T]`` int action of transition t.
-      reward: ``[B, T]`` reward of transition t (already scaled).
-      terminated: ``[B, T]`` bool, obs t+1 is terminal.
-      truncated: ``[B, T]`` bool, the time limit ended the episode at obs t+1.
-      mask: ``[B, T]`` bool, transition t contributes to the loss.
-      weight: ``[B]`` importance weight of each window (prioritised replay); None for 1.
+      q: ``[B, T+1, A]`` the online net's values at the trained observations (the gradient flows through them).
+      q_target: ``[B, T+1, A]`` bootstrap values, without gradient: the target net's (LearnerConfig.bootstrap_from
+        'target') or this pass's own.
+      action: ``[B, T]`` int32 action of transition t.
+      reward: ``[B, T]`` reward of transition t, scaled (LearnerConfig.reward_scale).
+      terminated: ``[B, T]`` bool, obs t+1 is terminal (no bootstrap; LearnerConfig.bootstrap_lost clears it).
+      truncated: ``[B, T]`` bool, the episode ended at obs t+1 without a terminal state (bootstrap from it).
+      mask: ``[B, T]`` bool, transition t trains (burn-in, padding and episode crossings excluded).
+      weight: ``[B]`` importance weight of each window (prioritised replay), or None (1).
+      intermediates: what the online pass sowed (flax's 'intermediates' collection), e.g. ``{'aux': ([B, T+1, K],)}``
+        for a network with an auxiliary head (NetworkConfig.aux_outputs = K).
+      privileged: ``[B, T+1, K]`` the true tracking state per observation (imitation.true_tracking_state's first
+        K entries, stored in the replay for the auxiliary loss), or None.
+      expert_action: ``[B, T]`` int32 the labeller's action at obs t (imitation.NO_LABEL where there is none), or
+        None when the trainer has no labeller.
     """
 
+    q: jax.Array
     q_target: jax.Array
     action: jax.Array
     reward: jax.Array
@@ -385,31 +250,48 @@ class TDBatch:
     truncated: jax.Array
     mask: jax.Array
     weight: jax.Array | None = None
+    intermediates: dict = struct.field(default_factory=dict)
+    privileged: jax.Array | None = None
+    expert_action: jax.Array | None = None
 
 
-def td_loss(q_online: jax.Array, batch: TDBatch, cfg: TDConfig) -> tuple[jax.Array, dict[str, jax.Array]]:
-    """:func:`sequence_td_loss` of ``q_online`` (``[B, T+1, A]``) against a :class:`TDBatch`, or with quantiles
-    (``[B, T+1, A, N]`` both) :func:`sequence_quantile_loss`."""
-    if batch.q_target.ndim == 4:
-        return sequence_quantile_loss(
-            q_online,
+# A loss term: LossBatch -> (loss [], {metric name: []}); the trainer adds the losses and logs each metric per
+# update (summed per iteration, averaged per chunk in metrics.jsonl). One metric may be an array: PRIORITY_KEY.
+LossTerm = Callable[[LossBatch], tuple[jax.Array, dict]]
+# The metric a term returns as [B, T] TD errors for a prioritised replay's window priorities (not logged).
+PRIORITY_KEY = "td_error"
+
+
+def td_term(config: TDConfig) -> LossTerm:
+    """The TD loss as a term: :func:`sequence_td_loss` of the batch; metrics ``td_loss`` and the TD errors
+    (PRIORITY_KEY)."""
+
+    def td_loss(batch: LossBatch) -> tuple[jax.Array, dict]:
+        loss, aux = sequence_td_loss(
+            batch.q,
             batch.q_target,
             batch.action,
             batch.reward,
             batch.terminated,
             batch.truncated,
             batch.mask,
-            cfg,
+            config,
             batch.weight,
         )
-    return sequence_td_loss(
-        q_online,
-        batch.q_target,
-        batch.action,
-        batch.reward,
-        batch.terminated,
-        batch.truncated,
-        batch.mask,
-        cfg,
-        batch.weight,
-    )
+        return loss, {"td_loss": loss, PRIORITY_KEY: aux["td_error"]}
+
+    return td_loss
+
+
+def aux_term(weight: float, outputs: int) -> LossTerm:
+    """The auxiliary loss as a term: ``weight`` times the masked mean over the trained observations of the squared
+    error, summed over its ``outputs`` entries, of the network's auxiliary head (intermediates 'aux' [B, T+1, K])
+    against the stored true state (``privileged[..., :outputs]``); metric ``aux_loss`` (unweighted)."""
+
+    def aux_loss(batch: LossBatch) -> tuple[jax.Array, dict]:
+        label = batch.privileged[:, :-1, :outputs]
+        miss = jnp.square(batch.intermediates["aux"][0][:, :-1] - label).sum(-1)  # [B, T]
+        loss = masked_mean(miss, batch.mask)
+        return weight * loss, {"aux_loss": loss}
+
+    return aux_loss

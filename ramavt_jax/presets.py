@@ -21,15 +21,21 @@ __all__ = ["PRESETS", "preset"]
 
 
 def _quick() -> TrainConfig:
-    """The README main job (minutes on 2 CPU cores): 32x32 depth, a small RAMAVT whose first two blocks are patch
-    layers (4x4 then 2x2: no im2col copies; 16 attention tokens), absolute depth and image position visible, the
-    previous action into its LSTM; 'target lost' bootstrapped, an auxiliary tracking-error loss, replay ratio 2,
-    gradients clipped at norm 1 (against late collapses), n-step targets bootstrapped from the online net's own pass
-    (no target-net pass: learns sooner, each update cheaper), DQfD's large-margin loss towards the true-state one-step
-    look-ahead's action at every trained step (imitation.py; +607.0 against +582.7 on validation over ten seeds, arm
-    expert-margin), 1.54M env steps (48 chunks; results/wall_times.json has the wall time of one seed trained and
-    evaluated). The trained policy acts with the Polyak-averaged (target) params averaged again over its last 12
-    chunks, 37-48 (higher AER, narrower spread over seeds; training itself acts with the online params)."""
+    """The README main job, a tracker trained in minutes on 2 CPU cores. Its values differ from the groups' defaults
+    (which follow the paper) for a small CPU budget and a learner that starts learning early:
+
+    * 32x32 depth and a small RAMAVT whose first two blocks are patch layers (4x4 then 2x2: no im2col copies, 16
+      attention tokens), with absolute depth and image position visible to the encoder and the previous action at
+      its LSTM's input;
+    * 'target lost' bootstrapped (no reward for losing the target on purpose), an auxiliary loss on the true
+      tracking error and DQfD's large-margin loss towards the true-state one-step look-ahead's action at every
+      trained step (imitation.py): simulator labels that teach the encoder and the values where the target is;
+    * replay ratio 2, gradients clipped at norm 1 (against late collapses), n-step targets bootstrapped from the
+      online net's own pass (no target-net pass: each update is cheaper and learning starts sooner);
+    * 1.54M env steps (48 chunks); the trained policy acts with the Polyak-averaged (target) params averaged again
+      over the last 12 chunks (a steadier policy across seeds; training itself acts with the online params).
+
+    lab/experiments.md records the measurements behind each choice."""
     return TrainConfig(
         env=env_lib.EnvConfig(camera=CameraConfig(resolution=32), autoreset="next_step"),
         network=NetworkConfig(
@@ -78,25 +84,18 @@ def _quick() -> TrainConfig:
 
 
 def _long() -> TrainConfig:
-    """The quick preset, its margin loss included, trained longer: 2.30M env steps (72 chunks), the policy still the
-    tail average over the last 12 chunks (61-72). Higher AER on validation than the same without the labels (arm
-    long-margin against avg-2304k, lab/experiments.md), level with the quick preset; five seeds train as one
-    program in 37 min on 2 CPU cores (one seed, before the labels, trained and evaluated in 7 min 53 s). The earlier
-    long preset (3x3 convs with max-pools, the earlier shipped agent's, ramavt_depth_long) is ``--preset long`` with
-    docs/reproduce.md's $L10."""
+    """The quick preset trained longer, for a larger CPU budget: 2.30M env steps (72 chunks), the policy still the tail
+    average over the last 12 chunks (61-72)."""
     return _quick().override(total_env_steps=2_304_000, policy_average_from=60)
 
 
 def _sizes() -> TrainConfig:
     """The quick preset for targets of other sizes: each training target resized by a log-uniform factor in [0.15, 1]
-    (small targets need the practice), seen at 64x64 depth (a small target needs the pixels) through an 8x8 first patch,
-    which keeps the quick preset's 4x4 attention tokens. Training starts spread three times as wide across the view
-    (39 % start with the target out of view, against 4 %), and until the target is first in view the margin loss's
-    label is "back off along the camera axis" (env.RETREAT), a search that widens the view, instead of the
-    look-ahead's action, which a blank image cannot show. Everything else is the quick preset's, its margin loss and 1.54M env steps
-    included (48 chunks, the policy averaged over 37-48), as chosen (lab/experiments.md, arms size-quick,
-    size-res64, size-1536k, size-margin, size-wide-retreat and size-wider-retreat: on the resized validation models
-    71 % of the ceiling over five seeds, 0.6 % of the blind starts lost against 16.4 % for size-margin)."""
+    (small targets need the practice), seen at 64x64 depth (a small target needs the pixels) through an 8x8 first
+    patch, which keeps the quick preset's 4x4 attention tokens. Training starts spread three times as wide across the
+    view (39 % start with the target out of view, against 4 %), and until the target is first in view the margin
+    loss's label is "back off along the camera axis" (env.RETREAT), a search that widens the view, instead of the
+    look-ahead's action, which a blank image cannot show. Everything else is the quick preset's."""
     return at_64x64(_quick()).override(
         env_params={"size_scale_min": 0.15, "size_scale_max": 1.0, "init_xy_std": 3.0}, blind_label="retreat"
     )
@@ -105,9 +104,8 @@ def _sizes() -> TrainConfig:
 def _robust() -> TrainConfig:
     """The quick preset trained under Table II's perturbations, for trackers that must fly with them: actuator noise
     0.3, a time delay of up to 0.5 s a step and a 3-frame blur, each drawn on in half the training episodes (so an
-    eighth are clean and an eighth have all three), with the 3-frame history the blur needs. Under all three it keeps
-    about half the ceiling's return on validation where the quick preset's falls far below zero, at a small cost
-    without perturbation (lab/experiments.md, arm perturb-05-margin)."""
+    eighth are clean and an eighth have all three), with the 3-frame history the blur needs. It gives up a little
+    return on clean episodes for a tracker that keeps the target under the perturbations."""
     return under_table2_perturbations(_quick(), share=0.5)
 
 
@@ -133,8 +131,8 @@ def at_64x64(config: TrainConfig) -> TrainConfig:
 
 def _paper() -> TrainConfig:
     """The paper's settings: 256x256 depth, full RAMAVT, batch 64, Adam 1e-4, gamma 0.99, 50,000-step replay, plain
-    1-step DRQN targets with a hard-synced target net, MSE, epsilon 0.9 -> 0.1, *orig* windows of 4 burn-in + 8
-    trained steps. Needs hours on a CPU; meant for a GPU machine."""
+    1-step DRQN targets with a hard-synced target net, the squared TD error, epsilon 0.9 -> 0.1, *orig* windows of 4
+    burn-in + 8 trained steps, unscaled rewards. Needs hours on a CPU; meant for a GPU machine."""
     return TrainConfig(
         env=env_lib.EnvConfig(camera=CameraConfig(resolution=256), autoreset="next_step"),
         network=NetworkConfig(variant="ramavt"),

@@ -19,7 +19,7 @@ of moving it, so every episode's final observation is a real, stored observation
   transition t-1 -> t (final obs of the previous episode -> reset) is not a real transition and must be masked
   (:func:`loss_mask` does this);
 * ``recurrent_state``: the actor's recurrent state *before* consuming obs t (leaves ``[layers, units]``
-  per env: the LSTM's h and c, and where the network has them the previous action and the long exposure).  At an
+  per env: the LSTM's h and c, and where the network has it the previous action).  At an
   ``is_first`` step this may be the previous episode's carry; it does not matter because the network resets the
   carry where ``reset`` (= ``is_first``) is set.
 
@@ -84,15 +84,12 @@ class Transition:
       truncated: ``[]`` bool, the time limit ended the episode at obs t+1 (bootstrap from it).
       is_first: ``[]`` bool, obs t is an episode's first observation (carry reset; transition t-1 masked).
       recurrent_state: the actor's state *before* consuming obs t, any pytree with leaves ``[layers, units]``; the
-        trainer stores the network's own ``RecurrentState`` (LSTM ``h``, ``c``, and prev_action and exposure where the
+        trainer stores the network's own ``RecurrentState`` (LSTM ``h``, ``c``, and prev_action where the
         network has them; no frame history).
-      privileged: ``[K]`` float32 simulator state at obs t (greedy.privileged_of: true_tracking_state's first K
-        entries, the auxiliary loss's label; a state_input network's input is the last six, beside the true state
-        for a state_input_point other than 'centre', K = 12); ``None`` = not stored.
-      standoff: ``[]`` float32 stand-off scale k of obs t's episode, for networks that read it
-        (NetworkConfig.reads_standoff: k or the command gain); ``None`` = not stored.
-      expert_action: ``[]`` int32 the true-state look-ahead's action at obs t, the large-margin loss's label
-        (LearnerConfig.expert_margin_weight) and a policy head's (NetworkConfig.policy_head); ``None`` = not stored.
+      privileged: ``[K]`` float32 simulator state at obs t (imitation.true_tracking_state's first K entries, the
+        auxiliary loss's label); ``None`` = not stored.
+      expert_action: ``[]`` int32 the labeller's action at obs t (imitation.py: the large-margin loss's label);
+        ``None`` = not stored.
     """
 
     obs: jax.Array
@@ -103,7 +100,6 @@ class Transition:
     is_first: jax.Array
     recurrent_state: Any
     privileged: jax.Array | None = None
-    standoff: jax.Array | None = None
     expert_action: jax.Array | None = None
 
 
@@ -157,8 +153,7 @@ class SequenceBatch:
       loss_mask: ``[B, L-1]`` bool, transition t trains (see :func:`loss_mask`).
       start_state: the stored recurrent state before obs 0, in the network's layout: leaves ``[layers, B, units]``.
       privileged: ``[B, L, K]`` the stored privileged state per obs (None when not stored).
-      standoff: ``[B, L]`` the stored stand-off scale per obs (None when not stored).
-      expert_action: ``[B, L-1]`` int32 the look-ahead's action at obs t of transition t (None when not stored).
+      expert_action: ``[B, L-1]`` int32 the labeller's action at obs t of transition t (None when not stored).
       indices: ``[B]`` int32 the windows' items in a prioritised buffer (for
         :meth:`SequenceReplay.set_priorities`; None when sampling is uniform).
       weights: ``[B]`` float32 importance weights of the windows, at most 1 (None when sampling is uniform).
@@ -174,7 +169,6 @@ class SequenceBatch:
     loss_mask: jax.Array
     start_state: Any
     privileged: jax.Array | None = None
-    standoff: jax.Array | None = None
     expert_action: jax.Array | None = None
     indices: jax.Array | None = None
     weights: jax.Array | None = None
@@ -216,7 +210,6 @@ def sequence_batch(window: Transition, burn_in: int) -> SequenceBatch:
         loss_mask=loss_mask(window.is_first, burn_in),
         start_state=start,
         privileged=window.privileged,
-        standoff=window.standoff,
         expert_action=None if window.expert_action is None else transition(window.expert_action),
         burn_in=burn_in,
     )
@@ -234,7 +227,6 @@ def _storage_example(example: Transition, config: ReplayConfig) -> Transition:
         is_first=jnp.zeros((), bool),
         recurrent_state=jax.tree.map(lambda x: jnp.zeros(x.shape, state_dtype), example.recurrent_state),
         privileged=None if example.privileged is None else jnp.zeros(example.privileged.shape, jnp.float32),
-        standoff=None if example.standoff is None else jnp.zeros((), jnp.float32),
         expert_action=None if example.expert_action is None else jnp.zeros((), jnp.int32),
     )
 

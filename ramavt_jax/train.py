@@ -6,6 +6,7 @@ API (purejaxrl shape)::
 
     cfg = presets.preset("quick")                       # or TrainConfig(...), frozen and validated
     train = make_train(cfg)                             # pure function of a key
+    train = make_train(cfg, loss_terms=(...), network_factory=...)  # the extension points (docs/extending.md)
     out = jax.jit(train)(jax.random.PRNGKey(0))         # {'runner_state': RunnerState, 'metrics': ChunkMetrics}
     outs = jax.jit(jax.vmap(make_train(cfg)))(keys)     # several seeds at once (small configs)
     summary = training.driver.run(cfg, "runs/quick")    # host driver: logs, checkpoints (ramavt_jax/training/)
@@ -17,15 +18,25 @@ call; the host only logs, evaluates and checkpoints between chunks.
 
 Learner: sample ``batch_size`` windows of ``burn_in + train_len + 1`` stored steps; from the stored recurrent
 state run ``burn_in`` steps through the online net under ``stop_gradient`` (the target net runs over the whole
-window from the same stored state, also without gradient), then the masked double-Q / n-step (or lambda-return) TD loss
-(:mod:`ramavt_jax.losses`) over the ``train_len`` transitions after burn-in. With ``bootstrap_from='online'`` the
-targets bootstrap from the trained pass's own values under ``stop_gradient`` and the target pass is skipped.
+window from the same stored state, also without gradient), then the loss terms over the ``train_len`` transitions
+after burn-in: the masked double-Q n-step TD loss, and as the config asks the auxiliary and the large-margin losses
+(:func:`default_loss_terms`). With ``bootstrap_from='online'`` the targets bootstrap from the trained pass's own
+values under ``stop_gradient`` and the target pass is skipped.
+
+Extension points (brax's ``network_factory``, purejaxrl's variants), each None = built from the config:
+``network_factory`` (NetworkConfig -> flax module with QNetwork's call and state), ``loss_terms`` (a tuple of
+``losses.LossTerm``: pure functions of a ``losses.LossBatch`` returning (loss, metrics)) and ``labeller``
+(``imitation.Labeller``: the expert action stored beside each observation). A lab arm plugs its component in with
+them, without a config field.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import functools
+from collections.abc import Callable
 
+import flax.linen as nn
 import jax
 import jax.numpy as jnp
 import optax
@@ -34,11 +45,11 @@ from ramavt_jax import distributed, imitation
 from ramavt_jax import env as env_lib
 from ramavt_jax import replay as replay_lib
 from ramavt_jax.augment import augment_batch
-from ramavt_jax.greedy import privileged_of, privileged_size, standoff_signal, unbatch_state
-from ramavt_jax.losses import TDBatch, masked_mean, sequence_priority, td_loss
+from ramavt_jax.greedy import unbatch_state
+from ramavt_jax.losses import PRIORITY_KEY, LossBatch, LossTerm, aux_term, masked_mean, sequence_priority, td_term
 from ramavt_jax.network import (
-    TRUE_STATE_SIZE,
-    init_params,
+    NetworkConfig,
+    init_variables,
     initial_state,
     make_network,
     record_action,
@@ -57,13 +68,49 @@ from ramavt_jax.train_state import (
     average_policy,
 )
 
-__all__ = ["Trainer", "make_train"]
+__all__ = ["ADAM_EPS", "Components", "Trainer", "default_labeller", "default_loss_terms", "make_train"]
+
+ADAM_EPS = 1e-4  # Adam's epsilon
 
 
 def _raw_key(key: jax.Array) -> jax.Array:
     if jnp.issubdtype(key.dtype, jax.dtypes.prng_key):
         return jax.random.key_data(key)
     return key
+
+
+# ============================================================================================ components
+def default_loss_terms(config: TrainConfig) -> tuple[LossTerm, ...]:
+    """The loss terms a config asks for: the TD loss (losses.td_term), then DQfD's large-margin loss
+    (imitation.margin_term) with learner.expert_margin_weight and the auxiliary loss (losses.aux_term) with
+    learner.aux_weight."""
+    learner, terms = config.learner, [td_term(config.learner.td)]
+    if learner.expert_margin_weight:
+        terms.append(imitation.margin_term(learner.expert_margin_weight))
+    if learner.aux_weight:
+        terms.append(aux_term(learner.aux_weight, config.network.aux_outputs))
+    return tuple(terms)
+
+
+def default_labeller(config: TrainConfig, env_config: env_lib.EnvConfig) -> imitation.Labeller | None:
+    """The labeller a config asks for: the true-state look-ahead's (learner.blind_label before the target is first
+    in view) when the margin loss is on, else none (no labels computed or stored)."""
+    if not config.learner.expert_margin_weight:
+        return None
+    return imitation.look_ahead_labeller(env_config, config.learner.blind_label)
+
+
+@dataclasses.dataclass(frozen=True)
+class Components:
+    """The trainer's extension points as one value, for callers that pass them on (``training.driver.run``); each
+    None = built from the config. See :class:`Trainer`."""
+
+    network_factory: Callable[[NetworkConfig], nn.Module] | None = None
+    loss_terms: tuple[LossTerm, ...] | None = None
+    labeller: imitation.Labeller | None = None
+
+    def kwargs(self) -> dict:
+        return {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
 
 
 # ============================================================================================ trainer
@@ -73,6 +120,16 @@ class Trainer:
     ``mesh`` (a 1-D ``jax.sharding.Mesh``, see :mod:`ramavt_jax.distributed`): the program keeps the envs and the
     sampled learner batch split over its devices (sharding hints only; the maths is unchanged). The caller jits
     with :func:`distributed.runner_shardings` as in/out shardings.
+
+    Extension points (None: built from the config):
+
+    * ``network_factory``: NetworkConfig -> a flax module called as ``QNetwork`` is (obs [B, T, H, W, C], reset
+      [B, T], state, actions=[B, T]) -> (q [B, T, A], state), with the config's ``RecurrentState`` layout
+      (network.initial_state); what it sows under 'intermediates' reaches the loss terms. Default
+      network.make_network.
+    * ``loss_terms``: a tuple of losses.LossTerm, summed; default :func:`default_loss_terms`.
+    * ``labeller``: imitation.Labeller, whose labels are stored beside every observation for the terms
+      (LossBatch.expert_action); default :func:`default_labeller`.
     """
 
     def __init__(
@@ -81,6 +138,9 @@ class Trainer:
         tracking_env: env_lib.TrackingEnv | None = None,
         mesh=None,
         debug_nan_at_update: int = -1,
+        network_factory: Callable[[NetworkConfig], nn.Module] | None = None,
+        loss_terms: tuple[LossTerm, ...] | None = None,
+        labeller: imitation.Labeller | None = None,
     ):
         """``debug_nan_at_update`` (a test hook, not configuration): the loss and gradients become NaN from this
         gradient step on (-1 = off)."""
@@ -89,36 +149,18 @@ class Trainer:
         self.env = tracking_env if tracking_env is not None else env_lib.TrackingEnv(config.env)
         self.env_params = self.env.default_params(**dict(config.env_params))
         self.obs_shape = tuple(config.env.obs_shape)
-        self.net = make_network(config.network)
+        self.net = (network_factory or make_network)(config.network)
+        self.loss_terms = tuple(default_loss_terms(config) if loss_terms is None else loss_terms)
+        self.labeller = default_labeller(config, self.env.config) if labeller is None else labeller
         learner = config.learner
-        self.td = learner.td
-        # learning rate of gradient step k (a float when constant: the optimiser state then has no step count)
-        self.learning_rate = (
-            learner.lr
-            if learner.lr_final is None
-            else optax.cosine_decay_schedule(
-                learner.lr, max(config.total_updates, 1), alpha=learner.lr_final / learner.lr
-            )
-        )
-        # the target net's step towards the online net at gradient step k (LearnerConfig.polyak_tau_start)
-        hold, end = learner.polyak_tau_decay
-        self.polyak_tau = (
-            (lambda k: learner.polyak_tau)
-            if learner.polyak_tau_start is None
-            else optax.linear_schedule(
-                learner.polyak_tau_start, learner.polyak_tau, transition_steps=max(end - hold, 1), transition_begin=hold
-            )
-        )
-        lr_tx = optax.adam(self.learning_rate, eps=learner.adam_eps)
+        adam = optax.adam(learner.lr, eps=ADAM_EPS)
         self.optimizer = (
-            optax.chain(optax.clip_by_global_norm(learner.max_grad_norm), lr_tx) if learner.max_grad_norm > 0 else lr_tx
+            optax.chain(optax.clip_by_global_norm(learner.max_grad_norm), adam) if learner.max_grad_norm > 0 else adam
         )
         self.augment_fn = functools.partial(augment_batch, config=learner.augment_config) if learner.augment else None
-        # the look-ahead flies teacher_envs envs; with a margin loss or a policy head it labels every env's steps
-        self.labels = bool(learner.expert_margin_weight) or config.network.policy_head  # (stored in the replay)
+        # the true tracking state kept per obs (Transition.privileged): the auxiliary head's label
+        self.privileged_size = config.network.aux_outputs if learner.aux_weight else 0
         self.replay = replay_lib.make_replay(config.replay, config.acting.num_envs, self._example_transition())
-        self.taught_envs = config.acting.num_envs if self.labels else config.acting.teacher_envs
-        self.teacher = imitation.look_ahead_teacher(self.env.config) if self.taught_envs else None
 
     # ---------------------------------------------------------------- helpers
     def _example_transition(self) -> replay_lib.Transition:
@@ -131,9 +173,8 @@ class Trainer:
             truncated=jnp.zeros((), bool),
             is_first=jnp.zeros((), bool),
             recurrent_state=unbatch_state(s).replace(frames=None),
-            privileged=jnp.zeros((self._privileged_size,)) if self._privileged_size else None,
-            standoff=jnp.ones(()) if self.config.network.reads_standoff else None,
-            expert_action=jnp.zeros((), jnp.int32) if self.labels else None,
+            privileged=jnp.zeros((self.privileged_size,)) if self.privileged_size else None,
+            expert_action=jnp.zeros((), jnp.int32) if self.labeller is not None else None,
         )
 
     def _per_device(self, batched_fn):
@@ -167,46 +208,22 @@ class Trainer:
         )
 
     def epsilon(self, env_steps: jax.Array) -> jax.Array:
-        """The exploration rate after ``env_steps``: [] shared by all envs, or [N] one per env with a ladder
-        (ActingConfig.eps_ladder)."""
+        """[] The exploration rate after ``env_steps`` (all envs together), shared by all envs."""
         c = self.config.acting
         frac = jnp.clip(env_steps / max(c.eps_decay_steps, 1), 0.0, 1.0) if c.eps_decay_steps else 1.0
-        end = c.eps_end
-        if c.eps_ladder:
-            end = c.eps_end ** (1.0 + c.eps_ladder * jnp.arange(c.num_envs) / max(c.num_envs - 1, 1))
-        return c.eps_start + (end - c.eps_start) * frac
+        return c.eps_start + (c.eps_end - c.eps_start) * frac
 
-    def q_values(self, params, obs, reset, state, actions=None, standoff=None, privileged=None):
+    def q_values(self, params, obs, reset, state, actions=None):
         """Online/target forward: obs [B, T, H, W, C], reset [B, T], actions [B, T] (taken; read by prev_action
-        networks), standoff [B, T] (greedy.standoff_signal), privileged [B, T, K] (the stored true state; read by
-        state_input networks) -> (q [B, T, A], state); with NetworkConfig.policy_head q is the logits, Q sown."""
-        return self.net.apply(
-            {"params": params},
-            obs,
-            reset,
-            state,
-            actions=actions,
-            standoff=standoff,
-            true_state=self._state_input(privileged),
-        )
-
-    @property
-    def _privileged_size(self) -> int:
-        """K, the entries kept per obs (greedy.privileged_of): six for a state_input network (twelve when its input is
-        not the centre's true state), else the auxiliary head's outputs (0: nothing kept)."""
-        return privileged_size(self.config.network, self.config.learner.aux_weight)
-
-    def _state_input(self, privileged):
-        """A state_input network's input [B, T, 6], the last six kept entries [B, T, K]; None for other networks."""
-        reads = self.config.network.state_input and privileged is not None
-        return privileged[..., -TRUE_STATE_SIZE:] if reads else None
+        networks) -> (q [B, T, A], state)."""
+        return self.net.apply({"params": params}, obs, reset, state, actions=actions)
 
     # ---------------------------------------------------------------- init
     def init(self, key: jax.Array) -> RunnerState:
         c, n = self.config, self.config.acting.num_envs
         key = _raw_key(key)
         key, k_net, k_env = jax.random.split(key, 3)
-        params = init_params(c.network, k_net, self.obs_shape)["params"]
+        params = init_variables(self.net, c.network, k_net, self.obs_shape)["params"]
         learner = LearnerState(
             params=params,
             target_params=jax.tree.map(jnp.copy, params),
@@ -236,43 +253,25 @@ class Trainer:
 
     # ---------------------------------------------------------------- acting
     def act_step(self, params, actor: ActorState, epsilon: jax.Array, key: jax.Array):
-        """One epsilon-greedy step of all envs, epsilon [] or [N]: (actor, Transition [N, ...] (state [layers, N,
-        units]), stats)."""
+        """One epsilon-greedy step of all envs, epsilon []: (actor, Transition [N, ...] (state [layers, N, units]),
+        stats)."""
         c = self.config.acting
-        if self.taught_envs:  # runs without the look-ahead keep the plain split below, and so their draws
-            key, k_teach = jax.random.split(key)
-        k_eps, k_rand, k_env = jax.random.split(key, 3)
-        standoff = (
-            jax.vmap(lambda s: standoff_signal(self.config.network, s, self.env_params))(actor.env_state)
-            if self.config.network.reads_standoff
-            else None
-        )  # [N]
-        kept, state_of = self._privileged_size, privileged_of(self.config.network, self.env.config.camera)
-        privileged = jax.vmap(state_of, (0, None))(actor.env_state, self.env_params)[:, :kept] if kept else None
-        q, net_state = self.q_values(
-            params,
-            actor.obs[:, None],
-            actor.is_first[:, None],
-            actor.net_state,
-            standoff=None if standoff is None else standoff[:, None],
-            privileged=None if privileged is None else privileged[:, None],
-        )
+        k_eps, k_rand, k_env, k_label = jax.random.split(key, 4)
+        q, net_state = self.q_values(params, actor.obs[:, None], actor.is_first[:, None], actor.net_state)
         greedy = jnp.argmax(q[:, 0], axis=-1).astype(jnp.int32)
         explore = jax.random.uniform(k_eps, (c.num_envs,)) < epsilon
         action = jnp.where(explore, jax.random.randint(k_rand, (c.num_envs,), 0, env_lib.NUM_ACTIONS), greedy)
-        taught = (
-            imitation.teacher_actions(
-                self.teacher, jax.tree.map(lambda x: x[: self.taught_envs], actor.env_state), self.env_params, k_teach
-            )
-            if self.taught_envs
+        kept = self.privileged_size
+        privileged = (
+            jax.vmap(imitation.true_tracking_state, (0, None))(actor.env_state, self.env_params)[:, :kept]
+            if kept
             else None
-        )  # [taught_envs]
-        if c.teacher_envs:
-            action = action.at[: c.teacher_envs].set(taught[: c.teacher_envs])
+        )  # [N, K]
+        labels = None if self.labeller is None else self.labeller(actor.env_state, self.env_params, k_label)  # [N]
         obs, env_state, reward, terminated, truncated, info = self._per_device(
             jax.vmap(lambda k, s, a: self.env.step(k, s, a, self.env_params))
         )(jax.random.split(k_env, c.num_envs), actor.env_state, action)
-        # the replay keeps the state but its frame histories (drlavt, frame_difference), which burn-in rebuilds
+        # the replay keeps the state but its frame history ('drlavt'), which burn-in rebuilds
         transition = replay_lib.Transition(
             obs=actor.obs,
             action=action,
@@ -282,17 +281,12 @@ class Trainer:
             is_first=actor.is_first,
             recurrent_state=actor.net_state.replace(frames=None),
             privileged=privileged,
-            standoff=standoff,
-            expert_action=imitation.stored_labels(
-                taught, actor.env_state, self.env.config.camera, self.config.learner.blind_label
-            )
-            if self.labels
-            else None,
+            expert_action=labels,
         )
         new_actor = ActorState(
             env_state=env_state, obs=obs, is_first=info["is_first"], net_state=record_action(net_state, action)
         )
-        done = (terminated | truncated) & (jnp.arange(c.num_envs) >= c.teacher_envs)  # the agent's episodes only
+        done = terminated | truncated
         stats = EpisodeStats(
             episodes=done.sum(),
             length_sum=jnp.where(done, info["episode_length"], 0).sum(),
@@ -302,7 +296,7 @@ class Trainer:
 
     def rollout(self, params, actor: ActorState, env_steps: jax.Array, key: jax.Array):
         """``rollout_steps`` acting steps. Returns (actor, chunk [N, T, ...] in replay layout, summed stats, the last
-        step's exploration rate averaged over envs)."""
+        step's exploration rate)."""
         c = self.config.acting
 
         def body(carry: RolloutCarry, k):
@@ -313,134 +307,67 @@ class Trainer:
         last, (traj, stats, eps) = jax.lax.scan(
             body, RolloutCarry(actor=actor, env_steps=env_steps), jax.random.split(key, c.rollout_steps)
         )
-        return last.actor, replay_lib.chunk_to_storage(traj), jax.tree.map(jnp.sum, stats), eps[-1].mean()
+        return last.actor, replay_lib.chunk_to_storage(traj), jax.tree.map(jnp.sum, stats), eps[-1]
 
     # ---------------------------------------------------------------- learning
-    def _target_values(self, params, obs, reset, state, actions, standoff, privileged):
-        """The target net's values over a window: q [B, L, A], or its quantiles [B, L, A, N] for a quantile network
-        (NetworkConfig.quantiles), which the quantile loss takes; a policy head's network sows its Q."""
-        network = self.config.network
-        if not (network.quantiles or network.policy_head):
-            return self.q_values(params, obs, reset, state, actions, standoff, privileged)[0]
-        _, sown = self.net.apply(
-            {"params": params},
-            obs,
-            reset,
-            state,
-            actions=actions,
-            standoff=standoff,
-            true_state=self._state_input(privileged),
-            mutable=["intermediates"],
-        )
-        return sown["intermediates"]["quantiles" if network.quantiles else "q_values"][0]
-
     def prepare(self, params, target_params, batch: replay_lib.SequenceBatch, key: jax.Array) -> PreparedBatch:
         """Everything the loss needs that takes no gradient: (augmented) observations, the target net's Q over the
         window (None with LearnerConfig.bootstrap_from = 'online') and the online net's state after burn-in, both run
-        from the window's stored start state."""
+        from the window's stored start state, and the trained transitions as a losses.LossBatch."""
         c, sg = self.config, jax.lax.stop_gradient
         burn, obs = batch.burn_in, batch.obs
         if self.augment_fn is not None:
             obs = self.augment_fn(key, obs)
         state = batch.start_state.replace(frames=window_start_frames(c.network, obs))
-        standoff, privileged = batch.standoff, batch.privileged  # [B, L] and [B, L, K], either may be None
-        steps = lambda x, part: jax.tree.map(lambda a: a[:, part], x)  # noqa: E731 (optional inputs: None stays None)
         q_target = None  # bootstrap_from='online': trained_loss takes the trained pass's values
         if c.learner.bootstrap_from == "target":
-            q_target = sg(
-                self._target_values(target_params, obs, batch.reset, state, batch.action, standoff, privileged)
-            )[:, burn:]
+            q_target = sg(self.q_values(target_params, obs, batch.reset, state, batch.action)[0])[:, burn:]
         if burn:
-            _, state = self.q_values(
-                params,
-                obs[:, :burn],
-                batch.reset[:, :burn],
-                state,
-                batch.action[:, :burn],
-                steps(standoff, slice(None, burn)),
-                steps(privileged, slice(None, burn)),
-            )
+            _, state = self.q_values(params, obs[:, :burn], batch.reset[:, :burn], state, batch.action[:, :burn])
         terminated, truncated = batch.terminated[:, burn:], batch.truncated[:, burn:]
         if c.learner.bootstrap_lost:  # see LearnerConfig.bootstrap_lost
             terminated, truncated = jnp.zeros_like(terminated), truncated | terminated
-        reward, action = batch.reward[:, burn:], batch.action[:, burn:]
-        if c.learner.command_cost:  # see LearnerConfig.command_cost
-            reward = reward - c.learner.command_cost * jnp.linalg.norm(jnp.asarray(env_lib.ACTIONS), axis=-1)[action]
-        td = TDBatch(
+        trained = lambda x: None if x is None else x[:, burn:]  # noqa: E731 (optional fields: None stays None)
+        loss_batch = LossBatch(
+            q=None,
             q_target=q_target,
-            action=action,
-            reward=sg(reward * c.learner.reward_scale),
+            action=batch.action[:, burn:],
+            reward=sg(batch.reward[:, burn:] * c.learner.reward_scale),
             terminated=terminated,
             truncated=truncated,
             mask=batch.loss_mask[:, burn:],
             weight=batch.weights,
+            privileged=trained(batch.privileged),
+            expert_action=trained(batch.expert_action),
         )
-        trained = slice(burn, None)
-        return PreparedBatch(
-            obs=obs[:, trained],
-            reset=batch.reset[:, trained],
-            state=sg(state),
-            td=td,
-            privileged=steps(privileged, trained),
-            standoff=steps(standoff, trained),
-            expert_action=steps(batch.expert_action, trained),
-        )
+        return PreparedBatch(obs=obs[:, burn:], reset=batch.reset[:, burn:], state=sg(state), loss_batch=loss_batch)
 
     def trained_loss(self, params, prepared: PreparedBatch):
-        """TD loss over the trained part of the window, plus aux_weight times the auxiliary head's squared error,
-        expert_margin_weight times the large-margin loss (imitation.large_margin_loss) and policy_weight times a
-        policy head's cross-entropy (imitation.policy_terms), gradient w.r.t. params only. Returns (loss, aux); aux
-        holds q_mean, aux_loss, margin_loss and policy_loss (unweighted, 0 without), expert_agreement (of the acting
-        head) and with a prioritised replay each window's priority [B] (losses.sequence_priority)."""
-        (q_online, _), sown = self.net.apply(
+        """The loss terms' sum over the trained part of the window, gradient w.r.t. params only. Returns (loss, aux):
+        aux holds q_mean (of the taken actions), the terms' metrics ('terms': {name: []}) and with a prioritised
+        replay each window's priority [B] (losses.sequence_priority of the PRIORITY_KEY metric)."""
+        batch = prepared.loss_batch
+        (q, _), sown = self.net.apply(
             {"params": params},
             prepared.obs,
             prepared.reset,
             prepared.state,
-            actions=prepared.td.action,
-            standoff=prepared.standoff,
-            true_state=self._state_input(prepared.privileged),
+            actions=batch.action,
             mutable=["intermediates"],
         )
-        mask, learner, expert = prepared.td.mask.astype(jnp.float32), self.config.learner, prepared.expert_action
-        logits, policy_loss = q_online, jnp.zeros(())
-        if self.config.network.policy_head:  # the returned values are the policy's logits; Q is sown
-            q_online = sown["intermediates"]["q_values"][0]
-        margin_loss, agreement = (
-            imitation.margin_terms(
-                q_online[:, :-1], expert, mask, learner.expert_margin, prepared.td.weight
-            )  # on Q (a quantile network's mean)
-            if learner.expert_margin_weight
-            else (jnp.zeros(()), jnp.zeros(()))
-        )
-        if self.config.network.quantiles:  # the quantile loss (losses.sequence_quantile_loss)
-            q_online = sown["intermediates"]["quantiles"][0]
-        td = prepared.td
-        if td.q_target is None:  # LearnerConfig.bootstrap_from = 'online': this pass's own values, as constants
-            td = td.replace(q_target=jax.lax.stop_gradient(q_online))
-        loss, aux = td_loss(q_online, td, self.td)
-        loss = loss + learner.expert_margin_weight * margin_loss
-        if self.config.network.policy_head:  # its agreement, the acting head's, is the one logged
-            policy_loss, agreement = imitation.policy_terms(logits[:, :-1], expert, mask, prepared.td.weight)
-            loss = loss + learner.policy_weight * policy_loss
-        aux_loss = jnp.zeros(())
-        if learner.aux_weight:  # the aux head's squared error at the trained obs (LearnerConfig)
-            label = prepared.privileged[:, :-1, : self.config.network.aux_outputs]
-            miss = jnp.square(sown["intermediates"]["aux"][0][:, :-1] - label).sum(-1)
-            aux_loss = masked_mean(miss, mask)
-            loss = loss + learner.aux_weight * aux_loss
-        aux = dict(
-            aux,
-            q_mean=masked_mean(aux["q_taken"], mask),
-            aux_loss=aux_loss,
-            margin_loss=margin_loss,
-            expert_agreement=agreement,
-            policy_loss=policy_loss,
-        )
+        q_target = jax.lax.stop_gradient(q) if batch.q_target is None else batch.q_target  # bootstrap_from='online'
+        batch = batch.replace(q=q, q_target=q_target, intermediates=sown.get("intermediates", {}))
+        losses, metrics = zip(*(term(batch) for term in self.loss_terms))
+        metrics = _merged(metrics)
+        td_error = metrics.pop(PRIORITY_KEY, None)
+        q_taken = jnp.take_along_axis(q[:, :-1], batch.action[..., None], axis=-1)[..., 0]
+        aux = dict(q_mean=masked_mean(jax.lax.stop_gradient(q_taken), batch.mask), terms=metrics)
         if self.config.replay.prioritised:  # uniform sampling needs no priorities
-            td_error = jax.lax.stop_gradient(aux["td_error"])
-            aux["priority"] = sequence_priority(td_error, mask, self.config.replay.priority_max_share)
-        return loss, aux
+            if td_error is None:
+                raise ValueError(f"a prioritised replay needs a loss term that returns the {PRIORITY_KEY!r} metric")
+            priority_max_share = self.config.replay.priority_max_share
+            aux["priority"] = sequence_priority(jax.lax.stop_gradient(td_error), batch.mask, priority_max_share)
+        return sum(losses), aux
 
     def loss(self, params, target_params, batch: replay_lib.SequenceBatch, key: jax.Array):
         """Masked loss of one sampled batch (trained_loss): burn-in without gradient, then the loss over the
@@ -463,26 +390,20 @@ class Trainer:
         params = optax.apply_updates(learner.params, updates)
         n = learner.updates + 1
         if c.target_update == "polyak":
-            target = optax.incremental_update(params, learner.target_params, self.polyak_tau(learner.updates))
+            target = optax.incremental_update(params, learner.target_params, c.polyak_tau)
         else:
             target = optax.periodic_update(params, learner.target_params, n, c.target_period)
         new = learner.replace(params=params, target_params=target, opt_state=opt_state, updates=n)
         if batch.indices is not None:
             replay_state = self.replay.set_priorities(replay_state, batch, aux["priority"])
-        return (
-            new,
-            replay_state,
-            LearnStats(
-                loss=loss,
-                aux_loss=aux["aux_loss"],
-                q_mean=aux["q_mean"],
-                margin_loss=aux["margin_loss"],
-                expert_agreement=aux["expert_agreement"],
-                policy_loss=aux["policy_loss"],
-                grad_norm=optax.tree.norm(grads),
-                updates=jnp.ones((), jnp.int32),
-            ),
+        stats = LearnStats(
+            loss=loss,
+            q_mean=aux["q_mean"],
+            grad_norm=optax.tree.norm(grads),
+            updates=jnp.ones((), jnp.int32),
+            terms=aux["terms"],
         )
+        return new, replay_state, stats
 
     def learn(self, learner: LearnerState, replay_state, env_steps: jax.Array, key: jax.Array):
         """``updates_per_iteration`` steps if the replay is ready, else none. Returns (learner, replay_state,
@@ -500,8 +421,9 @@ class Trainer:
             carry, stats = jax.lax.scan(one_update, carry, jax.random.split(key, c.updates_per_iteration))
             return carry, jax.tree.map(jnp.sum, stats)
 
-        def skip(carry):
-            return carry, LearnStats.zeros()
+        def skip(carry):  # no gradient step: zero stats, shaped as the loss terms' metrics are
+            stats = jax.eval_shape(self.update, learner, replay_state, key)[2]
+            return carry, jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), stats)
 
         (learner, sampling), stats = jax.lax.cond(ready, do, skip, (learner, replay.sampling_state(replay_state)))
         return learner, replay.with_sampling_state(replay_state, sampling), stats
@@ -519,15 +441,12 @@ class Trainer:
             episode_length_sum=stats.length_sum,
             episode_return_sum=stats.return_sum,
             loss_sum=learned.loss,
-            aux_loss_sum=learned.aux_loss,
             q_sum=learned.q_mean,
-            margin_loss_sum=learned.margin_loss,
-            expert_agreement_sum=learned.expert_agreement,
-            policy_loss_sum=learned.policy_loss,
             grad_norm_sum=learned.grad_norm,
             updates=learned.updates,
             epsilon=eps,
             env_steps=env_steps,
+            term_sums=learned.terms,
         )
         runner = runner.replace(learner=learner, actor=actor, replay=replay_state, key=key, env_steps=env_steps)
         return runner, metrics
@@ -548,6 +467,27 @@ class Trainer:
         return {"runner_state": runner, "metrics": metrics}
 
 
-def make_train(config: TrainConfig, tracking_env: env_lib.TrackingEnv | None = None, mesh=None):
-    """purejaxrl-style: returns ``train(key) -> {'runner_state', 'metrics'}``; jit it, vmap it over seeds."""
-    return Trainer(config, tracking_env, mesh).train
+def _merged(metrics: tuple[dict, ...]) -> dict:
+    """The loss terms' metrics as one dict; a name given by two terms is refused (one would hide the other)."""
+    out = {}
+    for m in metrics:
+        twice = set(out) & set(m)
+        if twice:
+            raise ValueError(f"two loss terms return the metric {sorted(twice)[0]!r}; give each its own name")
+        out.update(m)
+    return out
+
+
+def make_train(
+    config: TrainConfig,
+    tracking_env: env_lib.TrackingEnv | None = None,
+    mesh=None,
+    *,
+    network_factory: Callable[[NetworkConfig], nn.Module] | None = None,
+    loss_terms: tuple[LossTerm, ...] | None = None,
+    labeller: imitation.Labeller | None = None,
+):
+    """purejaxrl-style: returns ``train(key) -> {'runner_state', 'metrics'}``; jit it, vmap it over seeds. The
+    extension points as in :class:`Trainer` (None: built from the config)."""
+    components = dict(network_factory=network_factory, loss_terms=loss_terms, labeller=labeller)
+    return Trainer(config, tracking_env, mesh, **components).train

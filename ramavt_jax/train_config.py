@@ -18,6 +18,7 @@ import numpy as np
 from ramavt_jax import env as env_lib
 from ramavt_jax.augment import AugmentConfig
 from ramavt_jax.env_config import check_settings
+from ramavt_jax.imitation import BLIND_LABELS
 from ramavt_jax.losses import TDConfig
 from ramavt_jax.network import NetworkConfig
 from ramavt_jax.render import CameraConfig
@@ -36,72 +37,37 @@ class ActingConfig:
     eps_start: float = 0.9  # epsilon-greedy from eps_start to eps_end (the original schedule: 0.9 -> 0.1)
     eps_end: float = 0.1  # final exploration rate
     eps_decay_steps: int = 800_000  # linear over this many env steps (all envs together)
-    # Ape-X / R2D2 ladder of per-env rates: env i of N decays to eps_end ** (1 + eps_ladder * i / (N - 1)), so a few
-    # envs explore widely while most act almost greedily (Horgan et al. 2018 use eps_end 0.4, ladder 7); 0: every
-    # env decays to eps_end.
-    eps_ladder: float = 0.0
-    # The first teacher_envs envs act with a true-state one-step look-ahead (baselines.mpc_policy at horizon 1, which
-    # scores within 4 AER of the ceiling on validation) instead of the Q-net: demonstrations flown beside the
-    # agent's own episodes, into the same replay (R2D3 also mixes demonstrations into R2D2's training, from a buffer
-    # of their own). Their episodes are left out of the training-return statistics. 0: every env acts with the Q-net.
-    teacher_envs: int = 0
 
     def __post_init__(self):
-        check_ints("ActingConfig", self, dict(num_envs=1, rollout_steps=1, eps_decay_steps=0, teacher_envs=0))
-        if self.teacher_envs >= self.num_envs:
-            raise ValueError(
-                f"ActingConfig: teacher_envs must be < num_envs={self.num_envs} (some envs must act with "
-                f"the Q-net), got {self.teacher_envs}"
-            )
+        check_ints("ActingConfig", self, dict(num_envs=1, rollout_steps=1, eps_decay_steps=0))
         check_floats("ActingConfig", self)
         for name in ("eps_start", "eps_end"):
             if not 0.0 <= getattr(self, name) <= 1.0:
                 raise ValueError(f"ActingConfig: {name} must be in [0, 1], got {getattr(self, name)}")
-        if not self.eps_ladder >= 0.0:
-            raise ValueError(f"ActingConfig: eps_ladder must be >= 0 (0: no ladder), got {self.eps_ladder}")
-
-
-BLIND_LABELS = ("teacher", "none", "retreat")  # LearnerConfig.blind_label (imitation.stored_labels)
 
 
 @dataclasses.dataclass(frozen=True)
 class LearnerConfig:
-    """When and how much the learner trains, the optimiser, the TD targets and the sampled windows' augmentation."""
+    """When and how much the learner trains, the optimiser, the loss terms' settings and the sampled windows'
+    augmentation."""
 
     learning_starts: int = 20_000  # env steps (all envs) before the first update
     replay_ratio: float = 1.0  # trained frames (batch_size * train_len) per env frame
-    lr: float = 5e-4  # Adam learning rate
-    lr_final: float | None = None  # None = a constant lr; else cosine decay to lr_final over the gradient steps
-    adam_eps: float = 1e-4  # Adam epsilon
+    lr: float = 5e-4  # Adam learning rate (constant; Adam's epsilon is train.ADAM_EPS)
     max_grad_norm: float = 10.0  # 0 = no clipping
     gamma: float = 0.97  # discount
-    n_step: int = 5  # n-step TD targets (<= train_len)
-    td_lambda: float | None = None  # None = n-step targets; else Peng's Q(lambda) over the window (needs n_step=1)
+    n_step: int = 5  # n-step TD targets (<= train_len; 1 = the paper's one-step DRQN targets)
     double_q: bool = True  # double-Q targets: the online net picks the action, the target net values it (a no-op
     # with bootstrap_from='online': one net picks and values, which is the plain max)
-    value_rescale: bool = False  # R2D2's invertible value rescaling of the targets
-    huber_delta: float | None = None  # None = mean squared TD error (the original loss), else the Huber threshold
-    quantile_kappa: float = 0.05  # the quantile loss's Huber threshold, scaled-reward units (losses.TDConfig)
-    advantage_alpha: float = 0.0  # advantage learning: widen the action gaps (losses.TDConfig); 0 = off
-    # Auxiliary loss weight (0 = off): the aux head (NetworkConfig.aux_outputs = 3) predicts the true tracking error
-    # (camera frame, in stand-off distances) at each trained obs: simulator state, stored in the replay, acted on only
-    # by a NetworkConfig.state_input network, which reads its own six (greedy.privileged_of; its state_input_entries).
-    # With aux_outputs = 6 it also predicts the target's velocity relative to the chaser (stand-off distances per s).
+    # Auxiliary loss weight (0 = off; losses.aux_term): the aux head (NetworkConfig.aux_outputs = 3) predicts the
+    # true tracking error (camera frame, in stand-off distances) at each trained obs: simulator state, stored in the
+    # replay (imitation.true_tracking_state). With aux_outputs = 6 it also predicts the target's velocity relative to
+    # the chaser (stand-off distances per s).
     aux_weight: float = 0.0
     reward_scale: float = 0.1  # rewards are multiplied by this in the TD targets
-    # Reward shaping in training only (0 = off): each transition's reward, before reward_scale, less command_cost
-    # times its command's size in units of the full speed (0 holding still, 1 along an axis, sqrt 2 diagonally): a
-    # move must buy more than this in tracking to be worth it, so noise in where the agent thinks the target is
-    # costs it. The env's reward (and so evaluation) is unchanged.
-    command_cost: float = 0.0
-    # DQfD's large-margin loss (imitation.large_margin_loss) towards the true-state one-step look-ahead's action at
-    # every trained step, the agent's own included, weighted by this (0 = off: no labels computed or stored unless
-    # NetworkConfig.policy_head).
+    # DQfD's large-margin loss (imitation.margin_term) towards the true-state one-step look-ahead's action at every
+    # trained step, the agent's own included, weighted by this (0 = off: no labels computed or stored).
     expert_margin_weight: float = 0.0
-    expert_margin: float = 0.05  # how far the labelled action must lead every other, in Q's units (scaled rewards)
-    # The weight of a policy head's cross-entropy towards the same labels (NetworkConfig.policy_head; unused without
-    # it). The labels are computed and stored whenever the network has the head.
-    policy_weight: float = 1.0
     # The label at the steps before the target is first in view (imitation.unseen_yet), whose blank images cannot
     # show where the look-ahead's action points: 'teacher' (that action, as at every other step), 'none' (no label:
     # the TD loss alone decides how to search) or 'retreat' (back along the camera axis, env.RETREAT, which
@@ -113,16 +79,11 @@ class LearnerConfig:
     bootstrap_from: str = "target"
     polyak_tau: float = 0.01  # target net moves this fraction towards the online net per step ('polyak')
     target_period: int = 500  # gradient steps between hard target syncs ('period')
-    # None = polyak_tau throughout. Else the target net (and so a trained policy acting with it) starts averaging over
-    # fewer updates: tau is polyak_tau_start until gradient step polyak_tau_decay[0], then moves linearly to
-    # polyak_tau by step polyak_tau_decay[1] (the average lags the online net by about 1 / tau steps).
-    polyak_tau_start: float | None = None
-    polyak_tau_decay: tuple[int, int] = (1000, 2000)  # gradient steps: (hold start until, reach polyak_tau at)
     # Bootstrap through 'target lost' terminations as through time limits: with a terminal value of 0, a tracker
     # whose per-step reward is negative (1 - w * distance < 0) gains by losing the target on purpose; bootstrapping
     # removes that incentive. The env's reward and episode rules (and so evaluation) are unchanged.
     bootstrap_lost: bool = False
-    augment: bool = False  # augment the sampled windows' images with augment_config
+    augment: bool = False  # augment the sampled windows' images with augment_config (Table III's augmentation row)
     # Cutout only by default: crops, flips and rotations move the target in the image, and the target's image
     # position and size are the state here, so they would change the correct action.
     augment_config: AugmentConfig = AugmentConfig(crop=False, flip=False, rot90=False)
@@ -131,64 +92,28 @@ class LearnerConfig:
         check_ints("LearnerConfig", self, dict(learning_starts=0, n_step=1, target_period=1))
         check_floats("LearnerConfig", self)
         fail = lambda msg: ValueError(f"LearnerConfig: {msg}")  # noqa: E731
-        if not self.lr > 0 or not self.adam_eps > 0:
-            raise fail(f"lr and adam_eps must be > 0, got lr={self.lr}, adam_eps={self.adam_eps}")
-        if self.lr_final is not None and not 0 <= self.lr_final <= self.lr:
-            raise fail(f"lr_final must be None (constant lr) or in [0, lr={self.lr}], got {self.lr_final}")
-        if not 0.0 <= self.advantage_alpha < 1.0:
-            raise fail(f"advantage_alpha must be in [0, 1) (0 = plain Q-learning targets), got {self.advantage_alpha}")
         for name, ok, rule in (
+            ("lr", self.lr > 0, "> 0"),
             ("gamma", 0.0 <= self.gamma <= 1.0, "in [0, 1]"),
             ("polyak_tau", 0.0 < self.polyak_tau <= 1.0, "in (0, 1]"),
             ("max_grad_norm", self.max_grad_norm >= 0, ">= 0 (0 = no clipping)"),
             ("aux_weight", self.aux_weight >= 0, ">= 0 (0 = no auxiliary loss)"),
             ("reward_scale", self.reward_scale > 0, "> 0"),
-            ("command_cost", self.command_cost >= 0, ">= 0 (0 = no shaping)"),
             ("expert_margin_weight", self.expert_margin_weight >= 0, ">= 0 (0 = no margin loss)"),
-            ("expert_margin", self.expert_margin > 0, "> 0"),
-            ("policy_weight", self.policy_weight > 0, "> 0"),
             ("blind_label", self.blind_label in BLIND_LABELS, f"one of {BLIND_LABELS}"),
-            ("quantile_kappa", self.quantile_kappa > 0, "> 0"),
             ("replay_ratio", self.replay_ratio > 0, "> 0"),
             ("target_update", self.target_update in ("polyak", "period"), "'polyak' or 'period'"),
             ("bootstrap_from", self.bootstrap_from in ("target", "online"), "'target' or 'online'"),
         ):
             if not ok:
                 raise fail(f"{name} must be {rule}, got {getattr(self, name)!r}")
-        if self.td_lambda is not None and not (0.0 <= self.td_lambda <= 1.0 and self.n_step == 1):
-            raise fail(
-                f"td_lambda must be None (n-step targets) or in [0, 1] with n_step=1 (lambda-returns replace "
-                f"the n-step ones), got td_lambda={self.td_lambda}, n_step={self.n_step}"
-            )
-        if self.polyak_tau_start is not None and not 0.0 < self.polyak_tau_start <= 1.0:
-            raise fail(
-                f"polyak_tau_start must be None (a constant polyak_tau) or in (0, 1], got {self.polyak_tau_start}"
-            )
-        steps = tuple(self.polyak_tau_decay) if isinstance(self.polyak_tau_decay, (tuple, list)) else ()
-        if not (
-            len(steps) == 2
-            and all(isinstance(k, int) and not isinstance(k, bool) for k in steps)
-            and 0 <= steps[0] <= steps[1]
-        ):
-            raise fail(f"polyak_tau_decay must be two gradient steps 0 <= hold <= end, got {self.polyak_tau_decay}")
-        if self.huber_delta is not None and not self.huber_delta > 0:
-            raise fail(f"huber_delta must be None (MSE) or > 0, got {self.huber_delta}")
         if not isinstance(self.augment_config, AugmentConfig):
             raise fail(f"augment_config must be an augment.AugmentConfig, got {type(self.augment_config).__name__}")
 
     @property
     def td(self) -> TDConfig:
-        """The loss's view of these settings (losses.TDConfig)."""
-        return TDConfig(
-            gamma=self.gamma,
-            n_step=self.n_step,
-            td_lambda=self.td_lambda,
-            double_q=self.double_q,
-            value_rescale=self.value_rescale,
-            huber_delta=self.huber_delta,
-            quantile_kappa=self.quantile_kappa,
-            advantage_alpha=self.advantage_alpha,
-        )
+        """The TD loss's view of these settings (losses.TDConfig)."""
+        return TDConfig(gamma=self.gamma, n_step=self.n_step, double_q=self.double_q)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -266,6 +191,60 @@ def _build(cls, data: dict):
     return cls(**kwargs)
 
 
+# Fields of earlier versions, removed with the research arms that used them (their record: lab/experiments.md), each
+# with the value it held in every run that did not use its arm: a config.json (a run folder's, a checkpoint's, a
+# shipped agent's) that holds one at that value reads as this version's config; at another value it is refused.
+RETIRED_FIELDS = {
+    "acting.eps_ladder": 0.0,
+    "acting.teacher_envs": 0,
+    "network.depth_centre": 0.0,
+    "network.depth_gain": 1.0,
+    "network.silhouette_stats": False,
+    "network.standoff_input": False,
+    "network.command_gain_input": False,
+    "network.dueling": False,
+    "network.quantiles": 0,
+    "network.policy_head": False,
+    "network.dense_norm": False,
+    "network.state_input": False,
+    "network.state_input_gain": 1.0,
+    "network.state_input_entries": (0, 1, 2, 3, 4, 5),
+    "network.state_input_point": "centre",
+    "network.frame_difference": False,
+    "network.exposure_rate": 0.0,
+    "learner.lr_final": None,
+    "learner.adam_eps": 1e-4,
+    "learner.td_lambda": None,
+    "learner.value_rescale": False,
+    "learner.huber_delta": None,
+    "learner.quantile_kappa": 0.05,
+    "learner.advantage_alpha": 0.0,
+    "learner.command_cost": 0.0,
+    "learner.expert_margin": 0.05,
+    "learner.policy_weight": 1.0,
+    "learner.polyak_tau_start": None,
+    "learner.polyak_tau_decay": (1000, 2000),
+}
+
+
+def without_retired_fields(data: dict) -> dict:
+    """A config dict (``TrainConfig.to_dict``'s form) without the RETIRED_FIELDS it holds at their old values;
+    ValueError (one line) for one at another value: the run used an arm this version no longer has."""
+    data = dict(data)
+    for name, unused in RETIRED_FIELDS.items():
+        group, field = name.split(".")
+        if not isinstance(data.get(group), dict) or field not in data[group]:
+            continue
+        value = data[group][field]
+        if _tuplify(value) != unused or isinstance(value, bool) != isinstance(unused, bool):
+            raise ValueError(
+                f"TrainConfig: {name} = {value!r} belongs to a research arm this version no longer has (only "
+                f"{unused!r}, its value when unused, is read); the run needs the version it was trained with"
+            )
+        data[group] = {k: v for k, v in data[group].items() if k != field}
+    return data
+
+
 _tuplify = lambda x: tuple(_tuplify(v) for v in x) if isinstance(x, list) else x  # noqa: E731 (JSON lists)
 
 
@@ -309,15 +288,10 @@ class TrainConfig:
             )
         if self.network.num_actions != env_lib.NUM_ACTIONS:
             _fail(f"network.num_actions={self.network.num_actions} but the env has {env_lib.NUM_ACTIONS} actions")
-        if (self.learner.aux_weight > 0) != (self.network.aux_outputs in (3, 6)):  # error x, y, z (+ velocity)
+        if (self.learner.aux_weight > 0) != (self.network.aux_outputs > 0):  # error x, y, z (+ velocity)
             _fail(
                 f"learner.aux_weight > 0 and network.aux_outputs = 3 or 6 go together (the head and its loss), got "
                 f"{self.learner.aux_weight} and {self.network.aux_outputs}"
-            )
-        if self.network.quantiles and (self.learner.value_rescale or self.learner.advantage_alpha):
-            _fail(
-                "network.quantiles (the quantile loss) does not combine with learner.value_rescale or "
-                "learner.advantage_alpha (both defined on expected values)"
             )
         if self.network.norm == "batch":
             _fail(
@@ -374,16 +348,6 @@ class TrainConfig:
             _fail(
                 f"variant 'drlavt' rebuilds its {self.network.frame_stack}-frame stack from the window's own obs "
                 f"during burn-in: replay.burn_in must be >= frame_stack - 1 = {self.network.frame_stack - 1}"
-            )
-        if self.network.exposure_rate and lr.augment:
-            _fail(
-                "network.exposure_rate with learner.augment: the stored long exposure is of the frames as flown, "
-                "an augmented window's frames are not; turn one off"
-            )
-        if self.network.frame_difference and r.burn_in < 1:
-            _fail(
-                "network.frame_difference starts each stored window with no change (the frame before it is not "
-                "stored): replay.burn_in must be >= 1 so that no trained step sees it"
             )
 
     # ---- derived (read-only)
@@ -446,8 +410,9 @@ class TrainConfig:
     @classmethod
     def from_dict(cls, data: dict) -> TrainConfig:
         """The config of a ``to_dict()`` dict (config.json's "config"): lists become tuples, fields it lacks take
-        their defaults, unknown keys are ignored."""
-        return _build(cls, data)
+        their defaults, retired fields are dropped or refused (without_retired_fields), other unknown keys are
+        ignored."""
+        return _build(cls, without_retired_fields(data))
 
 
 _TOP_FIELDS = {f.name for f in dataclasses.fields(TrainConfig)}

@@ -12,7 +12,7 @@ import optax
 from flax import struct
 
 from ramavt_jax import env as env_lib
-from ramavt_jax.losses import TDBatch
+from ramavt_jax.losses import LossBatch
 from ramavt_jax.network import RecurrentState
 
 __all__ = [
@@ -86,16 +86,13 @@ class ChunkMetrics:
     episodes: jax.Array  # episodes completed
     episode_length_sum: jax.Array
     episode_return_sum: jax.Array  # unscaled env reward
-    loss_sum: jax.Array
-    aux_loss_sum: jax.Array  # the auxiliary head's unweighted squared error per update, summed
-    margin_loss_sum: jax.Array  # the large-margin loss per update, unweighted, summed (0 without it)
-    expert_agreement_sum: jax.Array  # share of trained steps whose greedy action is the label, per update, summed
-    policy_loss_sum: jax.Array  # the policy head's cross-entropy per update, unweighted, summed (0 without the head)
+    loss_sum: jax.Array  # the summed loss terms per update, summed
     q_sum: jax.Array  # mean taken Q per update, summed
     grad_norm_sum: jax.Array
     updates: jax.Array  # gradient steps done this iteration
-    epsilon: jax.Array  # exploration rate at the iteration's last step, averaged over envs (ActingConfig.eps_ladder)
+    epsilon: jax.Array  # exploration rate at the iteration's last step, averaged over envs
     env_steps: jax.Array  # at the end of the iteration
+    term_sums: dict  # {metric: sum per update} of the loss terms' metrics (e.g. td_loss, aux_loss), summed
 
 
 @struct.dataclass
@@ -111,52 +108,25 @@ class EpisodeStats:
 class LearnStats:
     """One gradient step (``update``), or the sums over an iteration's steps (``learn``): all ``[]``."""
 
-    loss: jax.Array  # the TD loss plus the weighted auxiliary, margin and policy losses
-    aux_loss: jax.Array  # the auxiliary head's squared error, unweighted (0 without the head)
-    margin_loss: jax.Array  # the large-margin loss, unweighted (0 without it: LearnerConfig.expert_margin_weight)
-    expert_agreement: jax.Array  # share of the trained steps whose greedy action is the look-ahead's (0 without)
-    policy_loss: jax.Array  # the policy head's cross-entropy, unweighted (0 without it: NetworkConfig.policy_head)
+    loss: jax.Array  # the loss terms' sum
     q_mean: jax.Array  # mean taken Q over the trained transitions
     grad_norm: jax.Array
     updates: jax.Array  # int32 gradient steps
-
-    @classmethod
-    def zeros(cls) -> LearnStats:
-        """No gradient step (the replay not yet ready)."""
-        z = jnp.zeros(())
-        return cls(
-            loss=z,
-            aux_loss=z,
-            margin_loss=z,
-            expert_agreement=z,
-            policy_loss=z,
-            q_mean=z,
-            grad_norm=z,
-            updates=jnp.zeros((), jnp.int32),
-        )
+    terms: dict  # {metric: []} the loss terms' metrics (losses.LossTerm), e.g. td_loss, aux_loss, margin_loss
 
 
 @struct.dataclass
 class PreparedBatch:
-    """Everything the loss of ``B`` sampled windows needs that takes no gradient (``T = train_len``).
-
-    obs: ``[B, T+1, H, W, C]`` (augmented) observations after burn-in; reset: ``[B, T+1]`` bool; state: the online
-    net's ``RecurrentState`` after burn-in (h, c ``[layers, B, units]``); td: the :class:`TDBatch` of the ``T``
-    trained transitions (``q_target [B, T+1, A]``, or None when the trained pass gives it: bootstrap_from='online';
-    the rest ``[B, T]``); privileged: ``[B, T+1, K]`` the kept true state per obs (greedy.true_tracking_state:
-    the tracking error, then the relative velocity; K = 6 for a state_input network, 12 when its input is another
-    point's (greedy.privileged_of), else NetworkConfig.aux_outputs; None when neither needs it); standoff: ``[B, T+1]``
-    the stand-off signal per obs (greedy.standoff_signal; None unless the network reads it); expert_action:
-    ``[B, T]`` the look-ahead's action at each trained transition's obs (None without the large-margin loss).
-    """
+    """Everything the loss of ``B`` sampled windows needs that takes no gradient (``T = train_len``): the online
+    pass's inputs after burn-in, obs ``[B, T+1, H, W, C]`` (augmented), reset ``[B, T+1]`` bool and state (the online
+    net's ``RecurrentState`` after burn-in: h, c ``[layers, B, units]``), and the loss terms' batch without the
+    online pass's outputs (``losses.LossBatch`` with q None; q_target None when the trained pass gives it:
+    bootstrap_from='online')."""
 
     obs: jax.Array
     reset: jax.Array
     state: RecurrentState
-    td: TDBatch
-    privileged: jax.Array | None = None
-    standoff: jax.Array | None = None
-    expert_action: jax.Array | None = None
+    loss_batch: LossBatch
 
 
 def average_policy(learner: LearnerState, chunk: jax.Array, start: int | None) -> LearnerState:

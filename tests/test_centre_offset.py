@@ -113,15 +113,3 @@ def test_offsets_are_uniform_in_their_ball_with_directions_and_lengths_drawn_apa
     np.testing.assert_allclose(np.asarray(offsets).mean(axis=0), 0.0, atol=0.05)  # no preferred direction
     unit = np.asarray(offsets) / length[:, None]
     assert abs(np.corrcoef(length, np.abs(unit[:, 0]))[0, 1]) < 0.06  # the length does not follow the direction
-
-
-def test_each_randomisation_folds_in_data_of_its_own():
-    """The episode's draws fold distinct data into its key, none below 7 (env.initial_state's split(key, 7))."""
-    data = [
-        randomisation.SIZE_KEY,
-        randomisation.SIZE_KEY + 1,
-        randomisation.STRETCH_KEY,
-        randomisation.STRETCH_KEY + 1,
-        randomisation.PERTURB_KEY,
-    ] + [randomisation.OFFSET_KEY + i for i in range(3)]
-    assert len(set(data)) == len(data) and min(data) >= 7

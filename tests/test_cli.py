@@ -124,7 +124,7 @@ BAD_INPUTS = {  # id: (arguments, {tmp} filled in, what the one-line message mus
     "render out under a file": (["render", "--steps", "2", "--out", "{tmp}/a_file/x.gif"], "is a file"),
     "total steps negative": (TRAIN + ["--run.total-env-steps", "-320"], "total_env_steps must be >= 1"),
     "total steps not a multiple": (TRAIN + ["--run.total-env-steps", "1000"], "must be a multiple"),
-    "bad learning rate": (TRAIN + ["--learner.lr", "-1"], "lr and adam_eps must be > 0"),
+    "bad learning rate": (TRAIN + ["--learner.lr", "-1"], "lr must be > 0"),
     "seeds zero": (TRAIN + ["--seeds", "0"], "--seeds must be an integer >= 1"),
     "more devices than visible": (TRAIN + ["--devices", "3", "--out", "{tmp}/three"], "device(s) are visible"),
     "train out is a file": (TRAIN + ["--out", "{tmp}/a_file"], "is a file, not a folder"),

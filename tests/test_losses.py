@@ -1,19 +1,19 @@
 """Losses against numbers worked out by hand (written out in each test)."""
 
-import math
-
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
 from ramavt_jax.losses import (
+    PRIORITY_KEY,
+    LossBatch,
     TDConfig,
-    lambda_targets,
+    aux_term,
     n_step_targets,
     sequence_td_loss,
-    signed_hyperbolic,
-    signed_parabolic,
+    sequence_td_targets,
+    td_term,
 )
 
 
@@ -54,28 +54,6 @@ def test_double_q(jit):
     loss, aux = _loss(jit, Q_ONLINE, Q_TARGET, ACTIONS, REWARDS, FALSE2, FALSE2, ONES2, cfg)
     np.testing.assert_allclose(aux["target"], [[1.5, 0.0]])
     np.testing.assert_allclose(loss, 2.3125, rtol=1e-6)
-
-
-@pytest.mark.parametrize("jit", [False, True])
-def test_advantage_learning_lowers_the_targets_of_worse_actions(jit):
-    # plain-max targets [3.5, 2.5] (test_one_step_mse_plain_max); gaps at the taken actions, from the target net:
-    # obs0 takes a=0: max Q_tg(obs0) - Q_tg(obs0)[0] = 0 - 0 = 0; obs1 takes a=1: 5 - 5 = 0 -> unchanged; with the
-    # other actions taken ([1, 0]): gaps [0 - 0 = 0, 5 - 1 = 4] -> [3.5, 2.5 - 0.5 * 4 = 0.5] (the plain targets do
-    # not depend on the taken actions: [3.5, 2.5] either way)
-    cfg = TDConfig(gamma=0.5, n_step=1, double_q=False, advantage_alpha=0.5)
-    _, aux = _loss(jit, Q_ONLINE, Q_TARGET, ACTIONS, REWARDS, FALSE2, FALSE2, ONES2, cfg)
-    np.testing.assert_allclose(aux["target"], [[3.5, 2.5]])
-    _, aux = _loss(jit, Q_ONLINE, Q_TARGET, 1 - ACTIONS, REWARDS, FALSE2, FALSE2, ONES2, cfg)
-    np.testing.assert_allclose(aux["target"], [[3.5, 0.5]])
-    with pytest.raises(ValueError, match="advantage_alpha"):
-        TDConfig(advantage_alpha=1.0)
-
-
-def test_huber():
-    # double-Q case: td = [0.5, -3], delta 1: [0.5*0.25, 1*(3 - 0.5)] = [0.125, 2.5] -> mean 1.3125
-    cfg = TDConfig(gamma=0.5, double_q=True, huber_delta=1.0)
-    loss, _ = _loss(False, Q_ONLINE, Q_TARGET, ACTIONS, REWARDS, FALSE2, FALSE2, ONES2, cfg)
-    np.testing.assert_allclose(loss, 1.3125, rtol=1e-6)
 
 
 def test_mask_zeroes_transitions():
@@ -122,47 +100,6 @@ def test_n_step_targets_terminal_in_middle():
     np.testing.assert_allclose(jax.jit(n_step_targets, static_argnums=3)(r, d, v, 3, stop), expected)
     # n = 1 is one-step: r + d v = [6, 12, 3, 24, 30]
     np.testing.assert_allclose(n_step_targets(r, d, v, 1), [6.0, 12.0, 3.0, 24.0, 30.0])
-
-
-def _lambda_mixture(r, d, v, lam, stop):
-    """Peng's Q(lambda) written out: for each t the k-step returns (n_step_targets at n = k) mixed with weights
-    (1 - lam) lam^(k-1), the longest one (to the episode or window end) taking the remaining weight."""
-    T = len(r)
-    out = np.zeros(T)
-    for t in range(T):
-        end = next(k for k in range(t, T) if k == T - 1 or stop[k])
-        n_max = end - t + 1
-        g = [float(n_step_targets(r, d, v, k, stop)[t]) for k in range(1, n_max + 1)]
-        out[t] = sum((1 - lam) * lam ** (k - 1) * g[k - 1] for k in range(1, n_max)) + lam ** (n_max - 1) * g[-1]
-    return out
-
-
-@pytest.mark.parametrize("lam", [0.0, 0.6, 1.0])
-def test_lambda_targets_mix_the_n_step_returns(lam):
-    """lambda_targets equals the written-out mixture of n_step_targets' returns, with an episode end inside the
-    window; lambda 0 is the one-step target and lambda 1 the return to the end."""
-    key = jax.random.split(jax.random.PRNGKey(0), 3)
-    r, v = jax.random.normal(key[0], (9,)), jax.random.normal(key[1], (9,)) * 5
-    stop = jnp.zeros(9, bool).at[3].set(True)
-    d = 0.9 * (1.0 - (jnp.arange(9) == 3))  # a terminal at t = 3
-    got = jax.jit(lambda_targets, static_argnums=3)(r, d, v, lam, stop)
-    np.testing.assert_allclose(np.asarray(got), _lambda_mixture(r, d, v, lam, np.asarray(stop)), rtol=1e-5, atol=1e-5)
-    if lam == 0.0:
-        np.testing.assert_allclose(np.asarray(got), np.asarray(n_step_targets(r, d, v, 1)), rtol=1e-6)
-    if lam == 1.0:
-        np.testing.assert_allclose(np.asarray(got), np.asarray(n_step_targets(r, d, v, 9, stop)), rtol=1e-5)
-
-
-def test_the_loss_takes_lambda_returns_when_configured():
-    """sequence_td_loss with td_lambda builds its targets with lambda_targets (plain max bootstrap, A = 1)."""
-    q_target = np.arange(6, dtype=np.float32).reshape(1, 6, 1) * 10.0
-    r = np.array([[1.0, 2.0, 3.0, 4.0, 5.0]], np.float32)
-    z = np.zeros((1, 5), bool)
-    cfg = TDConfig(gamma=0.9, n_step=1, td_lambda=0.7, double_q=False)
-    _, aux = sequence_td_loss(np.zeros_like(q_target), q_target, np.zeros((1, 5), np.int32), r, z, z, ~z, cfg)
-    expected = lambda_targets(jnp.asarray(r[0]), jnp.full(5, 0.9), jnp.asarray(q_target[0, 1:, 0]), 0.7)
-    np.testing.assert_allclose(np.asarray(aux["target"][0]), np.asarray(expected), rtol=1e-6)
-    assert abs(float(aux["target"][0, 0]) - float(r[0, 0] + 0.9 * q_target[0, 1, 0])) > 1.0  # not one-step
 
 
 def test_n_step_loss_terminal_in_middle():
@@ -213,34 +150,6 @@ def test_truncation_bootstraps_from_next_obs(jit):
     np.testing.assert_allclose(aux["target"], [[83.8, 92.0]], rtol=1e-6)
 
 
-def test_value_rescaling_round_trip_and_values():
-    # h(3) = sqrt(4) - 1 + 0.003 = 1.003; h(-8) = -(sqrt(9) - 1) - 0.008 = -2.008; h(0) = 0
-    np.testing.assert_allclose(signed_hyperbolic(jnp.array([3.0, -8.0, 0.0])), [1.003, -2.008, 0.0], rtol=1e-6)
-    np.testing.assert_allclose(signed_parabolic(jnp.array([1.003, -2.008, 0.0])), [3.0, -8.0, 0.0], rtol=1e-5)
-    x = jnp.array([-1000.0, -37.5, -1.0, -0.5, -1e-3, 0.0, 1e-3, 0.3, 1.0, 10.0, 250.0, 1000.0])
-    np.testing.assert_allclose(signed_parabolic(signed_hyperbolic(x)), x, rtol=1e-5, atol=1e-7)
-    np.testing.assert_allclose(signed_hyperbolic(signed_parabolic(x)), x, rtol=1e-5, atol=1e-7)
-
-
-def test_rescaled_target():
-    # A=1, gamma 0.5, r=1, Q_tg(obs1) = h(8) = 2.008 (the net predicts rescaled values)
-    # target = h(1 + 0.5 * h^-1(2.008)) = h(1 + 4) = h(5) = sqrt(6) - 1 + 0.005
-    q_target = np.array([[[0.0], [2.008]]], np.float32)
-    cfg = TDConfig(gamma=0.5, n_step=1, value_rescale=True)
-    _, aux = _loss(
-        False,
-        np.zeros((1, 2, 1), np.float32),
-        q_target,
-        np.zeros((1, 1), np.int32),
-        np.ones((1, 1), np.float32),
-        np.zeros((1, 1), bool),
-        np.zeros((1, 1), bool),
-        np.ones((1, 1)),
-        cfg,
-    )
-    np.testing.assert_allclose(aux["target"], [[math.sqrt(6.0) - 1.0 + 0.005]], rtol=1e-5)
-
-
 def test_batch_rows_independent():
     # Two rows: row 1 = the double-Q case, row 0 = the same with its mask zeroed -> loss = row 1 only: 2.3125
     cfg = TDConfig(gamma=0.5, double_q=True)
@@ -265,12 +174,6 @@ def test_bad_config():
         TDConfig(n_step=0)
     with pytest.raises(ValueError, match="gamma"):
         TDConfig(gamma=1.5)
-    with pytest.raises(ValueError, match="huber_delta"):
-        TDConfig(huber_delta=0.0)
-    with pytest.raises(ValueError, match=r"td_lambda must be None .* got td_lambda=0.9, n_step=5"):
-        TDConfig(n_step=5, td_lambda=0.9)
-    with pytest.raises(ValueError, match=r"td_lambda must be None .* got td_lambda=1.5, n_step=1"):
-        TDConfig(td_lambda=1.5)
 
 
 def test_importance_weights_scale_each_window():
@@ -286,3 +189,46 @@ def test_importance_weights_scale_each_window():
     np.testing.assert_allclose(plain, 1.625, rtol=1e-6)
     np.testing.assert_allclose(weighted, (1.0 + 0.25) * 0.5 * (6.25 + 0.25) / 4, rtol=1e-6)
     np.testing.assert_allclose(aux["td_error"], [[2.5, -0.5], [2.5, -0.5]])  # the errors are not weighted
+
+
+def _batch(**fields) -> LossBatch:
+    """The shared window as a LossBatch (the loss terms' input)."""
+    base = dict(
+        q=jnp.asarray(Q_ONLINE),
+        q_target=jnp.asarray(Q_TARGET),
+        action=jnp.asarray(ACTIONS),
+        reward=jnp.asarray(REWARDS),
+        terminated=jnp.asarray(FALSE2),
+        truncated=jnp.asarray(FALSE2),
+        mask=jnp.asarray(ONES2),
+    )
+    return LossBatch(**{**base, **fields})
+
+
+def test_the_td_term_is_the_td_loss_of_its_batch_and_reports_its_errors():
+    """td_term: sequence_td_loss of the batch's fields (the double-Q case by hand: 2.3125), logged as td_loss, its
+    TD errors under PRIORITY_KEY; the targets alone are sequence_td_targets'."""
+    cfg = TDConfig(gamma=0.5, n_step=1, double_q=True)
+    loss, metrics = jax.jit(td_term(cfg))(_batch())
+    np.testing.assert_allclose(loss, 2.3125, rtol=1e-6)
+    np.testing.assert_allclose(metrics["td_loss"], 2.3125, rtol=1e-6)
+    np.testing.assert_allclose(metrics[PRIORITY_KEY], [[0.5, -3.0]], rtol=1e-6)
+    targets = sequence_td_targets(*(jnp.asarray(a) for a in (Q_ONLINE, Q_TARGET, REWARDS, FALSE2, FALSE2)), cfg)
+    np.testing.assert_allclose(targets, [[1.5, 0.0]])
+
+
+def test_the_aux_term_is_the_weighted_squared_error_of_the_aux_head_at_the_trained_obs():
+    """aux_term(weight, K): the masked mean over the T trained obs of the squared error summed over the K entries of
+    the sown head against the stored label; the last obs (the bootstrap one) and masked steps do not count."""
+    head = np.zeros((1, 3, 3), np.float32)
+    label = np.zeros((1, 3, 6), np.float32)
+    head[0, 0] = [1.0, 0.0, 0.0]  # error 1 at obs 0
+    head[0, 1] = [0.0, 2.0, 0.0]  # error 4 at obs 1 (masked below)
+    head[0, 2] = [9.0, 9.0, 9.0]  # the bootstrap obs: not trained
+    label[0, :, 3:] = 5.0  # the relative velocity, beyond K = 3 entries: not read
+    batch = _batch(intermediates={"aux": (jnp.asarray(head),)}, privileged=jnp.asarray(label))
+    loss, metrics = aux_term(2.0, 3)(batch)
+    np.testing.assert_allclose(metrics["aux_loss"], (1.0 + 4.0) / 2, rtol=1e-6)
+    np.testing.assert_allclose(loss, 2.0 * (1.0 + 4.0) / 2, rtol=1e-6)
+    masked = aux_term(1.0, 3)(batch.replace(mask=jnp.asarray([[1.0, 0.0]])))[1]["aux_loss"]
+    np.testing.assert_allclose(masked, 1.0, rtol=1e-6)

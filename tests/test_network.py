@@ -14,10 +14,12 @@ from ramavt_jax.network import (
     VARIANTS,
     Encoder,
     NetworkConfig,
+    QNetwork,
     attention_maps,
     count_params,
     flops_per_frame,
     init_params,
+    init_variables,
     initial_state,
     make_network,
 )
@@ -149,30 +151,6 @@ def test_prev_action_acting_equals_unroll_and_episode_starts_hide_it():
     np.testing.assert_array_equal(s_short.prev_action, state0.prev_action)  # the last action is not known yet
     with pytest.raises(ValueError, match="actions"):
         _apply(cfg, variables, obs, reset, state0)
-
-
-@pytest.mark.parametrize("variant", ["origin", "drlavt"])
-def test_dueling_head_adds_a_value_to_mean_centred_advantages(variant):
-    """Q = V + A - mean(A): shifting the value output shifts every action's Q alike; the advantages' own mean is
-    removed, so shifting all of them together changes nothing."""
-    cfg = small(variant, dueling=True)
-    b, t = 2, 3
-    _, variables, obs = _setup(cfg, b=b, t=t)
-    reset, state = jnp.zeros((b, t), bool).at[:, 0].set(True), initial_state(cfg, b, obs.shape[2:])
-    params = variables["params"]
-    assert params["value"]["kernel"].shape[-1] == 1 and params["q"]["kernel"].shape[-1] == cfg.num_actions
-    q, _ = _apply(cfg, variables, obs, reset, state)
-    moved = {
-        **params,
-        "value": {**params["value"], "bias": params["value"]["bias"] + 2.0},
-        "q": {**params["q"], "bias": params["q"]["bias"] + 5.0},
-    }
-    q_moved, _ = _apply(cfg, {"params": moved}, obs, reset, state)
-    np.testing.assert_allclose(q_moved, q + 2.0, atol=1e-5)
-    a_only = {**params, "q": {**params["q"], "bias": params["q"]["bias"].at[0].add(1.0)}}
-    q_a, _ = _apply(cfg, {"params": a_only}, obs, reset, state)
-    np.testing.assert_allclose(q_a - q, jnp.full_like(q, -1.0 / cfg.num_actions).at[..., 0].add(1.0), atol=1e-5)
-    assert "value" not in init_params(small(variant), jax.random.key(0), (32, 32, 1))["params"]
 
 
 @pytest.mark.parametrize("k,s,size,c", [(3, 2, 16, 3), (3, 1, 9, 8), (1, 1, 6, 8), (5, 2, 7, 3)])
@@ -356,6 +334,8 @@ def test_flops_and_params_positive():
         (dict(num_actions=0), "num_actions"),
         (dict(channels=32), "tuple"),
         (dict(variant="drlavt", prev_action=True), "prev_action"),
+        (dict(variant="drlavt", aux_outputs=3), "aux_outputs needs a recurrent variant"),
+        (dict(aux_outputs=4), r"aux_outputs must be one of \(0, 3, 6\)"),
     ],
 )
 def test_bad_config(kw, match):
@@ -430,60 +410,6 @@ def test_coordinate_encoder_equals_plain_encoder_on_appended_channels():
     np.testing.assert_allclose(folded, appended, atol=1e-5)
 
 
-def test_rescaled_depth_encoder_equals_plain_encoder_on_rescaled_channels():
-    """depth_centre / depth_gain: the encoder gives what the plain encoder gives on the frame built by hand as
-    [(depth - centre) * gain on the target, 0 elsewhere; hit mask of the raw frame; coordinate planes] (same
-    parameters); the mask comes from the raw frame, so a target pixel exactly at the centre is still a hit."""
-    from ramavt_jax.network import Encoder, coordinate_planes
-
-    cfg = small("ramavt", coord_channels=True, pooled_skip=True, depth_centre=0.25, depth_gain=20.0)
-    plain = dataclasses.replace(cfg, coord_channels=False, depth_centre=0.0, depth_gain=1.0)
-    raw = np.asarray(_silhouette(0.3)).repeat(3, axis=0)
-    raw[1, 10:14, 10:14, 0] = 0.25  # on the target, exactly at the centre
-    hit = (raw > 0).astype(np.float32)
-    planes = np.broadcast_to(np.asarray(coordinate_planes(32, 32)), (3, 32, 32, 2))
-    by_hand = np.concatenate([(raw - 0.25) * 20.0 * hit, hit, planes], axis=-1)
-    params = init_params(cfg, jax.random.key(0), raw.shape[1:])["params"]["encoder"]
-    rescaled = jax.jit(Encoder(cfg).apply)({"params": params}, jnp.asarray(raw))
-    appended = jax.jit(Encoder(plain).apply)({"params": params}, jnp.asarray(by_hand))
-    np.testing.assert_allclose(rescaled, appended, atol=1e-5)
-
-
-def test_rescaled_depth_makes_a_small_range_change_visible_before_the_norm():
-    """A 0.1 m range change at the 5 m stand-off (depth 0.25 -> 0.255 in depth / far units): with centre 0.25 and
-    gain 20 the pre-norm pooled skip moves about 20x as much as on the raw depth (same parameters)."""
-    from ramavt_jax.network import Encoder
-
-    cfg = small("ramavt", coord_channels=True, pooled_skip=True)
-    rescaled = dataclasses.replace(cfg, depth_centre=0.25, depth_gain=20.0)
-    params = {"params": init_params(cfg, jax.random.key(0), (32, 32, 1))["params"]["encoder"]}
-    c1 = cfg.channels[0]
-    skip = lambda c, x: Encoder(c).apply(params, x)[:, -c1:]  # noqa: E731
-    change = lambda c: float(jnp.linalg.norm(skip(c, _silhouette(0.255)) - skip(c, _silhouette(0.25))))  # noqa: E731
-    assert change(rescaled) > 10 * change(cfg), (change(rescaled), change(cfg))
-
-
-@pytest.mark.parametrize(
-    "kw, message",
-    [
-        (dict(depth_gain=0.0), "depth_gain must be > 0"),
-        (dict(depth_centre=float("nan")), "depth_centre must be a finite number"),
-        (dict(depth_centre=0.25, coord_channels=False), "need coord_channels=True"),
-    ],
-)
-def test_depth_rescaling_config_is_validated(kw, message):
-    with pytest.raises(ValueError, match=message):
-        small("ramavt", **{"coord_channels": True, **kw})
-
-
-def test_depth_rescaling_needs_a_depth_channel():
-    from ramavt_jax.network import with_depth_rescaled
-
-    x = jnp.ones((1, 4, 4, 3))
-    with pytest.raises(ValueError, match="need a depth channel"):
-        with_depth_rescaled(x, x[..., :1], 0.25, 20.0)
-
-
 @pytest.mark.parametrize("backend", ["cpu", "gpu"])
 def test_hybrid_conv_vmapped_over_kernels_equals_each_kernel(backend, monkeypatch):
     """vmapped over seeds (kernels batched), the hybrid conv runs one convolution per kernel on CPU instead of XLA's
@@ -511,226 +437,33 @@ def test_hybrid_conv_vmapped_over_kernels_equals_each_kernel(backend, monkeypatc
             np.testing.assert_allclose(b[i], l, atol=1e-5)
 
 
-def _stats_by_hand(frame: np.ndarray) -> np.ndarray:
-    """[H, W, C] -> [8]: silhouette_stats of one frame, with numpy loops over the hit pixels."""
-    h, w = frame.shape[:2]
-    rows, cols = np.nonzero(frame.max(axis=-1) > 0)
-    if rows.size == 0:
-        return np.zeros(8)
-    col_px = (-1 + 2 * cols / (w - 1)) * w / 2  # the coordinate planes' [-1, 1], scaled to pixels
-    row_px = (-1 + 2 * rows / (h - 1)) * h / 2
-    metres = (frame[rows, cols, -1] - 0.25) * 20.0
-    return np.array(
-        [
-            np.sqrt(rows.size),
-            col_px.mean(),
-            row_px.mean(),
-            col_px.std(),
-            row_px.std(),
-            metres.mean(),
-            metres.min(),
-            metres.std(),
-        ]
-    )
-
-
-def test_silhouette_stats_match_a_by_hand_reference():
-    """Size, centroid, spread and depth statistics of random silhouettes (and of an empty frame: all 0) equal a
-    numpy reference; 'rgbd' frames read the depth from their last channel."""
-    from ramavt_jax.network import silhouette_stats
-
-    rng = np.random.default_rng(0)
-    depth = rng.uniform(0.1, 0.6, (4, 16, 12, 1)) * (rng.uniform(size=(4, 16, 12, 1)) > 0.8)
-    depth[2] = 0.0  # target out of view
-    depth[3] = 0.0
-    depth[3, 5, 7, 0] = 0.3  # one hit pixel: no spread
-    got = np.asarray(silhouette_stats(jnp.asarray(depth, jnp.float32)))
-    np.testing.assert_allclose(got, np.stack([_stats_by_hand(f) for f in depth]), atol=1e-4)
-    rgbd = np.concatenate([rng.uniform(size=depth.shape[:3] + (3,)) * (depth > 0), depth], axis=-1)
-    np.testing.assert_allclose(np.asarray(silhouette_stats(jnp.asarray(rgbd, jnp.float32))), got, atol=1e-5)
-    with pytest.raises(ValueError, match="needs a depth channel"):
-        silhouette_stats(jnp.zeros((1, 8, 8, 3)))
-
-
-def test_silhouette_stats_need_one_frame_per_encoder_input():
-    with pytest.raises(ValueError, match="silhouette_stats needs a recurrent variant"):
-        small("drlavt", silhouette_stats=True)
-
-
-def test_encoder_appends_the_silhouette_stats_last():
-    """silhouette_stats adds 8 features at the end of the encoder's output, exactly the statistics, and the rest of
-    the output is the encoder's without them (same parameters)."""
-    from ramavt_jax.network import Encoder, silhouette_stats
-
-    cfg = small("ramavt", coord_channels=True, pooled_skip=True, silhouette_stats=True)
-    plain = dataclasses.replace(cfg, silhouette_stats=False)
-    obs = _silhouette(0.3).repeat(2, axis=0).at[1].set(0.0)
-    params = {"params": init_params(cfg, jax.random.key(0), obs.shape[1:])["params"]["encoder"]}
-    with_stats, without = Encoder(cfg).apply(params, obs), Encoder(plain).apply(params, obs)
-    assert with_stats.shape == (2, without.shape[1] + 8)
-    np.testing.assert_allclose(with_stats[:, :-8], without, atol=1e-6)
-    np.testing.assert_allclose(with_stats[:, -8:], silhouette_stats(obs), atol=1e-6)
-
-
-def test_dense_norm_makes_q_invariant_to_the_scale_of_the_dense_layer_and_head():
-    """With dense_norm a LayerNorm follows the dense layer and the head: scaling either layer's kernel and bias by
-    a positive factor leaves every Q-value as it was; without it, the same scaling changes them."""
-    b, t = 2, 3
-    for norm in (True, False):
-        cfg = small("ramavt", dense_norm=norm)
-        _, variables, obs = _setup(cfg, b=b, t=t)
-        reset, state = jnp.zeros((b, t), bool).at[:, 0].set(True), initial_state(cfg, b, obs.shape[2:])
-        params = variables["params"]
-        assert ("dense_norm" in params and "head_norm" in params) == norm
-        q, _ = _apply(cfg, variables, obs, reset, state)
-        for layer in ("dense", "head"):
-            scaled = {**params, layer: jax.tree.map(lambda w: 3.0 * w, params[layer])}
-            q_scaled, _ = _apply(cfg, {**variables, "params": scaled}, obs, reset, state)
-            change = float(jnp.max(jnp.abs(q_scaled - q)) / jnp.max(jnp.abs(q)))
-            # with the norm only its epsilon (1e-6 beside the features' variance at init) tells the scales apart
-            assert change < 2e-3 if norm else change > 0.05, (layer, change)
-    with pytest.raises(ValueError, match="dense_norm needs a recurrent variant"):
-        small("drlavt", dense_norm=True)
-
-
-def test_frame_difference_acting_equals_unroll_and_reads_each_frames_change():
-    """frame_difference: the encoder sees obs_t - obs_(t-1) (0 at episode starts) as one more channel, the previous
-    frame carried in the state; acting step by step equals the unrolled window, and q depends on the frame before
-    only where no episode starts."""
-    from ramavt_jax.network import frame_changes, window_start_frames
-
-    cfg = small("ramavt", frame_difference=True)
-    b, t = 3, 5
-    _, variables, obs = _setup(cfg, b=b, t=t)
-    reset = jnp.zeros((b, t), bool).at[0, 0].set(True).at[1, 2].set(True)
-    state0 = _random_state(cfg, b, obs.shape[2:])
-    assert state0.frames.shape == (b, 1, *obs.shape[2:])
-    changes, last = frame_changes(obs, reset, state0.frames)
-    by_hand = np.array(obs - jnp.concatenate([state0.frames, obs[:, :-1]], axis=1))
-    by_hand[np.asarray(reset)] = 0.0
-    np.testing.assert_allclose(changes, by_hand, atol=1e-7)
-    np.testing.assert_array_equal(last, obs[:, -1:])
-    q_seq, s_seq = _apply(cfg, variables, obs, reset, state0)
-    s, qs = state0, []
-    for i in range(t):
-        q, s = _apply(cfg, variables, obs[:, i : i + 1], reset[:, i : i + 1], s)
-        qs.append(q)
-    np.testing.assert_allclose(jnp.concatenate(qs, 1), q_seq, atol=1e-5)
-    np.testing.assert_array_equal(s.frames, obs[:, -1:])
-    np.testing.assert_array_equal(s_seq.frames, obs[:, -1:])
-    q_other, _ = _apply(cfg, variables, obs, reset, state0.replace(frames=state0.frames * 0.0))
-    np.testing.assert_allclose(q_other[0, 0], q_seq[0, 0], atol=1e-6)  # an episode start: no frame before it
-    assert not np.allclose(q_other[2, 0], q_seq[2, 0], atol=1e-4)  # mid-episode: the frame before matters
-    np.testing.assert_array_equal(window_start_frames(cfg, obs), obs[:, :1])  # a stored window starts unchanged
-
-
-def test_frame_difference_channel_follows_the_hit_mask_and_is_taken_on_the_raw_frame():
-    """With coord_channels and rescaled depth, the first conv sees [depth rescaled, hit mask, change, column, row]:
-    the folded encoder equals a plain one (same parameters) on those channels built by hand."""
-    from ramavt_jax.network import coordinate_planes, hit_mask, with_depth_rescaled
-
-    cfg = small("ramavt", frame_difference=True, coord_channels=True, depth_centre=0.25, depth_gain=20.0)
-    plain = small("ramavt")
-    obs = jax.random.uniform(jax.random.key(2), (3, 32, 32, 1)) * (
-        jax.random.uniform(jax.random.key(3), (3, 32, 32, 1)) > 0.7
-    )
-    changes = jax.random.normal(jax.random.key(4), obs.shape)
-    params = init_params(cfg, jax.random.key(0), obs.shape[1:])["params"]["encoder"]
-    assert params["conv0"]["kernel"].shape[-2] == 5
-    hit = hit_mask(obs)
-    planes = jnp.broadcast_to(coordinate_planes(32, 32), (3, 32, 32, 2))
-    by_hand = jnp.concatenate([with_depth_rescaled(obs, hit, 0.25, 20.0), hit, changes, planes], axis=-1)
-    folded = jax.jit(Encoder(cfg).apply)({"params": params}, obs, False, changes)
-    np.testing.assert_allclose(folded, jax.jit(Encoder(plain).apply)({"params": params}, by_hand), atol=1e-4)
-
-
 def test_frame_stacking_without_history_still_runs():
-    """'drlavt' with frame_stack 1 keeps an empty [B, 0, H, W, C] history (frame_difference shares the buffer)."""
+    """'drlavt' with frame_stack 1 keeps an empty [B, 0, H, W, C] history."""
     cfg = small("drlavt", frame_stack=1)
     _, variables, obs = _setup(cfg, b=2, t=3)
     q, s = _apply(cfg, variables, obs, jnp.zeros((2, 3), bool), initial_state(cfg, 2, obs.shape[2:]))
     assert q.shape == (2, 3, cfg.num_actions) and s.frames.shape == (2, 0, 32, 32, 1)
 
 
-def test_frame_difference_config_and_state_are_checked():
-    with pytest.raises(ValueError, match="frame_difference needs a recurrent variant"):
-        small("drlavt", frame_difference=True)
-    with pytest.raises(ValueError, match="needs obs_shape"):
-        initial_state(small("ramavt", frame_difference=True), 2)
+def _dueling_head(cfg: NetworkConfig, y: jnp.ndarray) -> jnp.ndarray:
+    """A q_head made outside the package: Q = V + A - mean(A) (a value layer beside the default one)."""
+    advantage = nn.Dense(cfg.num_actions, name="q")(y)
+    return nn.Dense(1, name="value")(y) + advantage - advantage.mean(axis=-1, keepdims=True)
 
 
-def test_state_input_gain_scales_the_true_state_at_the_input():
-    """state_input_gain g: q of the true state s equals q of the plain diagnostic given g * s (same parameters)."""
-    cfg = small("ramavt", state_input=True, state_input_gain=10.0)
-    plain = dataclasses.replace(cfg, state_input_gain=1.0)
-    _, variables, obs = _setup(cfg, b=2, t=3)
-    reset, state = jnp.zeros((2, 3), bool), initial_state(cfg, 2)
-    true_state = 0.01 * jax.random.normal(jax.random.key(5), (2, 3, 6))
-    q = make_network(cfg).apply(variables, obs, reset, state, true_state=true_state)[0]
-    np.testing.assert_allclose(
-        q, make_network(plain).apply(variables, obs, reset, state, true_state=10.0 * true_state)[0], atol=1e-5
-    )
-    assert not np.allclose(
-        q, make_network(plain).apply(variables, obs, reset, state, true_state=true_state)[0], atol=1e-5
-    )
-    with pytest.raises(ValueError, match="needs state_input=True"):
-        small("ramavt", state_input_gain=10.0)
-    with pytest.raises(ValueError, match="state_input_gain must be a finite number > 0"):
-        small("ramavt", state_input=True, state_input_gain=0.0)
-
-
-def test_state_input_entries_read_only_the_chosen_parts_of_the_true_state():
-    """state_input_entries (2, 5): q of the true state s equals q of the full diagnostic given s with every other
-    entry zeroed, so changing those entries changes nothing, and changing entry 2 does."""
-    cfg = small("ramavt", state_input=True, state_input_entries=(2, 5))
-    full = dataclasses.replace(cfg, state_input_entries=tuple(range(6)))
-    _, variables, obs = _setup(cfg, b=2, t=3)
-    reset, state = jnp.zeros((2, 3), bool), initial_state(cfg, 2)
-    true_state = jax.random.normal(jax.random.key(5), (2, 3, 6))
-    kept = true_state * jnp.array([0, 0, 1, 0, 0, 1], jnp.float32)
-    q = make_network(cfg).apply(variables, obs, reset, state, true_state=true_state)[0]
-    np.testing.assert_allclose(q, make_network(full).apply(variables, obs, reset, state, true_state=kept)[0], atol=1e-5)
-    moved = make_network(cfg).apply(variables, obs, reset, state, true_state=true_state.at[..., 2].add(1.0))[0]
-    assert not np.allclose(q, moved, atol=1e-5)
-    with pytest.raises(ValueError, match=r"state_input_entries must be distinct indices in 0-5, got \(2, 2\)"):
-        small("ramavt", state_input=True, state_input_entries=(2, 2))
-    with pytest.raises(ValueError, match="state_input_entries picks entries .* needs state_input=True"):
-        small("ramavt", state_input_entries=(2,))
-
-
-def test_long_exposure_acting_equals_unroll_and_restarts_with_each_episode():
-    """exposure_rate r: the encoder also sees e_t = e_(t-1) + r (x_t - e_(t-1)) of the frame with its hit mask
-    (e_t = x_t where an episode starts), carried in the state; step by step equals the unrolled window."""
-    from ramavt_jax.network import long_exposure, with_hit_mask
-
-    cfg = small("ramavt", exposure_rate=0.25, frame_difference=True)
-    b, t = 3, 5
-    _, variables, obs = _setup(cfg, b=b, t=t)
-    obs = obs * (obs > 0.5)  # a background of zeros, so the hit mask varies
-    reset = jnp.zeros((b, t), bool).at[0, 0].set(True).at[1, 2].set(True)
-    state0 = _random_state(cfg, b, obs.shape[2:])
-    assert state0.exposure.shape == (1, b, 32, 32, 2)
-    seen = long_exposure(obs, reset, state0.exposure[0], 0.25)
-    e, x = np.array(state0.exposure[0]), np.array(with_hit_mask(obs.reshape(b * t, 32, 32, 1))).reshape(b, t, 32, 32, 2)
-    for i in range(t):
-        e = np.where(np.asarray(reset[:, i])[:, None, None, None], x[:, i], e + 0.25 * (x[:, i] - e))
-        np.testing.assert_allclose(seen[:, i], e, atol=1e-6)
-    q_seq, s_seq = _apply(cfg, variables, obs, reset, state0)
-    np.testing.assert_allclose(s_seq.exposure[0], seen[:, -1], atol=1e-6)
-    s, qs = state0, []
-    for i in range(t):
-        q, s = _apply(cfg, variables, obs[:, i : i + 1], reset[:, i : i + 1], s)
-        qs.append(q)
-    np.testing.assert_allclose(jnp.concatenate(qs, 1), q_seq, atol=1e-5)
-    np.testing.assert_allclose(s.exposure, s_seq.exposure, atol=1e-6)
-    q_other, _ = _apply(cfg, variables, obs, reset, state0.replace(exposure=state0.exposure * 0.0))
-    np.testing.assert_allclose(q_other[0], q_seq[0], atol=1e-5)  # row 0 starts an episode: the state is forgotten
-    assert not np.allclose(q_other[2, 0], q_seq[2, 0], atol=1e-4)  # mid-episode it is read
-    params = variables["params"]["encoder"]["conv0"]["kernel"]
-    assert params.shape[-2] == 4  # depth, its change, the exposure of depth and of the hit mask
-    with pytest.raises(ValueError, match="exposure_rate must be a number in"):
-        small("ramavt", exposure_rate=1.5)
-    with pytest.raises(ValueError, match="exposure_rate needs a recurrent variant"):
-        small("drlavt", exposure_rate=0.1)
-    with pytest.raises(ValueError, match="needs obs_shape"):
-        initial_state(small("ramavt", exposure_rate=0.1), 2)
+@pytest.mark.parametrize("variant", ["origin", "drlavt"])
+def test_a_q_head_from_outside_replaces_the_output_layer_and_keeps_the_rest(variant):
+    """QNetwork(config, q_head=...) (a network factory's simplest form): its layers join the params beside the
+    unchanged trunk, and Q is what the head makes of the features (here shifting the value output shifts every
+    action's Q alike)."""
+    cfg = small(variant)
+    net = QNetwork(cfg, q_head=_dueling_head)
+    b, t = 2, 3
+    obs = jax.random.uniform(jax.random.key(5), (b, t, 32, 32, 1))
+    reset, state = jnp.zeros((b, t), bool).at[:, 0].set(True), initial_state(cfg, b, obs.shape[2:])
+    params = init_variables(net, cfg, jax.random.key(0), (32, 32, 1))["params"]
+    plain = init_params(cfg, jax.random.key(0), (32, 32, 1))["params"]
+    assert set(params) == set(plain) | {"value"} and params["value"]["kernel"].shape[-1] == 1
+    q, _ = jax.jit(net.apply)({"params": params}, obs, reset, state)
+    moved = {**params, "value": {**params["value"], "bias": params["value"]["bias"] + 2.0}}
+    np.testing.assert_allclose(jax.jit(net.apply)({"params": moved}, obs, reset, state)[0], q + 2.0, atol=1e-5)

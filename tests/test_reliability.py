@@ -173,17 +173,13 @@ def test_a_config_json_written_before_a_field_was_added_reads_as_that_field_s_ol
     from ramavt_jax.training import run_folder
 
     config_json = json.loads(json.dumps(SMOKE.to_dict()))
-    older = _without(_without(config_json, "network", "depth_centre"), "network", "depth_gain")
+    older = _without(_without(config_json, "learner", "bootstrap_from"), "learner", "blind_label")
     (tmp_path / "config.json").write_text(json.dumps({"seed": 0, "config": older}))
-    network = run_folder.read_config(tmp_path)["config"]["network"]
-    assert (network["depth_centre"], network["depth_gain"]) == (0.0, 1.0)
-    no_schedule = _without(_without(config_json, "learner", "polyak_tau_start"), "learner", "polyak_tau_decay")
-    (tmp_path / "config.json").write_text(json.dumps({"seed": 0, "config": no_schedule}))
-    learner = TrainConfig.from_dict(run_folder.read_config(tmp_path)["config"]).learner
-    assert (learner.polyak_tau_start, learner.polyak_tau_decay) == (None, (1000, 2000))  # a constant tau, as trained
-    no_stats = _without(config_json, "network", "silhouette_stats")
-    (tmp_path / "config.json").write_text(json.dumps({"seed": 0, "config": no_stats}))
-    assert TrainConfig.from_dict(run_folder.read_config(tmp_path)["config"]).network.silhouette_stats is False
+    learner = run_folder.read_config(tmp_path)["config"]["learner"]
+    assert (learner["bootstrap_from"], learner["blind_label"]) == ("target", "teacher")
+    no_average = _without(config_json, "run", "policy_average_from")
+    (tmp_path / "config.json").write_text(json.dumps({"seed": 0, "config": no_average}))
+    assert TrainConfig.from_dict(run_folder.read_config(tmp_path)["config"]).run.policy_average_from is None
     (tmp_path / "config.json").write_text(json.dumps({"seed": 0, "config": _without(older, "network", "lstm")}))
     with pytest.raises(run_folder.RunFolderError, match="lacks network.lstm"):
         run_folder.read_config(tmp_path)

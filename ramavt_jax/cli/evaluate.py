@@ -88,7 +88,6 @@ def _ensemble_entry(loaded: list[LoadedRun], search: str) -> tables_lib.Entry:
         "ensemble",
         search,
         members=len(loaded),
-        camera=first.env.camera,
     )
     sweeps = sorted(
         {

@@ -155,7 +155,7 @@ def evaluate_checkpoint(run_dir: str | Path, step: int, ep: CurveEpisodes, polic
     cfg = lr.config
     tracking_env = tables.suite_env(cfg.env, ep.targets, rollouts.PERTURBATION_VALUES)
     # one compile for every checkpoint of a network
-    policy = GreedyPolicyOf(cfg.network, tuple(cfg.env.obs_shape), camera=cfg.env.camera)
+    policy = GreedyPolicyOf(cfg.network, tuple(cfg.env.obs_shape))
     res = _evaluate(tracking_env, policy, rollouts.run_env_overrides(cfg.env_params), ep, lr.params)
     return {"step": lr.step, "env_steps": lr.meta.get("env_steps"), **_point(res)}
 

@@ -24,7 +24,7 @@ from ramavt_jax.train_state import TrainingDivergedError
 from ramavt_jax.training import run_folder as folders
 from ramavt_jax.training.checkpoint import CheckpointError, CheckpointNotFoundError, CheckpointStore, has_checkpoint
 from ramavt_jax.training.interrupts import StopSignals, TrainingInterrupted
-from ramavt_jax.training.metrics import Log, aggregate, divergence, split_loss
+from ramavt_jax.training.metrics import Log, aggregate, divergence
 from ramavt_jax.training.program import _compiled, _Program
 
 __all__ = ["run", "lock_folder", "RunSummary", "aggregate", "read_metrics", "TrainingInterrupted"]
@@ -217,12 +217,6 @@ class _Loop:
         for k in range(num_seeds):
             record = {"chunk": self.chunk_no, **aggregate(_seed_slice(m, k, num_seeds), wall, c.env_steps_per_chunk)}
             record["trained_frames_per_s"] = record["updates_per_s"] * c.replay.batch_size * c.replay.train_len
-            record = split_loss(
-                record,
-                c.learner.aux_weight,
-                c.learner.expert_margin_weight,
-                c.learner.policy_weight if c.network.policy_head else 0.0,
-            )
             record["compile_s"] = self.prog.compile_s
             record["since_start_s"] = since_start
             record["started_at"] = self.clock_start  # epoch second: tells one process's records from a resume's
@@ -304,7 +298,7 @@ def _train_chunks(loop: _Loop, state, end: int, stop: StopSignals, say):
     return state
 
 
-def _start(config: TrainConfig, f: _Folders, num_devices, tracking_env, say, debug_nan_at_update: int):
+def _start(config: TrainConfig, f: _Folders, num_devices, tracking_env, say, debug_nan_at_update: int, components=None):
     """Compile (or reuse) the program and build the initial or restored state; (program, state, mesh)."""
     mesh = distributed.make_mesh(num_devices)
     if mesh is not None and len(f.seeds) == 1:
@@ -316,7 +310,7 @@ def _start(config: TrainConfig, f: _Folders, num_devices, tracking_env, say, deb
         f"compiling the training chunk ({config.network.variant}, {config.env.obs_shape}, {len(f.seeds)} seed(s), "
         f"{where}) ..."
     )
-    prog = _compiled(config, tracking_env, len(f.seeds), mesh, debug_nan_at_update)
+    prog = _compiled(config, tracking_env, len(f.seeds), mesh, debug_nan_at_update, components)
     say(f"compiled in {time.time() - t:.1f} s")
     keys = (
         np.stack([np.asarray(jax.random.PRNGKey(s)) for s in f.seeds])
@@ -339,6 +333,7 @@ def run(
     debug_nan_at_update: int = -1,
     clock_start: float | None = None,
     lock: folders.RunLock | None = None,
+    components=None,
 ) -> RunSummary:
     """Train ``config`` into ``out_dir``; returns a :class:`RunSummary` (a JSON-friendly dict: counters, timings,
     memory, the last metrics record) whose ``.state`` is the final RunnerState.
@@ -354,6 +349,8 @@ def run(
       from that checkpoint folder (error if none is there).
     max_chunks: stop after this many chunks in this call (a checkpoint is saved), e.g. to split a run.
     debug_nan_at_update: a test hook: the loss becomes NaN from this gradient step on (-1 = off).
+    components: the trainer's extension points (train.Components: a network factory, loss terms, a labeller; None =
+      built from the config), for experiments that plug in a component without a config field.
     clock_start: the epoch second from which each metrics record's ``since_start_s`` (and the summary's
       ``startup_s``, to the first chunk's dispatch) count: ``ramavt train`` passes its process's start, so that
       imports, compiling and building the state are counted; None = the start of this call.
@@ -390,6 +387,7 @@ def run(
                 say,
                 debug_nan_at_update,
                 clock_start,
+                components,
             )
     finally:
         if f.lock is not None:
@@ -410,9 +408,10 @@ def _run_locked(
     say,
     debug_nan_at_update: int,
     clock_start: float,
+    components=None,
 ) -> RunSummary:
     stop.hard_exit = "while compiling or allocating"
-    prog, state, mesh = _start(config, f, num_devices, tracking_env, say, debug_nan_at_update)
+    prog, state, mesh = _start(config, f, num_devices, tracking_env, say, debug_nan_at_update, components)
     jax.block_until_ready(state)  # the allocation is done before a signal is deferred
     distributed.barrier("ramavt_compiled")  # processes compile at different speeds; the next step is collective
     saved_rows = None

@@ -15,11 +15,12 @@ from ramavt_jax.train_config import TrainConfig
 from ramavt_jax.train_state import ChunkMetrics
 from ramavt_jax.training import run_folder as folders
 
-__all__ = ["aggregate", "split_loss", "divergence", "process_start_time", "Log"]
+__all__ = ["aggregate", "divergence", "process_start_time", "Log"]
 
 
 def aggregate(m: ChunkMetrics, wall_s: float, env_steps: int) -> dict:
-    """Per-chunk record from the per-iteration sums of one chunk (host numpy); ``env_steps`` taken in the chunk."""
+    """Per-chunk record from the per-iteration sums of one chunk (host numpy); ``env_steps`` taken in the chunk. The
+    loss terms' metrics (losses.LossTerm: td_loss, aux_loss, ...) are averaged over the chunk's updates."""
     m = jax.tree.map(np.asarray, m)
     episodes = int(m.episodes.sum())
     updates = int(m.updates.sum())
@@ -34,10 +35,7 @@ def aggregate(m: ChunkMetrics, wall_s: float, env_steps: int) -> dict:
         "episode_return": ratio(m.episode_return_sum.sum(), episodes),
         "updates": updates,
         "loss": ratio(m.loss_sum.sum(), updates),
-        "aux_loss": ratio(m.aux_loss_sum.sum(), updates),
-        "margin_loss": ratio(m.margin_loss_sum.sum(), updates),
-        "expert_agreement": ratio(m.expert_agreement_sum.sum(), updates),
-        "policy_loss": ratio(m.policy_loss_sum.sum(), updates),
+        **{name: ratio(total.sum(), updates) for name, total in m.term_sums.items()},  # the loss terms' metrics
         "q_mean": ratio(m.q_sum.sum(), updates),
         "grad_norm": ratio(m.grad_norm_sum.sum(), updates),
         "epsilon": float(m.epsilon[-1]),
@@ -71,23 +69,6 @@ def process_start_time() -> float:
     except (OSError, ValueError, IndexError):
         return _IMPORTED_AT
     return min(now - since_start, _IMPORTED_AT)
-
-
-def split_loss(record: dict, aux_weight: float, margin_weight: float = 0.0, policy_weight: float = 0.0) -> dict:
-    """The record with its loss told apart: ``td_loss`` beside ``loss = td_loss + aux_weight * aux_loss +
-    margin_weight * margin_loss + policy_weight * policy_loss`` when the run has any of those terms
-    (``policy_weight`` 0 for a network without a policy head); the record holds no term (nor the agreement with the
-    labels) that the run has not got (its 0 would read as a perfect fit)."""
-    record = dict(record)
-    weights = dict(aux_loss=aux_weight, margin_loss=margin_weight, policy_loss=policy_weight)
-    if any(weights.values()):
-        record["td_loss"] = record["loss"] - sum(w * record.get(name, 0.0) for name, w in weights.items())
-    for name, weight in weights.items():
-        if not weight:
-            record.pop(name, None)
-    if not (margin_weight or policy_weight):
-        record.pop("expert_agreement", None)
-    return record
 
 
 def divergence(record: dict, max_loss: float | None = None) -> str | None:

@@ -12,7 +12,7 @@ import jax
 import numpy as np
 
 from ramavt_jax import distributed
-from ramavt_jax.train import Trainer
+from ramavt_jax.train import Components, Trainer
 from ramavt_jax.train_config import RunConfig, TrainConfig
 from ramavt_jax.training import memory as memplan
 
@@ -29,7 +29,7 @@ class _Program:
     memory: dict  # bytes: state per seed, replay per seed, XLA temp of the chunk
 
 
-# (config, seeds, mesh, env id, NaN hook) -> _Program; repeated runs, resumes and tests compile once
+# (config, seeds, mesh, env id, NaN hook, components) -> _Program; repeated runs, resumes and tests compile once
 _COMPILED: dict = {}
 # The initial state's program (the envs' reset with its renderer, the network's init) runs once per run, so on CPU
 # it is compiled without LLVM's optimisations, beside the chunk. One-off timings on an idle 2-core VM (quick preset,
@@ -84,12 +84,10 @@ def check_state_fits(config: TrainConfig, abstract, num_seeds: int, mesh, chunk_
 
 def _cache_key(config: TrainConfig) -> TrainConfig:
     """The config with what does not change the compiled chunk set to constants: the run group but its
-    iterations_per_chunk, policy_average_from and, where the learning rate's schedule spans the run (lr_final),
-    total_env_steps. learning_starts does change it; it is zeroed here (and kept in the cache key beside) only
-    because a shortened total_env_steps would fail validation with it."""
-    length_dependent = config.learner.lr_final is not None
+    iterations_per_chunk and policy_average_from. learning_starts does change it; it is zeroed here (and kept in the
+    cache key beside) only because a shortened total_env_steps would fail validation with it."""
     run = RunConfig(
-        total_env_steps=config.run.total_env_steps if length_dependent else config.env_steps_per_chunk,
+        total_env_steps=config.env_steps_per_chunk,
         iterations_per_chunk=config.run.iterations_per_chunk,
         policy_average_from=config.run.policy_average_from,
     )
@@ -97,16 +95,32 @@ def _cache_key(config: TrainConfig) -> TrainConfig:
 
 
 def _compiled(
-    config: TrainConfig, tracking_env, num_seeds: int = 1, mesh=None, debug_nan_at_update: int = -1
+    config: TrainConfig,
+    tracking_env,
+    num_seeds: int = 1,
+    mesh=None,
+    debug_nan_at_update: int = -1,
+    components: Components | None = None,
 ) -> _Program:
     """Trainer, AOT-compiled init and chunk for a config: one program for ``num_seeds`` seeds (vmapped when
-    > 1), with the envs and replay split over ``mesh`` when given. Cached per (config, seeds, mesh).
-    ``debug_nan_at_update``: the Trainer's test hook."""
-    key = (_cache_key(config), config.learner.learning_starts, num_seeds, mesh, id(tracking_env), debug_nan_at_update)
+    > 1), with the envs and replay split over ``mesh`` when given. Cached per (config, seeds, mesh, components).
+    ``debug_nan_at_update``: the Trainer's test hook; ``components``: its extension points (None: the config's)."""
+    components = components or Components()
+    key = (
+        _cache_key(config),
+        config.learner.learning_starts,
+        num_seeds,
+        mesh,
+        id(tracking_env),
+        debug_nan_at_update,
+        components,
+    )
     if key not in _COMPILED:
         distributed.check_seeds_divisible(num_seeds, mesh)
         # several seeds: the seed axis is split over the devices and each seed's program runs whole on one device
-        trainer = Trainer(config, tracking_env, mesh if num_seeds == 1 else None, debug_nan_at_update)
+        trainer = Trainer(
+            config, tracking_env, mesh if num_seeds == 1 else None, debug_nan_at_update, **components.kwargs()
+        )
         t0 = time.time()
         staged = _staged(trainer, num_seeds, mesh)
         abstract = staged.abstract

@@ -23,7 +23,7 @@ from typing import Any
 
 import numpy as np
 
-from ramavt_jax.train_config import TrainConfig
+from ramavt_jax.train_config import TrainConfig, without_retired_fields
 
 __all__ = [
     "CONFIG_FILE",
@@ -61,7 +61,7 @@ CONFIG_FILE, METRICS_FILE, CHECKPOINTS, EVAL_FILE = "config.json", "metrics.json
 CURVES_FILE = "training_curves.png"
 LOCK_FILE = ".lock"
 # TrainConfig fields that may change when a run is resumed: they do not change the checkpointed state (a larger
-# total_env_steps extends the run; with lr_final its cosine schedule is stretched over the new length)
+# total_env_steps extends the run)
 RESUMABLE_FIELDS = (
     "run.total_env_steps",
     "run.eval_episodes",
@@ -73,38 +73,15 @@ RESUMABLE_FIELDS = (
 )
 # Fields added to TrainConfig after run folders of earlier versions were written, each defaulting to what those
 # runs were trained with: a config.json without such a field reads as its default. Any other missing field means a
-# file cut short or edited, and is refused.
+# file cut short or edited, and is refused. (Fields since removed: TrainConfig's RETIRED_FIELDS.)
 ADDED_FIELDS = (
-    "network.depth_centre",
-    "network.depth_gain",
-    "learner.polyak_tau_start",
-    "learner.polyak_tau_decay",
-    "network.silhouette_stats",
     "replay.priority_exponent",
     "replay.importance_exponent",
     "replay.priority_max_share",
-    "network.standoff_input",
-    "network.command_gain_input",
-    "network.quantiles",
-    "learner.quantile_kappa",
     "learner.bootstrap_from",
-    "learner.td_lambda",
     "run.policy_average_from",
-    "network.dense_norm",
-    "acting.eps_ladder",
-    "acting.teacher_envs",
-    "network.state_input",
-    "learner.command_cost",
-    "network.frame_difference",
-    "network.state_input_gain",
-    "network.exposure_rate",
     "learner.expert_margin_weight",
-    "learner.expert_margin",
     "learner.blind_label",
-    "network.policy_head",
-    "learner.policy_weight",
-    "network.state_input_entries",
-    "network.state_input_point",
     "run.max_loss",
 )
 _SEED_DIR = re.compile(r"seed_\d+")
@@ -325,7 +302,9 @@ def default_json() -> dict:
 def config_differences(saved: dict, current: dict, defaults: dict | None = None) -> dict[str, tuple]:
     """{dotted field: (saved value, current value)} for every field that differs between two config dicts. A field
     the saved config lacks (written before the field existed) counts as its value in ``defaults`` (a config dict
-    of the defaults), so a new field left at its default does not block a resume."""
+    of the defaults), so a new field left at its default does not block a resume; a retired field at its old value
+    (TrainConfig's RETIRED_FIELDS) counts as absent, at another value is refused (ValueError)."""
+    saved = without_retired_fields(saved)
     a, b = _flatten(_sorted_pairs(saved)), _flatten(_sorted_pairs(current))
     d = _flatten(_sorted_pairs(defaults or {}))
     a.update({k: d[k] for k in d if k not in a})
@@ -339,8 +318,10 @@ def missing_fields(saved: dict, defaults: dict) -> list[str]:
 
 
 def read_config(run_dir: str | os.PathLike, defaults: dict | None = None) -> dict:
-    """A run folder's config.json ({"seed", "config"}), complete: RunFolderError (one line, naming the file and the
-    first missing field) when it cannot be read or lacks a field of ``defaults`` (default: TrainConfig's)."""
+    """A run folder's config.json ({"seed", "config"}), complete and without retired fields: RunFolderError (one
+    line, naming the file and the first missing field) when it cannot be read or lacks a field of ``defaults``
+    (default: TrainConfig's), or (naming the field) when it holds a retired field (TrainConfig's RETIRED_FIELDS)
+    at another value than its old default: the run used a research arm this version no longer has."""
     path = Path(run_dir) / CONFIG_FILE
     try:
         saved = json.loads(path.read_text())
@@ -356,6 +337,10 @@ def read_config(run_dir: str | os.PathLike, defaults: dict | None = None) -> dic
             f"{path} holds a config without the groups {', '.join(groups)} (the flat form of early "
             f"versions, which this version does not read); train the run again"
         )
+    try:
+        config = saved["config"] = without_retired_fields(config)
+    except ValueError as e:
+        raise RunFolderError(f"{path}: {e}") from None
     if defaults is None:
         defaults = default_json()
     missing = missing_fields(config, defaults)
