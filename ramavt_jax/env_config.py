@@ -250,8 +250,8 @@ def _check_values(values: dict, names, config: EnvConfig | None, owner: str) -> 
             if name in _WHOLE and not np.all(v == np.round(v)):
                 fail(name, what)
     pairs = (("size_scale_max", "size_scale_min", ">="), ("init_z_max", "init_z_min", ">"))
-    for high, low, op in pairs:
-        if (high in names or low in names) and high in values and low in values:
+    for high, low, op in pairs:  # both given (overrides given alone may join a preset's later: `--preset sizes`)
+        if high in names and low in names:
             if not np.all(values[high] >= values[low] if op == ">=" else values[high] > values[low]):
                 fail(high, f"{op} {low} ({values[low]})")
     if "sun_dir" in names:
@@ -278,9 +278,10 @@ def _check_values(values: dict, names, config: EnvConfig | None, owner: str) -> 
 
 
 def check_settings(overrides: dict, config: EnvConfig | None = None, owner: str = "EnvParams.") -> None:
-    """Check EnvParams overrides ``{name: value}`` before any params are built (the ranges of :data:`RANGES`, the
-    settings' relations, taken with the defaults of those not given; ``config``: the camera-dependent bounds too).
-    Raises ValueError in one line naming the setting and its range."""
+    """Check EnvParams overrides ``{name: value}`` before any params are built: the ranges of :data:`RANGES` and the
+    relations of the settings given together (size_scale_max >= size_scale_min, ...; those of a setting given alone
+    are checked with the built params); ``config``: the camera-dependent bounds too. Raises ValueError in one line
+    naming the setting and its range."""
     values = {k: np.asarray(v) for k, v in {**_defaults(), **overrides}.items()}
     _check_values(values, [k for k in overrides if k not in ("catalogue",)], config, owner)
 

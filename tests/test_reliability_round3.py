@@ -380,5 +380,5 @@ def test_a_weightless_model_inside_a_body_gets_the_right_hint(tmp_path):
     with pytest.raises(targets.TargetError, match='zero mass .*density="0".*give the geoms a density or a mass'):
         targets.load_numpy(str(path))
     path.write_text('<mujoco><worldbody><geom type="sphere" size="1"/></worldbody></mujoco>')
-    with pytest.raises(targets.TargetError, match="directly in <worldbody>"):
+    with pytest.raises(targets.TargetError, match=r"zero mass; put the geoms in a <body> \(not <worldbody> directly"):
         targets.load_numpy(str(path))

@@ -209,16 +209,18 @@ def load_numpy(name_or_path: str | os.PathLike, pad_to: int | None = None) -> tu
         for g in range(model.ngeom)
         if model.geom_bodyid[g] == 0
     ]
-    if in_world:
-        raise TargetError(
-            f"{path}: geom(s) {in_world} are placed directly in <worldbody>; put every geom of the target in a <body>"
-        )
     masses = np.asarray(model.body_mass, dtype=np.float64)
     total_mass = float(masses.sum())
-    if not total_mass > 0.0:
+    if not total_mass > 0.0 and in_world:
+        raise TargetError(f"{path}: the model has zero mass; put the geoms in a <body> (not <worldbody> directly)")
+    if not total_mass > 0.0:  # every geom in a body, and all weightless
         raise TargetError(
             f'{path}: the model has zero mass (its geoms in <body> elements weigh nothing: density="0" or '
             f'mass="0"); give the geoms a density or a mass'
+        )
+    if in_world:
+        raise TargetError(
+            f"{path}: geom(s) {in_world} are placed directly in <worldbody>; put every geom of the target in a <body>"
         )
     com = (masses[:, None] * data.xipos).sum(0) / total_mass
     inertia_world = np.zeros((3, 3))
