@@ -10,6 +10,10 @@ from ramavt_jax.training import run_folder
 __all__ = ["UsageError", "positive", "finite", "output_file", "output_folder", "keeps_policy_params"]
 
 
+MAX_EPISODES = 1_000_000  # episodes per target: the episode counters are 32-bit
+MAX_STEPS = 1_000_000  # an episode's length: EnvParams.max_steps's range (env_config.RANGES)
+
+
 class UsageError(ValueError):
     """A bad command-line argument."""
 

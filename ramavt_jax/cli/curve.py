@@ -7,7 +7,7 @@ from pathlib import Path
 from typing import Literal
 
 from ramavt_jax import baselines as baselines_lib
-from ramavt_jax.cli.checks import UsageError, keeps_policy_params, output_folder, positive
+from ramavt_jax.cli.checks import MAX_EPISODES, MAX_STEPS, UsageError, keeps_policy_params, output_folder, positive
 from ramavt_jax.evaluation import curve as curve_lib
 from ramavt_jax.evaluation import rollouts
 from ramavt_jax.figures import curve as curve_fig
@@ -73,13 +73,13 @@ def curve_cmd(
         progress: a progress bar over each run's checkpoints.
         chunks: only the checkpoints of these chunks (e.g. `--chunks 6 7 8 9 10`); default: every checkpoint.
     """
-    for name, value in (
-        ("--episodes", episodes),
-        ("--max-steps", max_steps),
-        ("--resolution", resolution),
-        ("--horizon", horizon),
+    for name, value, most in (
+        ("--episodes", episodes, MAX_EPISODES),
+        ("--max-steps", max_steps, MAX_STEPS),
+        ("--resolution", resolution, None),
+        ("--horizon", horizon, None),
     ):
-        positive(name, value)
+        positive(name, value, maximum=most)
     _check_runs(run, policy_params)
     names = rollouts.resolve_targets(targets)
     output_folder(out)

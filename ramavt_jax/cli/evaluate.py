@@ -14,7 +14,15 @@ import jax
 from ramavt_jax import baselines as baselines_lib
 from ramavt_jax import env as env_lib
 from ramavt_jax import greedy, render
-from ramavt_jax.cli.checks import UsageError, finite, keeps_policy_params, output_folder, positive
+from ramavt_jax.cli.checks import (
+    MAX_EPISODES,
+    MAX_STEPS,
+    UsageError,
+    finite,
+    keeps_policy_params,
+    output_folder,
+    positive,
+)
 from ramavt_jax.env_config import RANGES, check_settings
 from ramavt_jax.evaluation import pretrained, rollouts
 from ramavt_jax.evaluation import tables as tables_lib
@@ -23,7 +31,6 @@ from ramavt_jax.figures import episode, training
 from ramavt_jax.training import run_folder
 
 OTHER_WRITER = "wait for that command to finish, stop it, or write into another --out"
-MAX_EPISODES = 1_000_000  # per target: the episode counters are 32-bit
 LABELS = {
     "mpc": "mpc ceiling (true state)",
     "proportional": "proportional (true state)",
@@ -161,7 +168,7 @@ def _check_eval_args(
 ) -> tuple[str, ...]:
     """Every argument of `ramavt eval` checked before anything compiles; returns the resolved target names."""
     positive("--episodes", episodes, maximum=MAX_EPISODES)
-    positive("--max-steps", max_steps, maximum=int(RANGES["max_steps"][1]))
+    positive("--max-steps", max_steps, maximum=MAX_STEPS)
     positive("--blur-frames", blur_frames, maximum=int(RANGES["blur_frames"][1]))
     if any(t not in (1, 2, 3) for t in tables):
         raise UsageError(f"--tables must be among 1 2 3, got {' '.join(map(str, tables))}")
