@@ -31,7 +31,6 @@ import jax.numpy as jnp
 import numpy as np
 
 from ramavt_jax import env as env_lib
-from ramavt_jax import greedy
 from ramavt_jax import targets as targets_lib
 from ramavt_jax.evaluation import rollouts, runs
 from ramavt_jax.network import Encoder, RecurrentState, initial_state, make_network, record_action
@@ -66,11 +65,6 @@ def make_rollout(run: runs.LoadedRun, targets: tuple[str, ...], episodes: int, s
     (the target is chosen by the params). ``truth`` is taken from the state that rendered the observation the network
     acts on, as the auxiliary label is in training."""
     cfg = run.config
-    if cfg.network.state_input:
-        raise SystemExit(
-            f"{run.run_dir}: a state_input network reads its state as an input; its auxiliary head's "
-            f"estimate is not what this script measures"
-        )
     env = env_lib.TrackingEnv(dataclasses.replace(cfg.env, targets=tuple(targets)))
     net = make_network(cfg.network)
     encoder_only = lambda module, method: isinstance(module, Encoder) and method == "__call__"  # noqa: E731
@@ -83,14 +77,11 @@ def make_rollout(run: runs.LoadedRun, targets: tuple[str, ...], episodes: int, s
         )
 
         def body(c: Carry, k_step):
-            signal = greedy.standoff_signal(cfg.network, c.state, params)  # [] or None
-            standoff = None if signal is None else signal[None, None]
             (q, net_state), sown = net.apply(
                 {"params": net_params},
                 c.obs[None, None],
                 c.first[None, None],
                 c.net_state,
-                standoff=standoff,
                 mutable=["intermediates"],
                 capture_intermediates=encoder_only,
             )

@@ -4,7 +4,7 @@ horizon let it use the target's tumble to find it? A supervised test, no reinfor
     python lab/centre_estimator.py --windows 20 100 --updates 1500 --out results/val/centre_estimator.json
 
 The `quick` preset's network (its auxiliary head: the tracking error [3]) is fitted by mean squared error to the
-true error (greedy.true_tracking_state) on episodes flown by the ceiling told a centre a random 0-1 m off, with a
+true error (imitation.true_tracking_state) on episodes flown by the ceiling told a centre a random 0-1 m off, with a
 random action on a fifth of the steps (so that the error to estimate spans the agent's own and more: 0.68 m on
 average on the validation episodes), on the training targets. Training is
 truncated back-propagation through time over whole episodes: each update takes the next `window` steps of a batch
@@ -19,10 +19,8 @@ reports the estimate's error after the first `--skip` steps, in metres / k (plai
 across the image, along the boresight, and in 3-D. `visible centroid` is the error of the newest frame's visible
 surface centroid on the same frames (those with a target pixel: it has no estimate on the others); `desired point`
 the error of guessing that the centre is where it should be (an estimate that has learned nothing).
-`--spin-input` (a diagnostic) gives the network the target's true (inertial) angular velocity in camera axes beside its
-image features: whether, knowing how the target turns, it finds the centre the surface turns about;
-`--velocity-input` the target's true velocity relative to the chaser (greedy.true_tracking_state's last three
-entries), which with the spin fixes how every surface point moves.
+(The diagnostics `--spin-input` and `--velocity-input`, the target's true angular and relative velocity beside the
+image features, were retired with the package's true-state input: lab/README.md.)
 `lab/centre_precision.py` gives the yardstick: the ceiling told a centre
 0.1 m off keeps about 92 % of its return, 0.2 m off about 81 %, 0.3 m off about 70 %.
 """
@@ -44,11 +42,13 @@ from flax import struct
 from tqdm import tqdm
 
 from lab.centre_precision import offset_ceiling
-from ramavt_jax import baselines, greedy, presets
+from lab.surface import surface_centroid
+from ramavt_jax import baselines, presets
 from ramavt_jax import env as env_lib
 from ramavt_jax.baselines import Policy
 from ramavt_jax.evaluation import rollouts, runs
-from ramavt_jax.network import TRUE_STATE_SIZE, NetworkConfig, initial_state, make_network
+from ramavt_jax.imitation import true_tracking_state
+from ramavt_jax.network import NetworkConfig, initial_state, make_network
 
 LABEL = 3  # the tracking error's entries (stand-off distances), the auxiliary head's outputs
 DESIRED = np.array([0.0, 0.0, 5.0])  # m, the desired point of every catalogue target (stand-off scale k = 1)
@@ -58,17 +58,13 @@ FRAME_ONLY_WINDOW = 20  # steps per training row of the one-frame estimator (win
 @struct.dataclass
 class Episodes:
     """Recorded episodes: obs [E, T, H, W, C] float16 (the env's), action [E, T] int32 taken after each obs,
-    label [E, T, 3] the true error when the obs was taken, alive [E, T] bool, target [E] the catalogue index,
-    motion [E, T, 6] then: the target's inertial angular velocity in camera axes (rad/s; the camera's own turn with
-    the Hill frame, about 0.001 rad/s, not removed), then its velocity relative to the chaser (stand-off distances
-    per second, greedy.true_tracking_state); read only with --spin-input / --velocity-input."""
+    label [E, T, 3] the true error when the obs was taken, alive [E, T] bool, target [E] the catalogue index."""
 
     obs: jax.Array
     action: jax.Array
     label: jax.Array
     alive: jax.Array
     target: jax.Array
-    motion: jax.Array
 
 
 def behaviour(camera: env_lib.CameraConfig, max_offset: float, random_share: float) -> Policy:
@@ -102,10 +98,8 @@ def collect(
             action, pstate = jax.vmap(policy.act, in_axes=(0, 0, 0, 0, None))(
                 jax.random.split(k_act, per_target), pstate, obs, state, params
             )
-            true = jax.vmap(greedy.true_tracking_state, in_axes=(0, None))(state, params)
-            spin = jax.vmap(lambda s: env_lib.state_rotation(s, params.mean_motion) @ s.target_omega)(state)
-            motion = jnp.concatenate([spin, true[:, LABEL:]], axis=-1)
-            record = (obs.astype(jnp.float16), action, true[:, :LABEL], alive, motion)
+            true = jax.vmap(true_tracking_state, in_axes=(0, None))(state, params)
+            record = (obs.astype(jnp.float16), action, true[:, :LABEL], alive)
             obs, state, _, terminated, truncated, _ = jax.vmap(tracking_env.step_env, in_axes=(0, 0, 0, None))(
                 jax.random.split(k_env, per_target), state, action, params
             )
@@ -117,21 +111,19 @@ def collect(
 
     base = tracking_env.eval_params(max_steps=steps)
     parts = [run(tracking_env.pinned(base, i), jax.random.fold_in(key, i)) for i in range(len(targets))]
-    obs, action, label, alive, motion = (jnp.concatenate(x) for x in zip(*parts))
+    obs, action, label, alive = (jnp.concatenate(x) for x in zip(*parts))
     target = jnp.repeat(jnp.arange(len(targets)), per_target)
-    return Episodes(obs=obs, action=action, label=label, alive=alive, target=target, motion=motion)
+    return Episodes(obs=obs, action=action, label=label, alive=alive, target=target)
 
 
-def _aux_pass(net, params, obs, reset, state, actions, motion):
-    """The network over a window: (aux [B, W, 3] float32, the state after it); ``motion`` [B, W, 6] (Episodes) is
-    its state input when it has one, the entries its config picks (--spin-input, --velocity-input)."""
+def _aux_pass(net, params, obs, reset, state, actions):
+    """The network over a window: (aux [B, W, 3] float32, the state after it)."""
     (_, new_state), variables = net.apply(
         {"params": params},
         obs.astype(jnp.float32),
         reset,
         state,
         actions=actions,
-        true_state=motion if net.config.state_input else None,
         mutable=["intermediates"],
     )
     return variables["intermediates"]["aux"][0].astype(jnp.float32), new_state
@@ -143,11 +135,11 @@ def _masked_error(aux: jax.Array, label: jax.Array, alive: jax.Array) -> jax.Arr
 
 
 @functools.partial(jax.jit, static_argnums=(0, 1))
-def _update(net, optimiser, params, opt_state, state, obs, reset, actions, label, alive, motion):
+def _update(net, optimiser, params, opt_state, state, obs, reset, actions, label, alive):
     """One gradient step on one window of each episode of the batch; the state flows on with no gradient."""
 
     def loss_fn(p):
-        aux, new_state = _aux_pass(net, p, obs, reset, state, actions, motion)
+        aux, new_state = _aux_pass(net, p, obs, reset, state, actions)
         return _masked_error(aux, label, alive), new_state
 
     (loss, new_state), grads = jax.value_and_grad(loss_fn, has_aux=True)(params)
@@ -162,27 +154,17 @@ def _update(net, optimiser, params, opt_state, state, obs, reset, actions, label
     )
 
 
-def estimator_network(
-    overrides: dict | None = None, spin_input: bool = False, velocity_input: bool = False
-) -> NetworkConfig:
+def estimator_network(overrides: dict | None = None) -> NetworkConfig:
     """The `quick` preset's network with ``overrides`` ({field: value}, validated by NetworkConfig); ValueError for
-    one this fit cannot train (it reads only the frames and actions, and fits a 3-entry auxiliary head).
-    ``spin_input`` / ``velocity_input``: diagnostics, the target's true angular velocity / relative velocity at the
-    LSTM's input too (10x, as the state diagnostics read the error; Episodes.motion)."""
+    one this fit cannot train (it reads only the frames and actions, and fits a 3-entry auxiliary head)."""
     config = dataclasses.replace(presets.preset("quick").network, **(overrides or {}))
     if config.aux_outputs != LABEL or not config.recurrent:
         raise ValueError(
             f"the estimator fits a recurrent network's aux head to {LABEL} entries, got aux_outputs "
             f"{config.aux_outputs} on variant {config.variant!r}"
         )
-    if config.norm == "batch" or config.state_input or config.reads_standoff:
-        raise ValueError(
-            "the estimator reads frames and actions only: norm 'batch', state_input and the stand-off "
-            "inputs are not supported"
-        )
-    entries = (0, 1, 2) * spin_input + (3, 4, 5) * velocity_input
-    if entries:
-        config = dataclasses.replace(config, state_input=True, state_input_entries=entries, state_input_gain=10.0)
+    if config.norm == "batch":
+        raise ValueError("the estimator reads frames and actions only: norm 'batch' is not supported")
     return config
 
 
@@ -218,7 +200,6 @@ def train(
         jnp.zeros((1, 1, *obs_shape)),
         jnp.ones((1, 1), bool),
         initial_state(config, 1, obs_shape),
-        true_state=jnp.zeros((1, 1, TRUE_STATE_SIZE)),
     )["params"]
     optimiser = optax.chain(optax.clip_by_global_norm(1.0), optax.adam(lr))
     opt_state, losses, chunks = optimiser.init(params), [], steps // window
@@ -242,7 +223,6 @@ def train(
             episodes.action[rows, span],
             episodes.label[rows, span],
             episodes.alive[rows, span],
-            episodes.motion[rows, span],
         )
         losses.append(loss)  # kept on the device: no host sync per update
     return params, [float(x) for x in np.asarray(jnp.stack(losses))]
@@ -261,18 +241,16 @@ def estimate(
     for start in range(0, steps, chunk):
         span = slice(start, start + chunk)
         reset = jnp.zeros((count, min(chunk, steps - start)), bool).at[:, 0].set(start == 0) | frame_only
-        aux, state = run(
-            params, episodes.obs[:, span], reset, state, episodes.action[:, span], episodes.motion[:, span]
-        )
+        aux, state = run(params, episodes.obs[:, span], reset, state, episodes.action[:, span])
         out.append(np.asarray(aux))
     return np.concatenate(out, axis=1)
 
 
 def visible_centroid(episodes: Episodes, camera: env_lib.CameraConfig, desired: np.ndarray = DESIRED) -> np.ndarray:
-    """[E, T, 3] the error to the newest frame's visible-surface centroid (greedy.visible_tracking_state's, from the
+    """[E, T, 3] the error to the newest frame's visible-surface centroid (surface.visible_tracking_state's, from the
     recorded depth; NaN on a frame without the target)."""
     depth = jnp.asarray(episodes.obs[..., -1], jnp.float32) * camera.far  # [E, T, H, W] m / k
-    centroid, count = jax.vmap(jax.vmap(lambda d: greedy.surface_centroid(d, camera)))(depth)
+    centroid, count = jax.vmap(jax.vmap(lambda d: surface_centroid(d, camera)))(depth)
     centroid, count = np.asarray(centroid), np.asarray(count)
     return np.where(count[..., None] > 0, (centroid - desired) / desired[2], np.nan)
 
@@ -301,7 +279,7 @@ def agent_rows(run_dirs: list[str], episodes: Episodes, names: tuple[str, ...], 
     for run_dir in run_dirs:
         loaded = runs.load_policy(run_dir, log=lambda *_: None)
         network, obs_shape = loaded.config.network, tuple(loaded.config.env.obs_shape)
-        if obs_shape != tuple(episodes.obs.shape[2:]) or network.aux_outputs != LABEL or network.state_input:
+        if obs_shape != tuple(episodes.obs.shape[2:]) or network.aux_outputs != LABEL:
             raise ValueError(
                 f"{run_dir}: its network must read {tuple(episodes.obs.shape[2:])} frames alone and "
                 f"have a {LABEL}-entry aux head (got {obs_shape}, aux_outputs {network.aux_outputs})"
@@ -352,16 +330,6 @@ def main() -> None:
         metavar="FIELD=VALUE",
         help="NetworkConfig fields over the quick preset's, e.g. kernels=(8,2,3) strides=(8,2,1)",
     )
-    ap.add_argument(
-        "--spin-input",
-        action="store_true",
-        help="a diagnostic: the target's true angular velocity at the LSTM's input too",
-    )
-    ap.add_argument(
-        "--velocity-input",
-        action="store_true",
-        help="a diagnostic: the target's true velocity relative to the chaser at the LSTM's input too",
-    )
     ap.add_argument("--train-targets", default="train", help="a split or names / MJCF files, as `ramavt eval` takes")
     ap.add_argument("--eval-targets", default="val", help="the targets of the evaluated episodes, likewise")
     ap.add_argument(
@@ -382,7 +350,7 @@ def main() -> None:
         ap.error("--windows must be >= 0, --updates >= 1 and --skip < --steps")
     try:
         overrides = {k: ast.literal_eval(v) for k, v in (item.split("=", 1) for item in args.network)}
-        config = estimator_network(overrides, args.spin_input, args.velocity_input)
+        config = estimator_network(overrides)
         train_names = rollouts.resolve_targets(args.train_targets)
         val_names = rollouts.resolve_targets(args.eval_targets)
     except (ValueError, SyntaxError, TypeError) as e:

@@ -8,7 +8,7 @@ Arms, each told a centre other than the true one (the env still scores the true 
 
 - `offset S`: off by a fixed vector of S metres times the target's stand-off scale k (plain metres for every
   catalogue target), in a direction drawn per episode: an estimate with a constant error of that size.
-- `visible`: the centroid of the visible surface in the newest frame (greedy.visible_tracking_state): holding the
+- `visible`: the centroid of the visible surface in the newest frame (lab.surface.visible_tracking_state): holding the
   image's centre, with the centre's true velocity known (the planner's model moves the told point with the centre,
   so it cannot foresee the centroid wandering as the target turns). On a frame without the target the true centre
   is told (that function's fallback), which helps recovery: its lost share is a floor. `visible lateral` /
@@ -27,10 +27,12 @@ from pathlib import Path
 import jax
 import jax.numpy as jnp
 
-from ramavt_jax import baselines, greedy
+from lab.surface import visible_tracking_state
+from ramavt_jax import baselines
 from ramavt_jax import env as env_lib
 from ramavt_jax.baselines import Policy
 from ramavt_jax.evaluation import rollouts, tables
+from ramavt_jax.imitation import true_tracking_state
 
 VISIBLE_AXES = {"visible": (1.0, 1.0, 1.0), "visible lateral": (1.0, 1.0, 0.0), "visible range": (0.0, 0.0, 1.0)}
 
@@ -69,9 +71,9 @@ def visible_offset(
     state: env_lib.EnvState, params: env_lib.EnvParams, camera: env_lib.CameraConfig, axes: tuple[float, float, float]
 ) -> jax.Array:
     """[3] m, camera frame: the visible surface's centroid minus the centre, on the axes where ``axes`` is 1 (0 on the
-    others, and on all of them when the frame shows no target: greedy.visible_tracking_state's fallback)."""
-    true = greedy.true_tracking_state(state, params)[:3]
-    seen = greedy.visible_tracking_state(state, params, camera)[:3]
+    others, and on all of them when the frame shows no target: surface.visible_tracking_state's fallback)."""
+    true = true_tracking_state(state, params)[:3]
+    seen = visible_tracking_state(state, params, camera)[:3]
     return (seen - true) * params.desired_pos[2] * state.scale * jnp.asarray(axes, jnp.float32)  # stand-off -> m
 
 

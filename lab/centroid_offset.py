@@ -17,8 +17,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from lab.surface import surface_centroid
 from ramavt_jax import env as env_lib
-from ramavt_jax import greedy, render, rotations
+from ramavt_jax import render, rotations
 from ramavt_jax import targets as targets_lib
 from ramavt_jax.evaluation import rollouts
 
@@ -34,7 +35,7 @@ def centroid_offsets(target: targets_lib.TargetModel, rotations_b: jax.Array, ca
         )
     )(rotations_b)
     depth = jnp.where(frames.hit, frames.depth, 0.0)  # [B, H, W] m, 0 where the target is not hit
-    centres, counts = jax.vmap(lambda d: greedy.surface_centroid(d, cam))(depth)
+    centres, counts = jax.vmap(lambda d: surface_centroid(d, cam))(depth)
     centres = np.asarray(centres)[np.asarray(counts) > 0]  # camera frame, the attitudes in which it is seen
     return {
         "sideways": np.linalg.norm(centres[:, :2] / centres[:, 2:] * STANDOFF, axis=1),

@@ -15,18 +15,20 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import sys
 import time
 from pathlib import Path
 
 import jax
 import jax.numpy as jnp
 import numpy as np
-import procedural_targets  # a sibling script in scripts/, on the path when this one runs or is imported
 
+from lab import arm_components as parts
 from ramavt_jax import baselines, greedy, presets
 from ramavt_jax import env as env_lib
 from ramavt_jax import targets as targets_lib
 from ramavt_jax.evaluation import runs, statistics
+from ramavt_jax.train import Components, default_loss_terms
 from ramavt_jax.training.driver import run as train_run
 
 
@@ -113,15 +115,13 @@ ARMS["long-prev"] = lambda c: ARMS["prev"](c).override(**_LONGER)
 # AER of Table III's single modules):
 ARMS["prev-se"] = lambda c: _net(ARMS["prev"](c), variant="se")
 # Two levers on distance keeping: the evaluation's distance weight in training, and a learning rate decaying
-# (cosine) to a tenth over the run.
+# (cosine) to a tenth over the run ('prev-lrdecay', retired with the package's arm fields: lab/README.md).
 ARMS["prev-dw1"] = lambda c: ARMS["prev"](c).override(env_params=(("dist_weight", 1.0),))
-ARMS["prev-lrdecay"] = lambda c: ARMS["prev"](c).override(lr_final=_LR / 10)
 # The opposite lever (prev-lrdecay lost AER): twice the learning rate throughout.
 ARMS["prev-lr2"] = lambda c: ARMS["prev"](c).override(lr=2 * _LR)
-# A dueling head (Q = V + mean-centred advantages): the actions' Q differ by a few cm of distance keeping.
-ARMS["prev-duel"] = lambda c: _net(ARMS["prev"](c), dueling=True)
-# Advantage learning (alpha 0.9, the published value): targets of worse actions lowered, widening the same gaps.
-ARMS["prev-al"] = lambda c: ARMS["prev"](c).override(advantage_alpha=0.9)
+# A dueling head ('prev-duel', retired) and advantage learning (alpha 0.9, the published value: targets of worse
+# actions lowered, widening the gaps; its TD term in COMPONENTS below).
+ARMS["prev-al"] = lambda c: ARMS["prev"](c)
 
 
 def _with_aux(cfg):
@@ -135,11 +135,11 @@ ARMS["prev-aux"] = lambda c: _with_aux(ARMS["prev"](c))
 # below) it was the `long` preset until 2026-12-06 and the shipped agent until 2026-12-03 (ramavt_depth_long).
 ARMS["long-aux"] = lambda c: _with_aux(ARMS["long"](c))
 # Each one change to 'prev-aux' (the quick preset then): the auxiliary loss weighted 3x, twice the
-# learning rate (a decaying one cost AER: the agent is still learning at the end), a dueling head, advantage learning.
+# learning rate (a decaying one cost AER: the agent is still learning at the end), a dueling head ('aux-duel',
+# retired), advantage learning (its TD term in COMPONENTS).
 ARMS["aux-w3"] = lambda c: ARMS["prev-aux"](c).override(aux_weight=3.0)
 ARMS["aux-lr2"] = lambda c: ARMS["prev-aux"](c).override(lr=2 * _LR)
-ARMS["aux-duel"] = lambda c: _net(ARMS["prev-aux"](c), dueling=True)
-ARMS["aux-al"] = lambda c: ARMS["prev-aux"](c).override(advantage_alpha=0.9)
+ARMS["aux-al"] = lambda c: ARMS["prev-aux"](c)
 # aux-lr2 gained most with the target params: four times the learning rate, and twice it on the long budget.
 ARMS["aux-lr4"] = lambda c: ARMS["prev-aux"](c).override(lr=4 * _LR)
 ARMS["long-lr2"] = lambda c: ARMS["long-aux"](c).override(lr=2 * _LR)
@@ -166,11 +166,11 @@ ARMS["size-wide"] = lambda c: ARMS["patch-768k"](c).override(
 )
 # Size randomisation towards small sizes only ([0.15, 1]x): size-wide's gain on other sizes was all on the small
 # models and its cost on the large ones; the command speed rule (EnvParams.speed_standoff_power) now serves large
-# targets. R2D2's value rescaling of the targets (one change to the preset).
+# targets. (R2D2's value rescaling of the targets, 'value-rescale', one change to the preset: retired with the
+# package's arm fields, lab/README.md.)
 ARMS["size-small"] = lambda c: ARMS["patch-768k"](c).override(
     env_params={"size_scale_min": 0.15, "size_scale_max": 1.0}
 )
-ARMS["value-rescale"] = lambda c: ARMS["patch-768k"](c).override(value_rescale=True)
 # size-small on the budget of 'patch-1152k' (one change to 'size-small'): whether more env steps buy back its cost
 # on the catalogue's sizes.
 ARMS["size-small-1152k"] = lambda c: ARMS["size-small"](c).override(total_env_steps=1_152_000)
@@ -190,8 +190,8 @@ ARMS["eps-100k"] = lambda c: ARMS["patch-768k"](c).override(eps_decay_steps=100_
 # network). The auxiliary head's estimate of the tracking error correlates weakly with the true error along
 # the boresight (lab/aux_error.py); its loss (squared error in stand-off units) is a minor part of the total
 # (0.0022 of 0.0077 in the last chunk of a `sizes` run, metrics.jsonl): weighted 10x, it shapes the encoder and
-# memory more towards where the target is.
-ARMS["adv-learning"] = lambda c: ARMS["patch-768k"](c).override(advantage_alpha=0.9)
+# memory more towards where the target is. (Advantage learning's TD term: COMPONENTS.)
+ARMS["adv-learning"] = lambda c: ARMS["patch-768k"](c)
 ARMS["aux-w10"] = lambda c: ARMS["patch-768k"](c).override(aux_weight=10.0)
 # The policy acts with the target net's Polyak average (tau 0.01, about the last 100 updates), which scored far above
 # the online params on every seed: a slower average (tau 0.005, about 200 updates), for the TD targets as well.
@@ -199,10 +199,6 @@ ARMS["polyak-0005"] = lambda c: ARMS["patch-768k"](c).override(polyak_tau=0.005)
 # The auxiliary head barely follows the boresight error, and a tumbling target's visible surface moves about its
 # centre: more memory to average the centre's range over steps (an LSTM of 256 units instead of 128).
 ARMS["lstm256"] = lambda c: _net(ARMS["patch-768k"](c), lstm=256)
-# Perception along the boresight: in depth / far units a 0.1 m range change at the stand-off is 0.005, which the
-# first layer and a few thousand updates barely amplify; the depth of the target's pixels in metres from the
-# stand-off instead (NetworkConfig.depth_centre / depth_gain).
-ARMS["depth-metres"] = lambda c: _net(ARMS["patch-768k"](c), depth_centre=0.25, depth_gain=20.0)
 # The replay stores observations as uint8 (ReplayConfig.obs_dtype): depth / far in steps of 1/255, 7.8 cm at far
 # 20 m, about the boresight precision asked for; the policy acts on the unquantised frames. float16 keeps about 5 mm
 # at the stand-off.
@@ -228,9 +224,6 @@ ARMS["wide"] = lambda c: _net(ARMS["patch-768k"](c), channels=(32, 64, 64))
 # update runs the network over fewer frames (from the stored recurrent state, as R2D2 does), so a chunk takes less time.
 ARMS["polyak-002"] = lambda c: ARMS["patch-768k"](c).override(polyak_tau=0.02)
 ARMS["burn-5"] = lambda c: ARMS["patch-768k"](c).override(burn_in=5)
-# polyak-002 crossed the depth tracker a chunk earlier than the preset and ended lower: tau 0.02 for the first 1000
-# updates (about 10 chunks), then linearly to the preset's 0.01 by update 2000.
-ARMS["polyak-sched"] = lambda c: ARMS["patch-768k"](c).override(polyak_tau_start=0.02, polyak_tau_decay=(1000, 2000))
 # Runs of the preset (and of several arms) collapse late in one seed in five or ten, with the gradient norm rising
 # from about 0.4 to 2.3 over the collapse: gradients clipped at a global norm of 1 instead of 10 (the quick preset
 # from 4345e80 until 'clip-1152k').
@@ -243,10 +236,6 @@ ARMS["clip-1152k"] = lambda c: ARMS["clip-1"](c).override(total_env_steps=1_152_
 ARMS["clip-polyak-002"] = lambda c: ARMS["clip-1"](c).override(polyak_tau=0.02)
 # The sizes preset then ('size-small-1152k') with the quick preset's clip: one change to it.
 ARMS["size-small-clip-1"] = lambda c: ARMS["size-small-1152k"](c).override(max_grad_norm=1.0)
-# The agent's error is mostly along the boresight and across the image by about half a pixel (scripts/
-# position_error.py): statistics of the silhouette (size, centroid, spread; mean, nearest and spread of depth)
-# beside the conv features, one change to the quick preset.
-ARMS["stats"] = lambda c: _net(ARMS["clip-1152k"](c), silhouette_stats=True)
 # 1.54M env steps, a third more than the quick preset (whose main job takes 4 min 26 s of the 6 allowed), trained by
 # resuming 'clip-1152k''s runs: no schedule depends on the run's length, and a resumed run is bit-exact.
 ARMS["clip-1536k"] = lambda c: ARMS["clip-1152k"](c).override(total_env_steps=1_536_000)
@@ -257,9 +246,6 @@ ARMS["clip-dw1"] = lambda c: ARMS["clip-1152k"](c).override(env_params=(("dist_w
 # 64x64 depth on the quick preset ('res64' was one change to 'patch-768k', at norm 10, with one seed far below the
 # others): more pixels across the target, the first patch 8x8 so the attention keeps its 4x4 token grid.
 ARMS["clip-res64"] = lambda c: _res64(ARMS["clip-1152k"](c))
-# The same statistics for the sizes preset then ('size-small-1152k'): a small target covers a few pixels, which
-# patch layers see at 4-pixel granularity.
-ARMS["size-stats"] = lambda c: _net(ARMS["size-small-1152k"](c), silhouette_stats=True)
 ARMS["res64"] = lambda c: _res64(ARMS["patch-768k"](c))
 # The gap to the ceiling is largest on the panelled shapes (the validation satellite and station), and linear probes
 # find no trace of the satellite's tracking error in the agent's memory (docs/experiments.md): more training shapes,
@@ -273,28 +259,15 @@ ARMS["size-stretch"] = lambda c: _env(ARMS["size-small-1152k"](c), **_STRETCH)
 ARMS["per"] = lambda c: ARMS["clip-1152k"](c).override(priority_exponent=0.9)
 # Targets of other sizes, each one change to the sizes preset then ('size-small-1152k'): resized up to 4x as well as
 # down to 0.15x (under the stand-off speed rule a large target looks and moves, in stand-off units, like a 2.5 m one
-# held at 5 m, larger than most catalogue targets, and drifts k times slower); and the stand-off scale k as an input,
-# since a frame does not show it (a small target's image is a catalogue-sized target's, but every command moves it
-# 1/k times as far).
+# held at 5 m, larger than most catalogue targets, and drifts k times slower). (The stand-off scale k as an input,
+# 'size-standoff', and the command gain, 'size-command': retired with the package's arm fields, lab/README.md.)
 ARMS["size-up"] = lambda c: _env(ARMS["size-small-1152k"](c), size_scale_max=4.0)
-ARMS["size-standoff"] = lambda c: _net(ARMS["size-small-1152k"](c), standoff_input=True)
-# size-standoff failed on the 12 m station in one seed in five: ln k = 1.57 there, beyond the [ln 0.3, 0] that
-# training on sizes up to 1x covers. What a frame cannot show is how far a command moves the view, in stand-off units:
-# 1 / k for small targets, 1 for large ones under the speed rule, a range that training on small sizes covers.
-ARMS["size-command"] = lambda c: _net(ARMS["size-small-1152k"](c), command_gain_input=True)
-# Distributional values (QR-DQN: 32 quantiles of the return per action, the quantile Huber loss at kappa 0.05, Q their
-# mean), one change to the quick preset: a tumbling target's visible surface moves about its centre, so the return
-# of an action is spread; the quantiles give the shared layers a richer signal than one mean per action.
-ARMS["quantiles"] = lambda c: _net(ARMS["clip-1152k"](c), quantiles=32)
 # Targets from the online net's own trained pass (PQN's recipe without its LayerNorm): one forward pass fewer per
 # update; the target net is still averaged, for acting. The quick preset since it crossed the depth tracker two chunks
 # sooner at the same final AER.
 ARMS["online-boot"] = lambda c: ARMS["clip-1152k"](c).override(bootstrap_from="online")
 # The sizes preset then ('size-small-1152k') with the quick preset's targets from the online net: one change to it.
 ARMS["size-online-boot"] = lambda c: ARMS["size-small-1152k"](c).override(bootstrap_from="online")
-# Peng's Q(lambda) returns (lambda 0.9: a mean horizon of 10 steps against the preset's 5-step returns) in place of
-# the n-step ones.
-ARMS["lambda-09"] = lambda c: ARMS["clip-1152k"](c).override(td_lambda=0.9, n_step=1)
 # Polyak-Ruppert tail averaging: the policy is the mean of the target net's params at the ends of the last 12 of the
 # 36 chunks (one change: the parameter set the policy acts with; training is the same). The quick preset since it
 # scored higher with a narrower spread over seeds on validation.
@@ -311,9 +284,6 @@ ARMS["size-quick"] = lambda c: _env(ARMS["avg-12"](c), size_scale_min=0.15, size
 # sizes preset from when it scored higher on val-sizes until 'size-1536k'.
 ARMS["size-res64"] = lambda c: _res64(ARMS["size-quick"](c))
 
-# PQN's LayerNorm (Gallici et al. 2024) in the dense layer and the head, one change to the quick preset ('avg-12'),
-# whose targets already come from the online net: the normalisation PQN pairs with such targets.
-ARMS["dense-norm"] = lambda c: _net(ARMS["avg-12"](c), dense_norm=True)
 # Twice the sequences per update (64), at the same number of updates (replay ratio 4: trained frames per env frame
 # double with the batch), one change to the quick preset: less noise in each gradient of the few-cm gaps between
 # actions' values, at 1.4-1.7x the training time as measured (the preset's main job takes 3 min 45 s of the 6
@@ -343,11 +313,6 @@ ARMS["perturb-1"] = lambda c: _table2_in_training(ARMS["avg-12"](c), 1.0)
 # Twice the env steps (2.30M, 72 chunks), the policy still the average over the last 12 chunks (61-72): one change to
 # the quick preset; the long preset from when it scored higher on validation over ten seeds until 'long-margin'.
 ARMS["avg-2304k"] = lambda c: ARMS["avg-12"](c).override(total_env_steps=2_304_000, policy_average_from=60)
-# A dueling head (Q = V + A - mean A, Wang et al. 2016), one change to the quick preset: near the desired point one
-# step's move changes the return little, and the agent dithers there (no motion on 1-6 % of the steps after the
-# approach, against the ceiling's 17 %: lab/position_error.py); a head that learns the value apart from the
-# advantages may separate the actions better.
-ARMS["dueling"] = lambda c: _net(ARMS["avg-12"](c), dueling=True)
 # Exploration at the end of training, one change to the quick preset: a lower final rate (1 % of steps random
 # instead of 5 %: near the desired point one random step costs more than the agent's own error).
 ARMS["eps-end-001"] = lambda c: ARMS["avg-12"](c).override(eps_end=0.01)
@@ -360,19 +325,6 @@ ARMS["offset-04"] = lambda c: _env(ARMS["avg-12"](c), offset_max=0.4)
 # took 225 s of its 6 minutes (177 s of training, results/wall_times.json), so a third more env steps still fits.
 # The quick preset since it scored higher on validation over ten seeds.
 ARMS["avg-1536k"] = lambda c: ARMS["avg-12"](c).override(total_env_steps=1_536_000, policy_average_from=36)
-# Ape-X's ladder of per-env exploration rates, one change to the quick preset at 1.54M env steps (eps_end 0.4,
-# ladder 7: final rates from 40 % down to 0.07 %, 6 % on average over 64 envs, against 5 % for every env).
-ARMS["eps-ladder"] = lambda c: ARMS["avg-1536k"](c).override(eps_end=0.4, eps_ladder=7.0)
-# Demonstrations flown beside the agent (ActingConfig.teacher_envs), one change to the quick preset at 1.54M env
-# steps: 8 of the 64 envs act with the true-state one-step look-ahead, so an eighth of the replay shows the target's
-# centre held at the desired point, which the agent's own episodes seldom reach (it circles it:
-# lab/position_error.py).
-# The budget counts every env's steps, so the agent itself flies 7/8 of the 1.54M, and its exploration decays on the
-# same clock.
-ARMS["teacher-8"] = lambda c: ARMS["avg-1536k"](c).override(teacher_envs=8)
-# The same with half the envs flying the look-ahead (32 of 64): teacher-8 was level (P = 0.48), so a share four
-# times as large shows whether the demonstrations move the agent at all, up or down.
-ARMS["teacher-32"] = lambda c: ARMS["avg-1536k"](c).override(teacher_envs=32)
 # The auxiliary head also fitted to the target's velocity relative to the chaser (NetworkConfig.aux_outputs = 6),
 # one change to the quick preset at 1.54M env steps: holding the centre still takes commands that match the target's
 # drift on average, which the agent must read from successive frames; the ceiling knows it and after the approach
@@ -397,54 +349,36 @@ PROCEDURAL_DIR = Path(__file__).resolve().parents[1] / "runs" / "procedural"  # 
 
 
 def _procedural(c, count: int):
+    scripts = str(Path(__file__).resolve().parents[1] / "scripts")  # procedural_targets imports its siblings there
+    if scripts not in sys.path:
+        sys.path.insert(0, scripts)
+    import procedural_targets
+
     paths = procedural_targets.write_models(PROCEDURAL_DIR, count, seed=0)
     return c.override(env=dataclasses.replace(c.env, targets=c.env.targets + tuple(str(p) for p in paths)))
 
 
 ARMS["procedural-48"] = lambda c: _procedural(ARMS["avg-1536k"](c), 48)
-# The depth in metres from the stand-off (NetworkConfig.depth_centre / depth_gain) again, one change to the quick
-# preset at 1.54M env steps: at 768k, before the gradient clip, three of five seeds ended above the preset's mean and
-# one collapsed, and the agents' largest error is along the boresight.
-ARMS["depth-metres-1536k"] = lambda c: _net(ARMS["avg-1536k"](c), depth_centre=0.25, depth_gain=20.0)
-# A diagnostic, not a candidate: the quick preset at 1.54M env steps with the true tracking error and relative
-# velocity at the LSTM's input (NetworkConfig.state_input). What the learner reaches at this budget with perfect
-# perception splits the gap to the ceiling into what the images do not give and what the learning does not reach.
-ARMS["state-input"] = lambda c: _net(ARMS["avg-1536k"](c), state_input=True)
-# The same diagnostic with its input 10x (NetworkConfig.state_input_gain), one change to 'state-input': an error of
-# 5 cm reads 0.01 in stand-off distances; if the agent then holds the target closer, part of
-# the 19 points 'state-input' leaves to the ceiling was the input's scale, not the learner.
-ARMS["state-input-gain10"] = lambda c: _net(ARMS["state-input"](c), state_input_gain=10.0)
-# And 30x, one change to 'state-input-gain10': 10x gained 4 points of the ceiling; does more keep gaining?
-ARMS["state-input-gain30"] = lambda c: _net(ARMS["state-input-gain10"](c), state_input_gain=30.0)
 # A longer horizon, one change to the quick preset at 1.54M env steps: discount 0.99 instead of 0.97 (0.9 scored lower
 # at 768k, gamma09). The agents circle the desired point instead of holding still; a 0.1 m better hold is worth more
 # against the noise in the values when it counts over 100 steps instead of 33.
 ARMS["gamma-099"] = lambda c: ARMS["avg-1536k"](c).override(gamma=0.99)
-# A cost on moving in training (LearnerConfig.command_cost 0.05 per step at full speed, the reward of a 0.1 m
+# A cost on moving in training (0.05 per step at full speed, the reward of a 0.1 m
 # better hold for one step), one change to the quick preset at 1.54M env steps: after the approach the ceiling holds
 # still on 17 % of the steps, the 1.15M preset on 1-6 % and the 1.54M one on none, circling the desired point; a
-# move that only chases noise in the agent's estimate then costs more than it buys.
-ARMS["command-cost-005"] = lambda c: ARMS["avg-1536k"](c).override(command_cost=0.05)
+# move that only chases noise in the agent's estimate then costs more than it buys. (Its TD term: COMPONENTS.)
+ARMS["command-cost-005"] = lambda c: ARMS["avg-1536k"](c)
 # A lower discount, one change to the quick preset at 1.54M env steps: the ceiling's one-step look-ahead is
 # within 4 of its 12-step search, so the task rewards little foresight, and with rewards scaled by 0.1 the value of
 # one better step (about 0.005) is about two thousandths of Q at gamma 0.97 (about 2.8). A shorter horizon makes
 # the gaps between actions a larger share of the values the network has to fit.
 ARMS["gamma-08"] = lambda c: ARMS["avg-1536k"](c).override(gamma=0.8)
-# The change of each pixel since the previous frame as an input channel (NetworkConfig.frame_difference), one change
-# to the quick preset at 1.54M env steps: with the true relative velocity beside the images ('state-input') the
-# spread along the boresight fell from 0.20-0.38 m to 0.05 m; here the first conv sees the motion itself.
-ARMS["frame-difference"] = lambda c: _net(ARMS["avg-1536k"](c), frame_difference=True)
-# A long exposure (NetworkConfig.exposure_rate 0.02: the frame and its hit mask averaged over about 50 steps, 5 s)
-# as more input channels, one change to the quick preset at 1.54M env steps: probes fitted per target read the
-# boresight error from the memory, one probe for all targets does not, so what the agent lacks is where each shape's
-# centre of mass lies behind its visible surface; the region a tumbling target sweeps is centred nearer it.
-ARMS["exposure-002"] = lambda c: _net(ARMS["avg-1536k"](c), exposure_rate=0.02)
 # Shorter returns, one change to the quick preset at 1.54M env steps: 3-step targets instead of 5 carry less of the
 # exploring behaviour's commands (5 % random) into the values the greedy policy is judged by.
 ARMS["n-step-3"] = lambda c: ARMS["avg-1536k"](c).override(n_step=3)
 # DQfD's large-margin loss towards the true-state one-step look-ahead's action at every trained step, the agent's
-# own steps labelled (DAgger), one change to the quick preset at 1.54M env steps: with the true state as input the
-# learner still leaves 15 points of the ceiling, the gaps between actions being about 0.005 of a Q near 2.7;
+# own steps labelled (DAgger), one change to the quick preset at 1.54M env steps: with the true state as input (a
+# retired diagnostic) the learner still leaves 15 points of the ceiling, the gaps between actions being about 0.005 of a Q near 2.7;
 # the labels say which action is best outright, from a controller within 1 % of the ceiling.
 ARMS["expert-margin"] = lambda c: ARMS["avg-1536k"](c).override(expert_margin_weight=1.0)
 # The margin loss weighted 3 instead of 1, one change to 'expert-margin': at weight 1 the greedy action matched the
@@ -483,22 +417,10 @@ ARMS["size-retreat"] = lambda c: ARMS["size-margin"](c).override(blind_label="re
 # (one change to 'size-wide-retreat'): more blind starts in training, so more steps carry the back-off label.
 ARMS["size-wider-retreat"] = lambda c: _env(ARMS["size-wide-retreat"](c), init_xy_std=3.0)
 
-# Target 2 asks 90 % of the ceiling. A policy head beside Q (NetworkConfig.policy_head), fitted by cross-entropy to the
-# same labels and acting by its argmax, one change to 'expert-margin' (the quick preset): through the margin loss the
-# greedy action matches the label on 43-45 % of the trained steps, and a heavier margin does not raise it, since Q
-# must also fit the TD targets; a classifier of the labels answers to nothing else (Learning by Cheating's student).
-ARMS["policy-head"] = lambda c: _net(ARMS["expert-margin"](c), policy_head=True)
-# The same true state as 'state-input-gain10' with the labels (one change to it): with perfect perception, do the
-# labels close what the learner leaves to the ceiling (15 points without them)?
-ARMS["state-input-gain10-margin"] = lambda c: ARMS["state-input-gain10"](c).override(expert_margin_weight=1.0)
-# The same with only the boresight entries of the true state (error and relative velocity along the camera axis;
-# NetworkConfig.state_input_entries), one change to 'state-input-gain10-margin': the probes find the image agents'
-# error worst along the boresight; how much of the way to the ceiling does that axis alone give?
-ARMS["state-boresight-margin"] = lambda c: _net(ARMS["state-input-gain10-margin"](c), state_input_entries=(2, 5))
-# And the other four entries (across the image), one change to 'state-input-gain10-margin': the complement.
-ARMS["state-lateral-margin"] = lambda c: _net(ARMS["state-input-gain10-margin"](c), state_input_entries=(0, 1, 3, 4))
-# Both halves of the true state are needed, and the auxiliary head fits only the error. The head also fitted to
-# the relative velocity, as 'aux-velocity' did before the labels, one change to 'expert-margin' (the quick preset).
+# The auxiliary head also fitted to the relative velocity, as 'aux-velocity' did before the labels, one change to
+# 'expert-margin' (the quick preset). (The arms before it that gave the network the true state, the look-ahead's
+# labels to a policy head, or the visible surface's centroid as an input were retired with the package's arm
+# fields: lab/README.md.)
 ARMS["aux-velocity-margin"] = lambda c: _net(ARMS["expert-margin"](c), aux_outputs=6)
 
 # The gap is perception, on the shapes the agent trains on (80 % of the ceiling there) and more on new ones (71 %).
@@ -507,25 +429,29 @@ ARMS["aux-velocity-margin"] = lambda c: _net(ARMS["expert-margin"](c), aux_outpu
 ARMS["rgbd-margin"] = lambda c: _obs(ARMS["expert-margin"](c), "rgbd")
 # and the 48 procedural models beside the twelve (more relations between a surface and its centre to learn from).
 ARMS["procedural-48-margin"] = lambda c: _procedural(ARMS["expert-margin"](c), 48)
-# Which half of the state the images lack, split the other way than 'state-boresight-margin': the error alone
-# (entries 0-2) or the relative velocity alone (3-5), one change each to 'state-input-gain10-margin'.
-ARMS["state-error-margin"] = lambda c: _net(ARMS["state-input-gain10-margin"](c), state_input_entries=(0, 1, 2))
-ARMS["state-velocity-margin"] = lambda c: _net(ARMS["state-input-gain10-margin"](c), state_input_entries=(3, 4, 5))
-# The error alone gives the ceiling. The same error measured to the centroid of the target's visible surface in the
-# newest frame instead of its centre of mass (NetworkConfig.state_input_point 'visible'), one change to
-# 'state-error-margin': what a perfect reading of the surface the images show gives, without knowing the centre.
-ARMS["state-visible-margin"] = lambda c: _net(ARMS["state-error-margin"](c), state_input_point="visible")
-# A tracker input from that: the visible surface's centroid computed from the newest frame alone (zeros on a blank
-# frame), back-projected to the camera frame and read as the diagnostics read the error, at 10x, one change to
-# 'expert-margin' (the quick preset): the conv features carry the silhouette's place only as coarsely as their
-# patches and pooling keep it ('stats' gave it to the dense layer unscaled, before the labels).
-ARMS["centroid-input-margin"] = lambda c: _net(
-    ARMS["expert-margin"](c),
-    state_input=True,
-    state_input_gain=10.0,
-    state_input_entries=(0, 1, 2),
-    state_input_point="image",
-)
+
+
+# Arms that plug a component into the trainer through its extension points rather than a config field (the
+# package keeps no field for them; docs/extending.md): {arm: config -> train.Components}. Their ARMS entry is the
+# config they change, so an arm here is one change to its parent in its components.
+def _td_replaced(term_of):
+    """Components whose TD term (the first of train.default_loss_terms) is ``term_of(config)``."""
+    return lambda c: Components(loss_terms=(term_of(c),) + default_loss_terms(c)[1:])
+
+
+COMPONENTS = {
+    # Advantage learning (alpha 0.9): the targets of worse actions lowered (arm_components.advantage_learning_term).
+    "prev-al": _td_replaced(lambda c: parts.advantage_learning_term(c.learner.td, 0.9)),
+    "aux-al": _td_replaced(lambda c: parts.advantage_learning_term(c.learner.td, 0.9)),
+    "adv-learning": _td_replaced(lambda c: parts.advantage_learning_term(c.learner.td, 0.9)),
+    # 0.05 (unscaled reward) per step at full speed off the TD targets' rewards (arm_components.command_cost_term).
+    "command-cost-005": _td_replaced(lambda c: parts.command_cost_term(c.learner.td, 0.05, c.learner.reward_scale)),
+}
+
+
+def arm_components(name: str, config) -> Components | None:
+    """The trainer components arm ``name`` plugs in for its ``config`` (None: the config's own)."""
+    return COMPONENTS[name](config) if name in COMPONENTS else None
 
 
 def arm_config(name: str, preset: str = "quick", **overrides):
@@ -610,7 +536,7 @@ def evaluate_arm(
     @jax.jit
     def run_all(net_params):
         def one(p):
-            policy = greedy.greedy_policy(config.network, p, tuple(config.env.obs_shape), camera=config.env.camera)
+            policy = greedy.greedy_policy(config.network, p, tuple(config.env.obs_shape))
             return batched_rollout(tracking_env, params_b, policy, key, max_steps)
 
         return jax.lax.map(one, net_params)
@@ -667,8 +593,14 @@ def main() -> None:
     for arm in args.arms:
         if args.command == "train":
             t = time.time()
+            config = arm_config(arm, args.preset)
             train_run(
-                arm_config(arm, args.preset), args.out / arm, seed=args.first_seed, num_seeds=args.seeds, progress=False
+                config,
+                args.out / arm,
+                seed=args.first_seed,
+                num_seeds=args.seeds,
+                progress=False,
+                components=arm_components(arm, config),
             )
             print(f"[{arm}] trained {args.seeds} seeds in {time.time() - t:.0f} s", flush=True)
         elif args.command == "eval" and arm == "baselines":

@@ -75,10 +75,7 @@ def profile(
     frames = prepared.obs.reshape(-1, *prepared.obs.shape[2:])
     encoder = Encoder(cfg.network)
     enc_params = params["encoder"]
-    c = frames.shape[-1]  # the encoder's channels over time: frame_difference's C, the exposure's C + 1
-    e = c * cfg.network.frame_difference + (c + 1) * bool(cfg.network.exposure_rate)
-    extra = jnp.zeros((*frames.shape[:-1], e)) if e else None
-    encoder_grad = jax.jit(jax.grad(lambda p: jnp.sum(encoder.apply({"params": p}, frames, False, extra) ** 2)))
+    encoder_grad = jax.jit(jax.grad(lambda p: jnp.sum(encoder.apply({"params": p}, frames) ** 2)))
     grads = loss_grad(params, prepared)[1]
 
     def opt_step(lrn, g):

@@ -1,5 +1,5 @@
 """lab/centre_estimator.py: recorded episodes pair each frame with the state it was drawn from, the visible
-centroid is greedy's, the desired point scores the error itself, a few updates fit the labels better than guessing
+centroid is lab.surface's, the desired point scores the error itself, a few updates fit the labels better than guessing
 the desired point, and networks the fit cannot train are refused."""
 
 import jax
@@ -7,8 +7,9 @@ import numpy as np
 import pytest
 
 from lab import centre_estimator  # noqa: E402
+from lab.surface import visible_tracking_state
 from ramavt_jax import env as env_lib
-from ramavt_jax import greedy
+from ramavt_jax.imitation import true_tracking_state
 
 CAMERA = env_lib.CameraConfig(resolution=16)
 TARGETS = ("Asteroid-v0", "Capsule-v0")
@@ -35,15 +36,11 @@ def test_each_recorded_frame_comes_with_the_state_it_was_drawn_from(episodes):
     assert np.array_equal(np.asarray(eps.target), [0, 0, 1, 1])
     obs, states, params = _first_states()
     np.testing.assert_allclose(np.asarray(eps.obs[:2, 0], np.float32), obs, atol=1e-3)
-    true = jax.vmap(greedy.true_tracking_state, in_axes=(0, None))(states, params)
+    true = jax.vmap(true_tracking_state, in_axes=(0, None))(states, params)
     np.testing.assert_allclose(eps.label[:2, 0], true[:, :3], atol=1e-6)
     assert not np.allclose(eps.label[:2, 1], true[:, :3], atol=1e-4)  # the label moves with the frame
-    np.testing.assert_allclose(eps.motion[:2, 0, 3:], true[:, 3:], atol=1e-6)
-    spin = jax.vmap(lambda s: env_lib.state_rotation(s, params.mean_motion) @ s.target_omega)(states)
-    np.testing.assert_allclose(eps.motion[:2, 0, :3], spin, atol=1e-6)
-    assert np.all(np.linalg.norm(np.asarray(spin), axis=-1) > 0.0)
     seen = centre_estimator.visible_centroid(eps, CAMERA)[:2, 0]  # from the stored float16 frames
-    expected = jax.jit(jax.vmap(lambda s: greedy.visible_tracking_state(s, params, CAMERA)))(states)[:, :3]
+    expected = jax.jit(jax.vmap(lambda s: visible_tracking_state(s, params, CAMERA)))(states)[:, :3]
     np.testing.assert_allclose(seen, expected, atol=2e-3)
 
 
@@ -67,7 +64,7 @@ def test_training_does_better_than_guessing_the_desired_point(episodes):
     assert fitted["Asteroid-v0"]["3d"] < zero["Asteroid-v0"]["3d"]
 
 
-@pytest.mark.parametrize("overrides", [{"aux_outputs": 6}, {"norm": "batch"}, {"state_input": True}])
+@pytest.mark.parametrize("overrides", [{"aux_outputs": 6}, {"norm": "batch"}])
 def test_a_network_the_fit_cannot_train_is_refused(overrides):
     with pytest.raises(ValueError, match="estimator"):
         centre_estimator.estimator_network(overrides)
@@ -81,33 +78,3 @@ def test_fewer_frames_per_update_than_a_window_are_refused(episodes):
 def test_a_run_without_a_three_entry_aux_head_is_refused(every_chunk_run, episodes):
     with pytest.raises(ValueError, match="aux head"):  # the smoke preset's network has none
         centre_estimator.agent_rows([str(every_chunk_run)], episodes, TARGETS, skip=5)
-
-
-def test_the_spin_input_reaches_the_estimate(episodes):
-    both = centre_estimator.estimator_network(spin_input=True, velocity_input=True)
-    assert both.state_input_entries == (0, 1, 2, 3, 4, 5) and both.state_input_gain == 10.0
-    config = centre_estimator.estimator_network(spin_input=True)
-    assert config.state_input and config.state_input_entries == (0, 1, 2) and config.state_input_gain == 10.0
-    net = centre_estimator.make_network(config)
-    obs, reset, actions = episodes.obs[:1, :3], np.zeros((1, 3), bool), episodes.action[:1, :3]
-    state = centre_estimator.initial_state(config, 1, obs.shape[2:])
-    params = net.init(
-        jax.random.PRNGKey(0),
-        obs.astype(np.float32),
-        reset,
-        state,
-        actions=actions,
-        true_state=np.zeros((1, 3, 6), np.float32),
-    )["params"]
-    motion = np.asarray(episodes.motion[:1, :3])
-    still, _ = centre_estimator._aux_pass(net, params, obs, reset, state, actions, motion * [0, 0, 0, 1, 1, 1])
-    turning, _ = centre_estimator._aux_pass(net, params, obs, reset, state, actions, motion)
-    assert not np.allclose(still, turning)
-    drifting, _ = centre_estimator._aux_pass(net, params, obs, reset, state, actions, motion * [1, 1, 1, 0, 0, 0])
-    np.testing.assert_allclose(drifting, turning, atol=1e-6)  # the velocity entries are masked out
-    short = jax.tree.map(lambda x: x[:1, :20] if x.ndim > 1 else x[:1], episodes)  # estimate() hands the spin on
-    spun = centre_estimator.estimate(params, short, chunk=20, config=config)
-    unspun = centre_estimator.estimate(
-        params, short.replace(motion=np.zeros_like(short.motion)), chunk=20, config=config
-    )
-    assert not np.allclose(spun, unspun)

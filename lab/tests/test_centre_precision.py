@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from lab import centre_precision  # noqa: E402
+from lab.surface import visible_tracking_state
 from ramavt_jax import env as env_lib
-from ramavt_jax import greedy
 
 CAMERA = env_lib.CameraConfig(resolution=16)
 
@@ -33,7 +33,7 @@ def test_the_told_centre_moves_by_the_offset_in_the_camera_frame(capsule):
 def test_the_visible_arms_tell_the_surface_centroid_on_their_axes_only(capsule):
     state, params = capsule
     desired, true = np.asarray(params.desired_pos), np.asarray(env_lib.relative_position(state))
-    seen = np.asarray(greedy.visible_tracking_state(state, params, CAMERA)[:3]) * desired[2] + desired  # m, k = 1
+    seen = np.asarray(visible_tracking_state(state, params, CAMERA)[:3]) * desired[2] + desired  # m, k = 1
     assert np.linalg.norm(seen - true) > 0.1  # the capsule's seen surface lies in front of its centre
     for axes in centre_precision.VISIBLE_AXES.values():
         told = env_lib.relative_position(

@@ -46,11 +46,9 @@ def _changes(arm: str, reference: str) -> dict:
         ("patch-768k", "patch", {"run.total_env_steps": 768_000}),
         ("replay-256k", "patch-768k", {"replay.capacity_steps": 256_000}),
         ("eps-100k", "patch-768k", {"acting.eps_decay_steps": 100_000}),
-        ("adv-learning", "patch-768k", {"learner.advantage_alpha": 0.9}),
         ("aux-w10", "patch-768k", {"learner.aux_weight": 10.0}),
         ("polyak-0005", "patch-768k", {"learner.polyak_tau": 0.005}),
         ("lstm256", "patch-768k", {"network.lstm": 256}),
-        ("depth-metres", "patch-768k", {"network.depth_centre": 0.25, "network.depth_gain": 20.0}),
         ("replay-f16", "patch-768k", {"replay.obs_dtype": "float16"}),
         ("window-40", "patch-768k", {"replay.train_len": 40, "replay.batch_size": 16}),  # same frames per update
         ("rr1", "patch-768k", {"learner.replay_ratio": 1.0}),
@@ -62,22 +60,15 @@ def _changes(arm: str, reference: str) -> dict:
         ("clip-1152k", "clip-1", {"run.total_env_steps": 1_152_000}),
         ("clip-polyak-002", "clip-1", {"learner.polyak_tau": 0.02}),
         ("size-small-clip-1", "size-small-1152k", {"learner.max_grad_norm": 1.0}),
-        ("stats", "clip-1152k", {"network.silhouette_stats": True}),
-        ("size-stats", "size-small-1152k", {"network.silhouette_stats": True}),
         ("clip-dw1", "clip-1152k", {"env_params": (("dist_weight", 1.0),)}),
         ("stretch", "clip-1152k", {"env_params": (("stretch_max", 1.5), ("stretch_prob", 0.5))}),
         ("per", "clip-1152k", {"replay.priority_exponent": 0.9}),
         ("size-up", "size-small-1152k", {"env_params": (("size_scale_max", 4.0), ("size_scale_min", 0.15))}),
-        ("size-standoff", "size-small-1152k", {"network.standoff_input": True}),
-        ("size-command", "size-small-1152k", {"network.command_gain_input": True}),
-        ("quantiles", "clip-1152k", {"network.quantiles": 32}),
         ("online-boot", "clip-1152k", {"learner.bootstrap_from": "online"}),
         ("size-online-boot", "size-small-1152k", {"learner.bootstrap_from": "online"}),
-        ("lambda-09", "clip-1152k", {"learner.td_lambda": 0.9, "learner.n_step": 1}),  # lambda replaces n-step
         # one change: the parameters the policy acts with
         ("avg-12", "online-boot", {"run.policy_average_from": 24, "run.policy_params": "averaged"}),
         ("avg-eps-100k", "avg-12", {"acting.eps_decay_steps": 100_000}),
-        ("dense-norm", "avg-12", {"network.dense_norm": True}),
         ("batch-64", "avg-12", {"replay.batch_size": 64, "learner.replay_ratio": 4.0}),
         ("fresh-replay", "avg-12", {"replay.capacity_steps": 2560, "learner.learning_starts": 2560}),
         ("eps-100k-polyak-002", "avg-eps-100k", {"learner.polyak_tau": 0.02}),
@@ -95,46 +86,18 @@ def _changes(arm: str, reference: str) -> dict:
             {"env_params": (("actuator_noise", 0.3), ("blur_frames", 3), ("delay_max", 0.5), ("perturb_prob", 1.0))},
         ),
         ("avg-2304k", "avg-12", {"run.total_env_steps": 2_304_000, "run.policy_average_from": 60}),
-        ("dueling", "avg-12", {"network.dueling": True}),
         ("offset-04", "avg-12", {"env_params": (("offset_max", 0.4),)}),
         ("eps-end-001", "avg-12", {"acting.eps_end": 0.01}),
-        ("eps-ladder", "avg-1536k", {"acting.eps_end": 0.4, "acting.eps_ladder": 7.0}),
-        ("teacher-8", "avg-1536k", {"acting.teacher_envs": 8}),
-        ("teacher-32", "avg-1536k", {"acting.teacher_envs": 32}),
         ("aux-velocity", "avg-1536k", {"network.aux_outputs": 6}),
         ("lr-half", "avg-1536k", {"learner.lr": 5e-4}),
-        ("depth-metres-1536k", "avg-1536k", {"network.depth_centre": 0.25, "network.depth_gain": 20.0}),
-        ("state-input", "avg-1536k", {"network.state_input": True}),
         ("gamma-099", "avg-1536k", {"learner.gamma": 0.99}),
-        ("command-cost-005", "avg-1536k", {"learner.command_cost": 0.05}),
         ("lr-double", "avg-1536k", {"learner.lr": 2e-3}),
-        ("state-input-gain10", "state-input", {"network.state_input_gain": 10.0}),
-        ("state-input-gain30", "state-input-gain10", {"network.state_input_gain": 30.0}),
         ("gamma-08", "avg-1536k", {"learner.gamma": 0.8}),
-        ("frame-difference", "avg-1536k", {"network.frame_difference": True}),
-        ("exposure-002", "avg-1536k", {"network.exposure_rate": 0.02}),
         ("n-step-3", "avg-1536k", {"learner.n_step": 3}),
         ("expert-margin", "avg-1536k", {"learner.expert_margin_weight": 1.0}),
         ("expert-margin-w3", "expert-margin", {"learner.expert_margin_weight": 3.0}),
-        ("policy-head", "expert-margin", {"network.policy_head": True}),
-        ("state-input-gain10-margin", "state-input-gain10", {"learner.expert_margin_weight": 1.0}),
-        ("state-boresight-margin", "state-input-gain10-margin", {"network.state_input_entries": (2, 5)}),
-        ("state-lateral-margin", "state-input-gain10-margin", {"network.state_input_entries": (0, 1, 3, 4)}),
         ("aux-velocity-margin", "expert-margin", {"network.aux_outputs": 6}),
         ("rgbd-margin", "expert-margin", {"env.obs_mode": "rgbd"}),
-        ("state-error-margin", "state-input-gain10-margin", {"network.state_input_entries": (0, 1, 2)}),
-        ("state-velocity-margin", "state-input-gain10-margin", {"network.state_input_entries": (3, 4, 5)}),
-        ("state-visible-margin", "state-error-margin", {"network.state_input_point": "visible"}),
-        (
-            "centroid-input-margin",
-            "expert-margin",
-            {
-                "network.state_input": True,
-                "network.state_input_gain": 10.0,
-                "network.state_input_entries": (0, 1, 2),
-                "network.state_input_point": "image",
-            },
-        ),
         ("size-margin", "size-1536k", {"learner.expert_margin_weight": 1.0}),
         ("long-margin", "avg-2304k", {"learner.expert_margin_weight": 1.0}),
         (
@@ -184,7 +147,6 @@ def _changes(arm: str, reference: str) -> dict:
             "clip-1152k",
             {"env.camera.resolution": 64, "network.kernels": (8, 2, 3), "network.strides": (8, 2, 1)},
         ),
-        ("polyak-sched", "patch-768k", {"learner.polyak_tau_start": 0.02}),  # the decay steps: defaults
         (
             "res64",
             "patch-768k",
@@ -339,3 +301,18 @@ def test_arm_table_reads_arm_names_with_a_colon(capsys):
     arm_table.main([f"{test}:depth tracker", f"{test}:pretrained:ramavt_depth", "--ceiling", str(test)])
     rows = [line for line in capsys.readouterr().out.splitlines() if line.startswith("| ") and "| seeds |" not in line]
     assert [r.split(" | ")[0] for r in rows] == ["| depth tracker", "| pretrained:ramavt_depth"]
+
+
+@pytest.mark.parametrize(
+    "arm, reference",
+    [("prev-al", "prev"), ("aux-al", "prev-aux"), ("adv-learning", "patch-768k"), ("command-cost-005", "avg-1536k")],
+)
+def test_each_component_arm_is_its_parents_config_with_its_td_term_replaced(arm, reference):
+    """An arm in COMPONENTS changes no config field (the package has none for it) and replaces the TD term alone."""
+    from ramavt_jax import train
+
+    config = learning_arms.arm_config(arm)
+    assert config == learning_arms.arm_config(reference) and learning_arms.arm_components(reference, config) is None
+    terms = learning_arms.arm_components(arm, config).loss_terms
+    default = train.default_loss_terms(config)
+    assert len(terms) == len(default) and terms[0] is not default[0]
