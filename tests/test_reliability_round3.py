@@ -382,3 +382,41 @@ def test_a_weightless_model_inside_a_body_gets_the_right_hint(tmp_path):
     path.write_text('<mujoco><worldbody><geom type="sphere" size="1"/></worldbody></mujoco>')
     with pytest.raises(targets.TargetError, match=r"zero mass; put the geoms in a <body> \(not <worldbody> directly"):
         targets.load_numpy(str(path))
+
+
+@pytest.mark.slow  # a fresh interpreter imports JAX and compiles the smoke program (about 25 s on 2 busy cores)
+@pytest.mark.parametrize("gap_s", [0.0, 0.3])
+def test_a_double_ctrl_c_is_one_line_and_the_run_resumes(gap_s, tmp_path):
+    """Two SIGINTs ``gap_s`` apart while training (the second may land in a checkpoint or in the shutdown)."""
+    import subprocess
+    import sys
+    import time
+
+    out = tmp_path / "run"
+    env_vars = dict(os.environ, PYTHONPATH=str(Path(cli.__file__).resolve().parents[2]))
+    args = TRAIN + ["--out", str(out), "--run.total-env-steps", "64000", "--run.checkpoint-every-chunks", "1"]
+    args += ["--run.eval-episodes", "0"]
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "ramavt_jax.cli", *args], stderr=subprocess.PIPE, text=True, env=env_vars
+    )
+    try:
+        rows = out / run_folder.METRICS_FILE
+        while not (rows.exists() and len(rows.read_text().splitlines()) >= 3) and proc.poll() is None:
+            time.sleep(0.05)
+        proc.send_signal(signal.SIGINT)
+        time.sleep(gap_s)
+        proc.send_signal(signal.SIGINT)
+        err = proc.communicate(timeout=120)[1].strip()
+    finally:
+        proc.kill()
+    assert proc.returncode in (130, -signal.SIGINT), err  # -2: the second came after Python restored the default
+    assert len(err.splitlines()) == 1 and err.startswith("ramavt: ") and "Traceback" not in err, err
+    done = CheckpointStore(out / run_folder.CHECKPOINTS, create=False).latest_step()
+    assert [r["chunk"] for r in _rows(rows)][:done] == list(range(1, done + 1))
+    summary = driver.run(
+        preset("smoke", total_env_steps=64000, checkpoint_every_chunks=1, eval_episodes=0),
+        out,
+        progress=False,
+        max_chunks=1,
+    )
+    assert summary["chunks_done"] == done + 1
