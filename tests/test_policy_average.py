@@ -54,15 +54,12 @@ def test_averaging_changes_no_training_step(chunk_by_chunk):
         np.testing.assert_array_equal(a, b)
 
 
-def test_the_compiled_chunk_is_shared_across_run_lengths_unless_the_learning_rate_schedule_spans_the_run():
-    """The average's window counts from the run's start, so runs of any length share one compiled chunk; lr_final's
-    cosine schedule spans the run's gradient steps, so its program is keyed on the length."""
+def test_the_compiled_chunk_is_shared_across_run_lengths():
+    """The average's window counts from the run's start and no schedule spans the run, so runs of any length share
+    one compiled chunk."""
     longer = AVERAGED.override(total_env_steps=2 * AVERAGED.run.total_env_steps)
     assert program._cache_key(longer) == program._cache_key(AVERAGED)
     assert program._cache_key(AVERAGED) != program._cache_key(SMOKE)
-    cosine = SMOKE.override(lr_final=1e-5)
-    cosine_longer = cosine.override(total_env_steps=2 * SMOKE.run.total_env_steps)
-    assert program._cache_key(cosine_longer) != program._cache_key(cosine)
 
 
 def test_an_extended_run_keeps_averaging_the_same_window(tmp_path):
