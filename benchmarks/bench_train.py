@@ -110,7 +110,6 @@ def _filled_replay(trainer: T.Trainer, key: jax.Array):
         recurrent_state=jax.tree.map(lambda x: jnp.zeros((n, steps, *x.shape)), ex.recurrent_state),
         privileged=None if ex.privileged is None else jnp.zeros((n, steps, *ex.privileged.shape)),
         expert_action=None if ex.expert_action is None else jnp.zeros((n, steps), jnp.int32),
-        standoff=None if ex.standoff is None else jnp.ones((n, steps)),
     )
     return trainer.replay.add(trainer.replay.init(), chunk)
 
