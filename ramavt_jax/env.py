@@ -96,6 +96,28 @@ def standoff_scale(target: targets_lib.TargetModel, params: EnvParams) -> jax.Ar
     return jnp.where(radius < params.standoff_min_radius, small, large)
 
 
+# The draws of an episode's start, each from its own key (episode_keys): the target, its start (position across and
+# along the view, velocity, acceleration, attitude, spin), and the domain randomisation (randomisation.py).
+EPISODE_DRAWS = (
+    "target",
+    "xy",
+    "z",
+    "velocity",
+    "attitude",
+    "spin",
+    "acceleration",
+    "stretch",
+    "size",
+    "offset",
+    "perturbed",
+)
+
+
+def episode_keys(key: jax.Array) -> dict[str, jax.Array]:
+    """{draw: key} for each of EPISODE_DRAWS, split from an episode's key (TrackingEnv.initial_state's)."""
+    return dict(zip(EPISODE_DRAWS, jax.random.split(key, len(EPISODE_DRAWS))))
+
+
 def command_speed(state: EnvState, params: EnvParams) -> jax.Array:
     """[] m/s per unit action: speed * max(1, k) ** speed_standoff_power * min(1, k) ** small_standoff_power."""
     large, small = jnp.maximum(state.scale, 1.0), jnp.minimum(state.scale, 1.0)
@@ -193,20 +215,18 @@ class TrackingEnv:
         times the stand-off scale k of the episode's target (standoff_scale, after randomisation.stretch and
         size_factor, before randomisation.shift), velocity N(0, 0.2) m/s, random orientation, spin N(0, 0.1) rad/s
         per body axis; chaser at rest at the origin. Frame history zeros (``reset`` fills it with the first obs)."""
-        k_tgt, k_xy, k_z, k_vel, k_quat, k_spin, k_acc, k_stretch, k_size, k_shift, k_perturb = jax.random.split(
-            key, 11
-        )
-        index = jax.random.categorical(k_tgt, jnp.log(params.target_probs))
-        target = randomisation.stretch(k_stretch, targets_lib.select(params.catalogue, index), params)
-        target = targets_lib.scaled(target, randomisation.size_factor(k_size, params))
+        k = episode_keys(key)
+        index = jax.random.categorical(k["target"], jnp.log(params.target_probs))
+        target = randomisation.stretch(k["stretch"], targets_lib.select(params.catalogue, index), params)
+        target = targets_lib.scaled(target, randomisation.size_factor(k["size"], params))
         scale = standoff_scale(target, params)
-        target = randomisation.shift(k_shift, target, params)  # after the stand-off: k is the unshifted target's
-        xy = params.init_xy_std * jax.random.normal(k_xy, (2,))
-        z = jax.random.uniform(k_z, (), minval=params.init_z_min, maxval=params.init_z_max)
+        target = randomisation.shift(k["offset"], target, params)  # after the stand-off: k is the unshifted target's
+        xy = params.init_xy_std * jax.random.normal(k["xy"], (2,))
+        z = jax.random.uniform(k["z"], (), minval=params.init_z_min, maxval=params.init_z_max)
         pos_cam = jnp.array([xy[0], xy[1], z]) * scale
         drift = jnp.minimum(scale, 1.0) ** params.small_standoff_power  # 1: a small target's, in stand-off units
-        vel_cam = params.target_vel_std * jax.random.normal(k_vel, (3,)) * drift
-        accel_cam = params.target_accel_std * jax.random.normal(k_acc, (3,)) * drift
+        vel_cam = params.target_vel_std * jax.random.normal(k["velocity"], (3,)) * drift
+        accel_cam = params.target_accel_std * jax.random.normal(k["acceleration"], (3,)) * drift
         r, c = self.config.camera.resolution, OBS_CHANNELS[self.config.obs_mode]
         zero = jnp.zeros(3)
         return EnvState(
@@ -215,8 +235,8 @@ class TrackingEnv:
             target_pos=HILL_FROM_CAM @ pos_cam,
             target_vel=HILL_FROM_CAM @ vel_cam,
             target_accel=HILL_FROM_CAM @ accel_cam,
-            target_quat=dynamics.random_quaternion(k_quat),
-            target_omega=params.target_spin_std * jax.random.normal(k_spin, (3,)),
+            target_quat=dynamics.random_quaternion(k["attitude"]),
+            target_omega=params.target_spin_std * jax.random.normal(k["spin"], (3,)),
             chaser_pos=zero,
             chaser_vel=zero,
             sim_time=jnp.zeros(()),
@@ -226,7 +246,7 @@ class TrackingEnv:
             episode_return=jnp.zeros(()),
             done=jnp.zeros((), bool),
             scale=scale,
-            perturbed=randomisation.perturbed(k_perturb, params),
+            perturbed=randomisation.perturbed(k["perturbed"], params),
         )
 
     # ----------------------------------------------------------------------------------------- step

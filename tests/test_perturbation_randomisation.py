@@ -98,7 +98,8 @@ def test_each_flag_switches_only_its_perturbation(blur_env, episode):
 
 def test_a_new_episode_draws_its_own_perturbations(blur_env):
     """Auto-reset: with every episode one step long, each step's state is a fresh episode whose draws are those of
-    its own reset key (env.step splits its key into physics, observation, reset and first-frame keys)."""
+    its own reset key (env.step splits its key into physics, observation, reset and first-frame keys; the reset key
+    into the episode's draws, env.episode_keys)."""
     params = _params(blur_env, perturb_prob=0.5, max_steps=1, **TABLE2)
     step = jax.jit(blur_env.step)
     _, state = blur_env.reset(jax.random.key(7), params)
@@ -106,7 +107,7 @@ def test_a_new_episode_draws_its_own_perturbations(blur_env):
     for key in jax.random.split(jax.random.key(8), 8):
         _, state, _, _, truncated, _ = step(key, state, jnp.asarray(5), params)
         assert bool(truncated)
-        expected = randomisation.perturbed(jax.random.split(key, 4)[2], params)
+        expected = randomisation.perturbed(env.episode_keys(jax.random.split(key, 4)[2])["perturbed"], params)
         np.testing.assert_array_equal(np.asarray(state.perturbed), np.asarray(expected))
         seen.add(tuple(np.asarray(state.perturbed)))
     assert len(seen) > 1

@@ -173,7 +173,8 @@ def test_stretch_draw_keeps_the_volume_and_the_other_draws(stretch_env, vstate):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
 
     p = _params(stretch_env, stretch_max=1.5, stretch_prob=0.5)
-    factors, on = jax.vmap(randomisation.stretch_factors, in_axes=(0, None))(keys, p)
+    stretch_keys = jax.vmap(lambda k: env.episode_keys(k)["stretch"])(keys)  # the draw's own key in each episode
+    factors, on = jax.vmap(randomisation.stretch_factors, in_axes=(0, None))(stretch_keys, p)
     factors, on = np.asarray(factors), np.asarray(on)
     np.testing.assert_allclose(np.prod(factors, axis=1), 1.0, rtol=1e-5)
     assert np.all((factors > 1.5 ** (-4 / 3) * 0.9999) & (factors < 1.5 ** (4 / 3) * 1.0001))
