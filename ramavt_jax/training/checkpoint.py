@@ -59,7 +59,7 @@ def _leaf_key(i: int) -> str:
 # Leaves added to the trainer's state (RunnerState) since earlier checkpoints were written: a checkpoint without
 # them loads, and they keep the values of the state restored into. One written before the leaves' paths were
 # recorded (no "_leaf_paths" in its meta) is read as holding every current leaf but these. The perturbation draws
-# of each env's episode (2026-12-05) change nothing where a run configures no perturbation, as no earlier run did,
+# of each env's episode change nothing where a run configures no perturbation, as no run written before them did,
 # so a resumed run continues as it would have.
 ADDED_LEAVES = (".actor.env_state.perturbed",)
 
