@@ -55,6 +55,7 @@ def test_individual_ops():
     np.testing.assert_array_equal(out, jnp.rot90(x, int(info["rot90_k"]), axes=(1, 2)))
 
 
+@pytest.mark.slow
 def test_jit_and_batch():
     cfg = AugmentConfig()
     obs = jax.random.uniform(jax.random.key(0), (4, 5, 32, 32, 1))

@@ -17,6 +17,7 @@ def proportional_results():
     return evaluate.evaluate_per_target(config, policy, jax.random.key(0), episodes_per_target=100)
 
 
+@pytest.mark.slow
 def test_proportional_tracks_every_catalogue_target(proportional_results):
     lengths = {name: s.length_mean for name, s in proportional_results.items()}
     print("proportional mean episode length per target:", lengths)
@@ -26,6 +27,7 @@ def test_proportional_tracks_every_catalogue_target(proportional_results):
         assert mean >= 990.0, f"proportional lost {name}: mean length {mean}"
 
 
+@pytest.mark.slow
 def test_random_ends_early_and_depth_tracker_comes_close(proportional_results):
     names = ("Satellite-v2", "Capsule-v2", "Asteroid-v5")
     config = env.EnvConfig(camera=render.CameraConfig(resolution=32), targets=names)
@@ -83,6 +85,7 @@ def test_candidate_sequences_are_every_pair():
     assert seqs.shape == (9, 2) and len({tuple(s) for s in seqs}) == 9 and set(seqs.ravel()) == {0, 1, 2}
 
 
+@pytest.mark.slow
 def test_mpc_ceiling_beats_proportional_on_the_same_episodes():
     # Same key, so the same initial states; 4 episodes of 40 steps, an 8x8 image (neither policy looks).
     config = env.EnvConfig(camera=render.CameraConfig(resolution=8), targets=("Satellite-v2",))

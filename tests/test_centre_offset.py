@@ -63,6 +63,7 @@ def _params(tracking_env, **overrides):
     return env.validate_params(tracking_env.default_params().replace(**overrides), tracking_env.config)
 
 
+@pytest.mark.slow
 def test_offset_draw_stays_in_its_ball_and_keeps_the_other_draws(offset_env):
     vstate = jax.jit(jax.vmap(offset_env.initial_state, in_axes=(0, None)))
     keys = jax.random.split(jax.random.key(5), 64)

@@ -157,6 +157,7 @@ def test_resume_is_bit_identical(tmp_path):
     assert (tmp_path / "full" / "training_curves.png").exists()
 
 
+@pytest.mark.slow
 def test_nan_stops_training_and_keeps_the_last_good_checkpoint(tmp_path):
     cfg = SMOKE
     with pytest.raises(train_state.TrainingDivergedError, match=r"diverged at chunk 3 .*NOT saved.*chunk 2"):

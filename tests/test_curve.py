@@ -67,6 +67,7 @@ def test_first_above():
     assert curve.first_above(points, 9.0) is None
 
 
+@pytest.mark.slow
 def test_one_row_per_checkpoint_on_the_training_clock(smoke_run, curve_out):
     result = json.loads((curve_out / "curve.json").read_text())
     (run,) = result["runs"]
@@ -86,6 +87,7 @@ def test_one_row_per_checkpoint_on_the_training_clock(smoke_run, curve_out):
     assert (curve_out / "curve.png").stat().st_size > 0
 
 
+@pytest.mark.slow
 def test_checkpoint_aer_equals_ramavt_eval_on_the_same_episodes(smoke_run, curve_out, tmp_path):
     """The newest checkpoint scored by `ramavt eval` (a greedy policy with its parameters built into the program,
     its own env and keys) gives the curve's number."""

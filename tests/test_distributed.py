@@ -113,6 +113,7 @@ def _params(summary, k=None):
     return p if k is None else jax.tree.map(lambda x: x[k], p)
 
 
+@pytest.mark.slow
 def test_vmapped_seeds_equal_single_seed_runs_and_write_per_seed_folders(tmp_path):
     singles = [train_log.run(SMOKE, tmp_path / f"single_{s}", seed=s, progress=False) for s in (3, 4)]
     # two seeds in ONE program, split into two calls to check the multi-seed resume as well

@@ -54,6 +54,7 @@ def rollout(tracking_env, params, key, steps, actions=None, step_fn=None, reset_
     return obs, state, outs
 
 
+@pytest.mark.slow
 def test_shapes_and_ranges(fast, params):
     obs, state = fast["reset"](jax.random.key(0), params)
     assert obs.shape == (RES, RES, 1) and obs.dtype == jnp.float32
@@ -66,6 +67,7 @@ def test_shapes_and_ranges(fast, params):
 
 
 @pytest.mark.parametrize("mode,channels", [("depth", 1), ("color", 3), ("rgbd", 4)])
+@pytest.mark.slow
 def test_observation_modes(mode, channels):
     tracking_env = env.TrackingEnv(
         env.EnvConfig(camera=render.CameraConfig(resolution=RES), obs_mode=mode, targets=("Capsule-v0",))
@@ -96,6 +98,7 @@ def test_vmap_matches_loop(fast, params):
         tree_equal(jax.tree.map(lambda x: x[i], out_b[:5]), out_i[:5], atol=1e-5)
 
 
+@pytest.mark.slow
 def test_vmap_over_params_domain_randomisation(small_env, params):
     speeds = jnp.array([0.5, 1.0, 2.0])
     batch_params = jax.vmap(lambda s: params.replace(speed=s))(speeds)
@@ -152,6 +155,7 @@ def test_terminated_after_patience_not_truncated(small_env, fast):
     assert not any(f[1] for f in flags) and all(f[2] for f in flags)
 
 
+@pytest.mark.slow
 def test_truncated_at_max_steps_not_terminated(small_env, fast):
     p = small_env.default_params(max_steps=5, init_z_min=5.0, init_z_max=5.01, init_xy_std=0.0, target_vel_std=0.0)
     step = fast["step"]
@@ -164,6 +168,7 @@ def test_truncated_at_max_steps_not_terminated(small_env, fast):
     assert int(state.steps) == 0  # auto-reset drew a fresh episode
 
 
+@pytest.mark.slow
 def test_same_step_autoreset_keeps_final_observation(small_env, fast):
     p = small_env.default_params(max_steps=2)
     _, state = fast["reset"](jax.random.key(0), p)
@@ -179,6 +184,7 @@ def test_same_step_autoreset_keeps_final_observation(small_env, fast):
     assert int(new_state.steps) == 0 and int(new_state.lost_steps) == 0
 
 
+@pytest.mark.slow
 def test_next_step_autoreset():
     tracking_env = env.TrackingEnv(
         env.EnvConfig(camera=render.CameraConfig(resolution=RES), targets=("Satellite-v0",), autoreset="next_step")
@@ -211,6 +217,7 @@ def _state_after(tracking_env, p, key, action=5):
         (dict(target_accel_std=0.01), set(), {"chaser_pos"}),
     ],
 )
+@pytest.mark.slow
 def test_each_perturbation_changes_only_what_it_should(override, changes, unchanged):
     tracking_env = env.TrackingEnv(env.EnvConfig(camera=render.CameraConfig(resolution=RES), targets=("Satellite-v0",)))
     base = tracking_env.default_params(init_z_min=4.0, init_z_max=4.5, init_xy_std=0.2)
@@ -262,6 +269,7 @@ def test_kinematic_mode_is_constant_velocity():
     np.testing.assert_allclose(s1.target_vel, s0.target_vel)
 
 
+@pytest.mark.slow
 def test_batch_mixes_targets(params, fast):
     _, states = fast["vreset"](jax.random.split(jax.random.key(0), 32), params)
     assert set(np.asarray(states.target_index).tolist()) == {0, 1}
@@ -329,6 +337,7 @@ def test_catalogue_targets_keep_the_nominal_stand_off():
     np.testing.assert_array_equal(np.asarray(scales), 1.0)
 
 
+@pytest.mark.slow
 def test_large_user_target_is_seen_as_the_small_one_at_a_scaled_stand_off(tmp_path):
     """A 5x larger satellite (12 m bounding radius) is held 5x farther: at reset, its image is the image of the
     original satellite (same key), its depths are scaled accordingly, and the desired position is 25 m away."""
@@ -350,6 +359,7 @@ def test_large_user_target_is_seen_as_the_small_one_at_a_scaled_stand_off(tmp_pa
         assert float(obs_s.max()) > 0.0
 
 
+@pytest.mark.slow
 def test_proportional_holds_a_large_user_target_at_its_stand_off(tmp_path):
     from ramavt_jax import baselines
 

@@ -65,6 +65,7 @@ def test_summary_matches_hand_computation():
     assert rollouts.summarise(both).length_mean == pytest.approx(7.0)
 
 
+@pytest.mark.slow
 def test_episode_starts_are_the_states_run_episodes_starts_from():
     """Two targets drawn at random per episode: the starts' target draws are the episodes', and the recorded first
     step is one step on from them (the target moves < 0.1 m in a step; the starts lie metres apart)."""
@@ -84,6 +85,7 @@ def test_a_run_trained_on_wider_starts_is_evaluated_on_the_benchmarks_starts():
     assert rollouts.run_env_overrides(trained) == {"target_spin_std": 0.2}
 
 
+@pytest.mark.slow
 def test_early_exit_runner_matches_recorded_scan():
     config = env_lib.EnvConfig(camera=render.CameraConfig(resolution=16), targets=("Satellite-v2",))
     tracking_env = env_lib.TrackingEnv(config)
@@ -110,6 +112,7 @@ def test_early_exit_runner_matches_recorded_scan():
     assert s.error_ci_low <= s.error_mean <= s.error_ci_high
 
 
+@pytest.mark.slow
 def test_a_settings_episodes_do_not_depend_on_the_other_settings_requested():
     """The 'none' setting's episodes (hence every summary number) are the same evaluated alone (Table I) and among
     the five perturbation settings (Tables I + II). The depth tracker reads its images, so a frame history that

@@ -121,6 +121,7 @@ def _apply_actions(cfg, variables, obs, reset, state, actions):
     return make_network(cfg).apply(variables, obs, reset, state, actions=actions)
 
 
+@pytest.mark.slow
 def test_prev_action_acting_equals_unroll_and_episode_starts_hide_it():
     """A prev_action network over a window (actions given) equals acting step by step with the caller recording
     each action in the state; the previous action changes q except at episode starts."""
@@ -242,6 +243,7 @@ def test_conv_constant_planes_equal_appended_channels(impl):
     np.testing.assert_allclose(g_split["params"]["kernel"], g_full["params"]["kernel"], atol=1e-4)
 
 
+@pytest.mark.slow
 def test_network_conv_impls_share_params_and_agree():
     cfg = small("ramavt")
     _, variables, obs = _setup(cfg, (33, 33, 2), t=3)
@@ -273,6 +275,7 @@ def test_attention_maps(variant):
         assert np.all(m >= 0)
 
 
+@pytest.mark.slow
 def test_batchnorm_train_and_eval():
     cfg = small("ramavt", norm="batch")
     net, variables, obs = _setup(cfg, t=4)
@@ -292,6 +295,7 @@ def test_batchnorm_train_and_eval():
     assert not np.allclose(q_eval[1], q_other[1], atol=1e-5)
 
 
+@pytest.mark.slow
 def test_grad_finite_and_bf16():
     cfg = small("ramavt")
     net, variables, obs = _setup(cfg, t=4)
@@ -366,6 +370,7 @@ def _silhouette(depth_value: float, res: int = 32) -> jnp.ndarray:
     return jnp.where(disc, depth_value, 0.0)[None, :, :, None]
 
 
+@pytest.mark.slow
 def test_plain_encoder_cannot_see_depth_scale_and_the_cues_fix_it():
     """One silhouette at 5 m and at 10 m (depth values 0.25 and 0.5): bias-free convs and a per-frame LayerNorm give
     the same features (the scale divides out; variant 'origin': SE's sigmoid gates leak a little of the scale);
@@ -380,6 +385,7 @@ def test_plain_encoder_cannot_see_depth_scale_and_the_cues_fix_it():
         assert diff > 1e-2, (cues, diff)
 
 
+@pytest.mark.slow
 def test_coordinate_channels_and_skip_shapes():
     from ramavt_jax.network import with_coordinates
 
@@ -411,6 +417,7 @@ def test_coordinate_encoder_equals_plain_encoder_on_appended_channels():
 
 
 @pytest.mark.parametrize("backend", ["cpu", "gpu"])
+@pytest.mark.slow
 def test_hybrid_conv_vmapped_over_kernels_equals_each_kernel(backend, monkeypatch):
     """vmapped over seeds (kernels batched), the hybrid conv runs one convolution per kernel on CPU instead of XLA's
     grouped convolution (kept on accelerators: the 'gpu' case takes that branch, on the CPU): outputs and kernel
@@ -437,6 +444,7 @@ def test_hybrid_conv_vmapped_over_kernels_equals_each_kernel(backend, monkeypatc
             np.testing.assert_allclose(b[i], l, atol=1e-5)
 
 
+@pytest.mark.slow
 def test_frame_stacking_without_history_still_runs():
     """'drlavt' with frame_stack 1 keeps an empty [B, 0, H, W, C] history."""
     cfg = small("drlavt", frame_stack=1)

@@ -96,6 +96,7 @@ def test_each_flag_switches_only_its_perturbation(blur_env, episode):
     assert len(seen) >= 4, f"12 episodes at share 0.5 drew only {seen}"
 
 
+@pytest.mark.slow
 def test_a_new_episode_draws_its_own_perturbations(blur_env):
     """Auto-reset: with every episode one step long, each step's state is a fresh episode whose draws are those of
     its own reset key (env.step splits its key into physics, observation, reset and first-frame keys; the reset key

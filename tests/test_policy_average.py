@@ -34,6 +34,7 @@ def _leaves(tree):
     return [np.asarray(x) for x in jax.tree.leaves(tree)]
 
 
+@pytest.mark.slow
 def test_averaged_params_are_the_mean_of_the_last_chunks_target_params(chunk_by_chunk):
     states, _ = chunk_by_chunk
     for s in states[:2]:  # before the window: the target params themselves
@@ -62,6 +63,7 @@ def test_the_compiled_chunk_is_shared_across_run_lengths():
     assert program._cache_key(AVERAGED) != program._cache_key(SMOKE)
 
 
+@pytest.mark.slow
 def test_an_extended_run_keeps_averaging_the_same_window(tmp_path):
     """Trained for 3 chunks, then resumed with a length of 5: the mean of chunks 3-5, as a 5-chunk run has."""
     from ramavt_jax.training import driver
@@ -78,6 +80,7 @@ def test_an_extended_run_keeps_averaging_the_same_window(tmp_path):
         np.testing.assert_array_equal(a, b)
 
 
+@pytest.mark.slow
 def test_a_run_folder_serves_its_averaged_params(averaged_run, every_chunk_run):
     run = load_policy(averaged_run, log=lambda *_: None)  # conftest.py: averaged over chunks 3-4
     assert run.config.run.policy_params == "averaged"
