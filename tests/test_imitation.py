@@ -48,6 +48,7 @@ def test_large_margin_loss_is_zero_once_the_expert_leads_by_the_margin_and_its_g
     assert grad[2] == -1.0 and grad[7] == 1.0 and np.count_nonzero(grad) == 2  # raise the expert's, lower the leader
 
 
+@pytest.mark.slow
 def test_with_the_margin_every_env_stores_the_look_aheads_action_and_without_it_none():
     """With the margin loss every env's stored label is the one-step look-ahead's action on its true state, whatever
     the env flies (epsilon 1: random commands), checked against the look-ahead run env by env outside the trainer;

@@ -250,6 +250,7 @@ def test_camera_rays():
     np.testing.assert_allclose(rays[0, 8], [4 / 4.5, -4 / 4.5, 1], rtol=1e-6)  # top-right: x right, y down
 
 
+@pytest.mark.slow
 def test_jit_matches_no_jit(scene):
     _, target, _, pos, rot = scene
     cam = R.CameraConfig(resolution=16)
@@ -261,6 +262,7 @@ def test_jit_matches_no_jit(scene):
     assert np.asarray(jitted.hit).any()
 
 
+@pytest.mark.slow
 def test_vmap_matches_loop_and_batch(scene):
     cam, _, batch, pos, rot = scene
     light = R.default_lighting()
@@ -275,6 +277,7 @@ def test_vmap_matches_loop_and_batch(scene):
     assert not np.asarray(depth_only.rgb).any()
 
 
+@pytest.mark.slow
 def test_tiling_is_exact(scene):
     """The tile culling must never drop a hit: compare with tiles covering everything (tile = resolution)."""
     cam, _, batch, pos, rot = scene
@@ -326,6 +329,7 @@ def test_motion_blur():
     assert vert[:, 10].sum() > 0.99
 
 
+@pytest.mark.slow
 def test_vmapped_render_uses_batch_rule_with_per_env_lighting():
     """vmap(render) goes through render_batch's custom rule; per-env lighting and nested vmap still match a loop."""
     tg = targets.load_many(["Satellite-v0", "Capsule-v0"])[0]
@@ -394,6 +398,7 @@ def test_specialised_kernels_match_general_cast():
         np.testing.assert_allclose(out[fin], ref[fin], rtol=2e-5, atol=2e-5)
 
 
+@pytest.mark.slow
 def test_render_options_do_not_change_the_image(scene):
     """Chunk size and the specialised kernels change nothing (beyond float rounding)."""
     cam, _, batch, pos, rot = scene
@@ -411,6 +416,7 @@ def test_hidden_targets_cost_no_work_and_render_empty(scene):
 
 
 @pytest.mark.parametrize("com_z, offset_z", [(-1.0, 5.0), (21.0, -4.0)])
+@pytest.mark.slow
 def test_no_work_shortcut_keeps_geoms_far_from_the_centre_of_mass(com_z, offset_z):
     """The empty-batch shortcut looks at the centres of mass: a sphere (radius 2 m) 4-5 m from its target's centre of
     mass reaches into view from behind the camera and from beyond the far plane (20 m), and is rendered as without

@@ -359,6 +359,7 @@ def test_uniform_sampling_has_no_priorities(filled):
     assert replay.set_priorities(state, batch, jnp.ones(2)) is state
 
 
+@pytest.mark.slow
 def test_prioritised_windows_are_contiguous_and_start_equally_likely():
     """New windows get the same (largest) priority, so the first samples are uniform over the admissible starts,
     with weights of 1, and every window is still consecutive steps of one env."""
@@ -370,6 +371,7 @@ def test_prioritised_windows_are_contiguous_and_start_equally_likely():
     assert batch.indices.shape == (64,)
 
 
+@pytest.mark.slow
 def test_set_priorities_steer_sampling_and_weights():
     from flashbax.buffers import sum_tree
 

@@ -118,6 +118,7 @@ def _render(target, tile=render.renderer.DEFAULT_TILE):
     return render.render_batch(batch, positions, poses, cam, render.default_lighting(), shade=False, tile=tile)
 
 
+@pytest.mark.slow
 def test_stretch_by_ones_renders_the_same_target():
     """Factors of 1 on a model with geoms at every angle (spheres among them, drawn as ellipsoids) render the
     model itself."""
@@ -129,6 +130,7 @@ def test_stretch_by_ones_renders_the_same_target():
 
 
 @pytest.mark.parametrize("name", ["Station-v0", "Asteroid-v1"])
+@pytest.mark.slow
 def test_stretched_bounds_enclose_what_is_rendered(name):
     """The recomputed geom_rbound and bound_radius bound the stretched geoms: the tiled renderer, which skips the
     tiles outside each geom's bounding sphere, draws what the same target draws with bounds far too large."""
@@ -160,6 +162,7 @@ def _params(tracking_env, **overrides):
     return env.validate_params(tracking_env.default_params().replace(**overrides), tracking_env.config)
 
 
+@pytest.mark.slow
 def test_stretch_draw_keeps_the_volume_and_the_other_draws(stretch_env, vstate):
     keys = jax.random.split(jax.random.key(3), NUM_ENVS)
     plain = vstate(keys, _params(stretch_env, stretch_max=1.0))

@@ -95,6 +95,7 @@ def _chaser_step(tracking_env, params, index: int) -> tuple[np.ndarray, float]:
     return np.asarray(moved.chaser_vel), float(state.scale)
 
 
+@pytest.mark.slow
 def test_command_speed_follows_the_stand_off_only_when_asked(size_env, models):
     """Power 0: one action gives the chaser `speed` m/s at every size. Power 1: k times that at a target held
     farther than nominal (k > 1), the same share of its stand-off per second; a small target (k < 1) and a catalogue
@@ -139,6 +140,7 @@ def test_speed_rule_is_an_evaluation_field():
 
 
 # ------------------------------------------------------------------------------------------------ possible tasks
+@pytest.mark.slow
 def test_small_and_large_user_targets_are_tracked_by_the_ceiling(size_env):
     """From the env's own initial states, the mpc ceiling holds the 0.3 m cubesat (k = 0.6) and the 12 m satellite
     (k = 4.8) in view and within the lost distance, and brings each to the desired point (or, from far away, ever
@@ -168,6 +170,7 @@ def _coverage(vreset, tracking_env, index, **overrides) -> tuple[float, float]:
     return float((np.asarray(obs) > 0).mean()), float(state.scale[0])
 
 
+@pytest.mark.slow
 def test_small_target_fills_more_of_the_view(size_env, vreset):
     """At the desired position a small target covers the pixels of a 0.5 m target at 5 m (a 0.3 m cube: about 15
     of 1024 at 32 x 32) where the old rule (k = 1 for every target up to 2.5 m) left it about 4; the 12 m satellite
@@ -249,6 +252,7 @@ def test_size_randomisation_is_for_training_only():
     assert rollouts.run_env_overrides(cfg.env_params) == {"target_spin_std": 0.2}  # evaluation: the models' sizes
 
 
+@pytest.mark.slow
 def test_eval_records_the_stand_off_rules_it_flew(tmp_path):
     """`ramavt eval --speed-standoff-power 0 --small-standoff-power 1` flies those rules for every row and writes them
     beside the numbers (results.json and tables.md)."""

@@ -289,6 +289,7 @@ def test_loss_masks_the_episode_crossing_and_matches_hand_plumbing(trainer, lear
         assert float(loss_fn(params, target, perturbed(burn, what))) != float(loss)
 
 
+@pytest.mark.slow
 def test_stored_recurrent_state_is_the_actors_state():
     cfg = SMOKE.override(env_params=(("max_steps", 6),))  # episodes end inside the rollout
     tr = T.Trainer(cfg)
@@ -328,6 +329,7 @@ def test_stored_recurrent_state_is_the_actors_state():
     assert chunk2.obs.dtype == jnp.float32
 
 
+@pytest.mark.slow
 def test_auxiliary_loss_labels_are_the_true_tracking_error_and_train_the_aux_head():
     """The stored label of obs t+1 (the tracking error in stand-off distances) reproduces the env's reward for the
     transition into it (1 - w * 5 m * |label| while in view), and the aux loss reaches the aux head."""
@@ -359,6 +361,7 @@ def test_auxiliary_loss_labels_are_the_true_tracking_error_and_train_the_aux_hea
     )
 
 
+@pytest.mark.slow
 def test_six_aux_outputs_add_the_relative_velocity_whose_integral_is_the_errors_change():
     """aux_outputs = 6: labels [N, T, 6], the tracking error as with 3, then the relative velocity in stand-off
     distances per second; the error moves from one obs to the next by the step's mean velocity times dt."""
@@ -375,6 +378,7 @@ def test_six_aux_outputs_add_the_relative_velocity_whose_integral_is_the_errors_
     np.testing.assert_allclose(moved[same], mean_velocity[same] * float(tr.env_params.dt), atol=2e-4)
 
 
+@pytest.mark.slow
 def test_prev_action_is_stored_with_the_state_and_fed_back_by_the_greedy_policy():
     """With a prev_action network the stored state before step t+1 holds the action taken at step t, and the
     greedy policy acts as the network does over the same sequence with its own actions given."""
@@ -419,6 +423,7 @@ def test_the_retreat_search_backs_off_until_a_frame_shows_the_target_then_acts_g
         greedy.greedy_policy(cfg.network, params, cfg.env.obs_shape, search="spiral")
 
 
+@pytest.mark.slow
 def test_an_ensemble_takes_the_argmax_of_its_members_mean_q_each_told_the_commands_flown():
     """greedy_policy(members=2) over two parameter sets: at every step the argmax of the two networks' mean Q, each
     network run over the episode so far from its own memory with the ensemble's commands as its previous actions."""
@@ -528,6 +533,7 @@ EASY = SMOKE.override(
 )
 
 
+@pytest.mark.slow
 def test_learns_an_easy_task():
     # ~25 s of training on 2 idle cores (plus ~20 s compile); measured: random ~100, untrained greedy ~115,
     # trained greedy ~195 of 200 steps.
@@ -571,6 +577,7 @@ def test_bootstrap_lost_turns_terminations_into_bootstrapped_ends(trainer, learn
 
 
 # ------------------------------------------------------------------------------------------ prioritised replay
+@pytest.mark.slow
 def test_prioritised_training_sets_the_sampled_windows_priorities():
     """With ReplayConfig.priority_exponent > 0 the learner writes each sampled window's priority (from its TD errors)
     into the buffer's sum tree: after two chunks the stored priorities are no longer the one that new windows get,
@@ -587,6 +594,7 @@ def test_prioritised_training_sets_the_sampled_windows_priorities():
 
 
 # ------------------------------------------------------------------------------------------ online bootstrap
+@pytest.mark.slow
 def test_online_targets_equal_target_net_targets_when_the_nets_are_equal(trainer, learner):
     """LearnerConfig.bootstrap_from='online' bootstraps from the trained pass's own values under stop_gradient. With
     target params = online params the target-net path bootstraps from the same values (its pass runs from the
