@@ -186,6 +186,7 @@ def test_eval_random_writes_tables(tmp_path):
     assert result["rows"][0]["name"] == "random"
 
 
+@pytest.mark.slow
 def test_eval_mpc_perturbations_custom_target_and_figures(tmp_path):
     path = tmp_path / "probe.xml"
     path.write_text(PROBE_XML)
@@ -288,6 +289,7 @@ def test_eval_checkpoint_run(tmp_path):
     assert "run `" in md and "checkpoint step 3" in md and "online params" in md
 
 
+@pytest.mark.slow
 def test_an_ensemble_row_flies_the_runs_together_and_of_one_run_twice_equals_it(tmp_path):
     """--ensemble adds one row; two copies of one run fly as that run does (the mean of equal Q values), while
     one --run folder alone is a one-line usage error."""

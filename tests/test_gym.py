@@ -71,6 +71,7 @@ def test_seeded_reset_is_deterministic():
     np.testing.assert_array_equal(a.step(1)[0], b.step(1)[0])
 
 
+@pytest.mark.slow
 def test_vector_env_next_step_autoreset():
     vec = TrackingVectorEnv(4, CONFIG, params=env.TrackingEnv(CONFIG).default_params(max_steps=3))
     obs, _ = vec.reset(seed=0)

@@ -133,6 +133,7 @@ def test_the_margin_term_skips_the_steps_without_a_label():
     np.testing.assert_allclose(float(metrics["expert_agreement"]), agreement, rtol=1e-5)
 
 
+@pytest.mark.slow
 def test_the_blind_label_replaces_the_look_aheads_at_blind_starts_only():
     """blind_label 'retreat': the first step's stored label is RETREAT exactly at the envs whose target starts out of
     view (by hand), and the look-ahead's action elsewhere; 'teacher' stores that action everywhere."""

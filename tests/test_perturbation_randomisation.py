@@ -58,6 +58,7 @@ def test_draws_are_independent_per_perturbation_at_the_asked_share(blur_env):
         np.testing.assert_array_equal(np.asarray(at), share)
 
 
+@pytest.mark.slow
 def test_share_zero_flies_the_unperturbed_episode_and_one_the_perturbed(blur_env, episode):
     key = jax.random.key(3)
     clean = episode(key, _params(blur_env))
