@@ -35,55 +35,24 @@ def pytest_unconfigure(config):
         shutil.rmtree(folder, ignore_errors=True)
 
 
+def _smoke_run_with_every_checkpoint(folder, *flags: str):
+    """`ramavt train --preset smoke` into ``folder`` with a checkpoint (parameters only) after each of its 4 chunks."""
+    out = folder / "smoke"
+    base = ["train", "--preset", "smoke", "--no-progress", "--out", str(out), "--run.eval-episodes", "0"]
+    keep = ["--run.checkpoint-every-chunks", "1", "--run.keep-checkpoints", "100", "--run.no-checkpoint-replay"]
+    cli.main([*base, *keep, *flags])
+    return out
+
+
 @pytest.fixture(scope="package")
 def every_chunk_run(tmp_path_factory):
-    """A smoke run trained by `ramavt train` with a checkpoint (parameters only) after every one of its 4 chunks;
-    read, never written, by the tests that use it."""
-    out = tmp_path_factory.mktemp("every_chunk") / "smoke"
-    cli.main(
-        [
-            "train",
-            "--preset",
-            "smoke",
-            "--no-progress",
-            "--out",
-            str(out),
-            "--run.eval-episodes",
-            "0",
-            "--run.checkpoint-every-chunks",
-            "1",
-            "--run.keep-checkpoints",
-            "100",
-            "--run.no-checkpoint-replay",
-        ]
-    )
-    return out
+    """A smoke run with a checkpoint after every chunk; read, never written, by the tests that use it."""
+    return _smoke_run_with_every_checkpoint(tmp_path_factory.mktemp("every_chunk"))
 
 
 @pytest.fixture(scope="package")
 def averaged_run(tmp_path_factory):
     """A smoke run like ``every_chunk_run`` that keeps the policy's tail average over chunks 3-4 and acts with it
     (``--run.policy-average-from 2 --run.policy-params averaged``); read, never written."""
-    out = tmp_path_factory.mktemp("averaged") / "smoke"
-    cli.main(
-        [
-            "train",
-            "--preset",
-            "smoke",
-            "--no-progress",
-            "--out",
-            str(out),
-            "--run.eval-episodes",
-            "0",
-            "--run.checkpoint-every-chunks",
-            "1",
-            "--run.keep-checkpoints",
-            "100",
-            "--run.no-checkpoint-replay",
-            "--run.policy-average-from",
-            "2",
-            "--run.policy-params",
-            "averaged",
-        ]
-    )
-    return out
+    flags = ("--run.policy-average-from", "2", "--run.policy-params", "averaged")
+    return _smoke_run_with_every_checkpoint(tmp_path_factory.mktemp("averaged"), *flags)
