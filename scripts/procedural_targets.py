@@ -50,6 +50,12 @@ from mjcf_builder import Target
 
 MAX_GEOMS = 21  # the most geoms of a catalogue training model (Station-v1): the pad training already has
 RADIUS_RANGE = (1.0, 2.4)  # m: bounding radii drawn (module docstring)
+# Shape grounds (--ground): models for evaluation only, of any size a user may bring, with their masses spread unlike
+# the catalogue's, so that a tracker cannot read the centre of mass off the silhouette by habit.
+GROUND_RADIUS_RANGE = (0.3, 12.0)  # m: bounding radii drawn log-uniformly
+GROUND_DENSITY_SPREAD = 3.0  # each geom's density times a factor drawn log-uniformly in [1/3, 3]
+GROUND_SEEDS = {"val-shapes": 1001, "test-shapes": 2002}  # seed of each ground; never 0 (the training models')
+GROUND_COUNT = 24  # models per ground: six of each kind
 KINDS = ("sat", "stack", "modules", "rock")
 BODY_COLOURS = (GOLD, SILVER, WHITE, GREY, OLIVE)
 PANEL_COLOURS = (PANEL, PANEL2)
@@ -193,14 +199,32 @@ def procedural_target(seed: int, index: int) -> Target:
     return t
 
 
-def write_models(out: Path, count: int, seed: int = 0) -> list[Path]:
-    """Write models 0..count-1 of ``seed`` to ``out`` (created if missing) -> their paths, in index order."""
+def ground_target(seed: int, index: int) -> Target:
+    """Model ``index`` of a shape ground: `procedural_target`'s shape, each geom's density times a log-uniform factor
+    in [1/GROUND_DENSITY_SPREAD, GROUND_DENSITY_SPREAD], rescaled to a bounding radius drawn log-uniformly in
+    GROUND_RADIUS_RANGE (draws from default_rng([seed, index, 1]): the shape is the training generator's)."""
+    t = procedural_target(seed, index)
+    rng = np.random.default_rng([seed, index, 1])
+    spread = np.log(GROUND_DENSITY_SPREAD)
+    t.geoms = [(kind, name, rgb, density * float(np.exp(rng.uniform(-spread, spread))), attrs)
+               for kind, name, rgb, density, attrs in t.geoms]  # fmt: skip
+    low, high = np.log(GROUND_RADIUS_RANGE)
+    radius = float(np.exp(rng.uniform(low, high)))
+    t.scale *= radius / bound_radius(t)  # about the centre of mass the new densities put elsewhere
+    t.scale_reason = f"bounding radius {radius:.2f} m drawn log-uniformly in {GROUND_RADIUS_RANGE} m"
+    t.comment += f", densities spread {GROUND_DENSITY_SPREAD:g}x (a shape ground's)"
+    return t
+
+
+def write_models(out: Path, count: int, seed: int = 0, ground: bool = False) -> list[Path]:
+    """Write models 0..count-1 of ``seed`` (`ground_target`'s if ``ground``, else `procedural_target`'s) to ``out``
+    (created if missing) -> their paths, in index order."""
     if count < 1:
         raise ValueError(f"count must be at least 1, got {count}")
     out.mkdir(parents=True, exist_ok=True)
     paths = []
     for index in range(count):
-        t = procedural_target(seed, index)
+        t = (ground_target if ground else procedural_target)(seed, index)
         paths.append(out / f"{t.name}.xml")
         paths[-1].write_text(t.xml())
     return paths
@@ -231,6 +255,11 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--out", type=Path, default=Path("runs/procedural"))
     parser.add_argument(
+        "--ground",
+        action="store_true",
+        help="write a shape ground's models (ground_target: sizes 0.3-12 m, densities spread) instead",
+    )
+    parser.add_argument(
         "--list-train",
         type=Path,
         metavar="DIR",
@@ -245,7 +274,7 @@ def main() -> None:
         return
     if args.count < 1:
         parser.error("--count must be at least 1")
-    for path in write_models(args.out, args.count, args.seed):
+    for path in write_models(args.out, args.count, args.seed, ground=args.ground):
         print(f"wrote {path}")
 
 

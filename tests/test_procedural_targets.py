@@ -81,3 +81,30 @@ def _script(*args: str) -> subprocess.CompletedProcess:
     return subprocess.run(
         [sys.executable, str(ROOT / "scripts" / "procedural_targets.py"), *args], capture_output=True, text=True
     )
+
+
+def test_the_shape_grounds_in_the_package_are_the_generators_and_span_the_sizes(tmp_path):
+    """'val-shapes' and 'test-shapes' are `ground_target`'s models of their seeds, byte for byte, and cover what a user
+    may bring: six of each kind, bounding radii from under 0.5 m to over 8 m, densities off the catalogue's values."""
+    for split_name, seed in procedural_targets.GROUND_SEEDS.items():
+        names = targets.split(split_name)
+        assert len(names) == procedural_targets.GROUND_COUNT and seed != 0  # seed 0: the training models'
+        for index, name in enumerate(names):
+            t = procedural_targets.ground_target(seed, index)
+            assert name == t.name and (targets.SHAPES_DIR / f"{name}.xml").read_text() == t.xml()
+        _, infos = targets.load_many(names)
+        radii = np.array([info.bound_radius for info in infos])
+        low, high = procedural_targets.GROUND_RADIUS_RANGE
+        assert radii.min() >= low - 1e-3 and radii.max() <= high + 1e-3
+        assert (radii < 0.5).sum() >= 3 and (radii > 8).sum() >= 3
+        kinds = [n.split("-")[1].rstrip("0123456789") for n in names]
+        assert kinds == list(procedural_targets.KINDS) * (len(names) // len(procedural_targets.KINDS))
+    assert not set(targets.VAL_SHAPE_TARGETS) & set(targets.TEST_SHAPE_TARGETS)
+
+
+def test_a_ground_model_spreads_densities_and_keeps_the_shape():
+    plain, ground = procedural_targets.procedural_target(1001, 16), procedural_targets.ground_target(1001, 16)
+    assert [g[:3] for g in plain.geoms] == [g[:3] for g in ground.geoms]  # kind, name, colour
+    ratios = np.array([g[3] / p[3] for g, p in zip(ground.geoms, plain.geoms)])
+    spread = procedural_targets.GROUND_DENSITY_SPREAD
+    assert np.all((ratios >= 1 / spread) & (ratios <= spread)) and np.ptp(np.log(ratios)) > 0.3

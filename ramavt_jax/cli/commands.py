@@ -21,13 +21,15 @@ from ramavt_jax.training import run_folder
 BENCHMARKS = ("env", "train", "gpu", "network", "render", "scaling", "mjx_ray")
 
 
-def targets_cmd(split: Literal["all", "train", "val", "test", "val-sizes"] = "all") -> None:
+def targets_cmd(
+    split: Literal["all", "train", "val", "test", "val-sizes", "val-shapes", "test-shapes"] = "all",
+) -> None:
     """List the target catalogue: name, class, split, geoms, bounding radius and mass."""
     rows = targets.catalogue_table(targets.split(split))
-    print(f"{'name':<20} {'class':<10} {'split':<9} {'geoms':>5} {'radius_m':>9} {'mass_kg':>10}")
+    print(f"{'name':<20} {'class':<10} {'split':<11} {'geoms':>5} {'radius_m':>9} {'mass_kg':>10}")
     for r in rows:
         print(
-            f"{r['name']:<20} {r['class']:<10} {r['split']:<9} {r['num_geoms']:>5} {r['bound_radius']:>9.2f} "
+            f"{r['name']:<20} {r['class']:<10} {r['split']:<11} {r['num_geoms']:>5} {r['bound_radius']:>9.2f} "
             f"{r['mass']:>10.1f}"
         )
 

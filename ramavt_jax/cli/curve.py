@@ -57,7 +57,7 @@ def curve_cmd(
     Args:
         run: training run folders (written by `ramavt train`; e.g. the seed_<k> folders of a sweep), one line each.
             Keep every chunk's parameters with `--run.checkpoint-every-chunks 1 --run.keep-checkpoints K`.
-        targets: 'val' (validation split), 'val-sizes', 'test', 'train', 'all', or comma-separated catalogue names
+        targets: a split ('val', 'val-sizes', 'val-shapes', 'test', ...), or comma-separated catalogue names
             / MJCF files (each optionally resized: Satellite-v2@0.3m).
         episodes: episodes per target; the episodes of `ramavt eval` with the same --targets, --episodes, --seed and
             --max-steps (no perturbation), so its AER of a checkpoint is the curve's.

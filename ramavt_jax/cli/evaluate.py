@@ -235,9 +235,9 @@ def eval_cmd(
         baselines: with --policy checkpoint, also evaluate mpc, proportional, depth tracker and random in every table (a
             baseline given as --policy is evaluated alone).
         targets: 'test' (held-out split), 'val' (validation split), 'val-sizes' (validation models resized to
-            0.3-12 m), 'train', 'all', or comma-separated catalogue names / MJCF files, each (and each split but
-            val-sizes) optionally resized to a bounding radius with '@<radius>m' (Satellite-v2@0.3m; val@0.3m:
-            every validation model at 0.3 m).
+            0.3-12 m), 'val-shapes' / 'test-shapes' (24 generated shapes each, 0.3-12 m), 'train', 'all', or
+            comma-separated catalogue names / MJCF files, each (and each split but val-sizes) optionally resized to a
+            bounding radius with '@<radius>m' (Satellite-v2@0.3m; val@0.3m: every validation model at 0.3 m).
         episodes: episodes per target (run side by side; the paper's protocol: 100).
         max_steps: episode length cap (the paper: 1000).
         tables: which tables to produce (2 runs the five perturbation settings, 5x the episodes).

@@ -59,6 +59,21 @@ VAL_SIZE_TARGETS: tuple[str, ...] = (
     "Station-val0@12m",
 )
 
+# Shape grounds: procedurally generated models for evaluation only (scripts/procedural_targets.py --ground), six of
+# each kind (satellite, stack, module chain, rock), bounding radii log-uniform in 0.3-12 m, each geom's density spread
+# 3x either way. 'val-shapes' is for choosing; 'test-shapes' (another seed) is held out like the test split. No
+# training split draws from their seeds.
+SHAPES_DIR = MODEL_DIR / "shapes"
+
+
+def _generated(prefix: str) -> tuple[str, ...]:
+    """Names of the generated models ``<prefix>-<kind><index>`` in SHAPES_DIR, in index order."""
+    return tuple(sorted((p.stem for p in SHAPES_DIR.glob(f"{prefix}-*.xml")), key=lambda stem: int(stem[-3:])))
+
+
+VAL_SHAPE_TARGETS: tuple[str, ...] = _generated("Gen1001")
+TEST_SHAPE_TARGETS: tuple[str, ...] = _generated("Gen2002")
+
 
 class TargetError(ValueError):
     """A target name, file or model that cannot be used."""
@@ -154,6 +169,8 @@ def resolve(name_or_path: str | os.PathLike) -> Path:
         if not path.is_file():
             raise TargetError(f"catalogue file {path} for target {text!r} is missing from the installation")
         return path
+    if text in VAL_SHAPE_TARGETS or text in TEST_SHAPE_TARGETS:
+        return SHAPES_DIR / f"{text}.xml"
     path = Path(text).expanduser()
     if path.is_dir():
         raise TargetError(f"target {text!r} is a folder; give an MJCF file (.xml) or a catalogue name")
@@ -388,17 +405,20 @@ def shifted(target: TargetModel, offset: jax.Array) -> TargetModel:
     return target.replace(geom_pos=geom_pos, bound_radius=jnp.max(reach))
 
 
-SPLITS: tuple[str, ...] = ("train", "val", "test", "all", "val-sizes")
+SPLITS: tuple[str, ...] = ("train", "val", "test", "all", "val-sizes", "val-shapes", "test-shapes")
 
 
 def split(name: str) -> tuple[str, ...]:
-    """'train', 'val', 'test', 'all' -> catalogue names; 'val-sizes' -> the resized validation models."""
+    """'train', 'val', 'test', 'all' -> catalogue names; 'val-sizes' -> the resized validation models; 'val-shapes',
+    'test-shapes' -> the shape grounds' generated models."""
     table = {
         "train": TRAIN_TARGETS,
         "val": VAL_TARGETS,
         "test": TEST_TARGETS,
         "all": ALL_TARGETS,
         "val-sizes": VAL_SIZE_TARGETS,
+        "val-shapes": VAL_SHAPE_TARGETS,
+        "test-shapes": TEST_SHAPE_TARGETS,
     }
     if name not in table:
         raise TargetError(f"unknown split {name!r}; choose one of {sorted(table)}")
@@ -412,11 +432,11 @@ def catalogue_table(names: Sequence[str | os.PathLike] | None = None) -> list[di
     for target in ALL_TARGETS if names is None else names:
         _, info = load_numpy(target)
         key = sized_name(target)
-        split_name = next((n for n in ("train", "val", "test", "val-sizes") if key in split(n)), "custom")
+        split_name = next((n for n in SPLITS if n != "all" and key in split(n)), "custom")
         rows.append(
             {
                 "name": info.name,
-                "class": CATALOGUE.get(sized_spec(key)[0], "custom"),
+                "class": CATALOGUE.get(sized_spec(key)[0], "custom" if split_name == "custom" else "generated"),
                 "split": split_name,
                 "num_geoms": info.num_geoms,
                 "bound_radius": info.bound_radius,
