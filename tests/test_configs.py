@@ -1,7 +1,7 @@
 """Every field of NetworkConfig and LearnerConfig earns its place: a preset sets it away from its default, or an
 allowlist below names the paper variant, ablation or documented feature that uses it. A field that neither uses is a
 research arm's and belongs in lab/ (through the trainer's extension points, docs/extending.md). Also: config.json
-files of earlier versions, which hold the fields since retired (TrainConfig's RETIRED_FIELDS), still load."""
+files of earlier versions, which hold the fields since retired (config_dicts.RETIRED_FIELDS), still load."""
 
 import dataclasses
 import json
@@ -9,8 +9,9 @@ import json
 import pytest
 
 from ramavt_jax import presets
+from ramavt_jax.config_dicts import RETIRED_FIELDS, without_retired_fields
 from ramavt_jax.network_config import NetworkConfig
-from ramavt_jax.train_config import RETIRED_FIELDS, LearnerConfig, TrainConfig, without_retired_fields
+from ramavt_jax.train_config import LearnerConfig, TrainConfig
 from ramavt_jax.training import run_folder
 
 # Fields no preset sets away from its default, each with what uses it.

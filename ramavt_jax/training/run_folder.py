@@ -23,7 +23,8 @@ from typing import Any
 
 import numpy as np
 
-from ramavt_jax.train_config import TrainConfig, without_retired_fields
+from ramavt_jax.config_dicts import without_retired_fields
+from ramavt_jax.train_config import TrainConfig
 
 __all__ = [
     "CONFIG_FILE",
@@ -73,7 +74,7 @@ RESUMABLE_FIELDS = (
 )
 # Fields added to TrainConfig after run folders of earlier versions were written, each defaulting to what those
 # runs were trained with: a config.json without such a field reads as its default. Any other missing field means a
-# file cut short or edited, and is refused. (Fields since removed: TrainConfig's RETIRED_FIELDS.)
+# file cut short or edited, and is refused. (Fields since removed: config_dicts.RETIRED_FIELDS.)
 ADDED_FIELDS = (
     "replay.priority_exponent",
     "replay.importance_exponent",
@@ -303,7 +304,7 @@ def config_differences(saved: dict, current: dict, defaults: dict | None = None)
     """{dotted field: (saved value, current value)} for every field that differs between two config dicts. A field
     the saved config lacks (written before the field existed) counts as its value in ``defaults`` (a config dict
     of the defaults), so a new field left at its default does not block a resume; a retired field at its old value
-    (TrainConfig's RETIRED_FIELDS) counts as absent, at another value is refused (ValueError)."""
+    (config_dicts.RETIRED_FIELDS) counts as absent, at another value is refused (ValueError)."""
     saved = without_retired_fields(saved)
     a, b = _flatten(_sorted_pairs(saved)), _flatten(_sorted_pairs(current))
     d = _flatten(_sorted_pairs(defaults or {}))
@@ -320,7 +321,7 @@ def missing_fields(saved: dict, defaults: dict) -> list[str]:
 def read_config(run_dir: str | os.PathLike, defaults: dict | None = None) -> dict:
     """A run folder's config.json ({"seed", "config"}), complete and without retired fields: RunFolderError (one
     line, naming the file and the first missing field) when it cannot be read or lacks a field of ``defaults``
-    (default: TrainConfig's), or (naming the field) when it holds a retired field (TrainConfig's RETIRED_FIELDS)
+    (default: TrainConfig's), or (naming the field) when it holds a retired field (config_dicts.RETIRED_FIELDS)
     at another value than its old default: the run used a research arm this version no longer has."""
     path = Path(run_dir) / CONFIG_FILE
     try:
