@@ -21,7 +21,7 @@ from ramavt_jax import cli
 from ramavt_jax.presets import preset
 from ramavt_jax.train import Trainer
 from ramavt_jax.train_config import TrainConfig
-from ramavt_jax.training import memory, run_folder
+from ramavt_jax.training import files, memory, run_folder
 from ramavt_jax.training.checkpoint import CheckpointError, CheckpointStore
 
 SMOKE = preset("smoke", eval_episodes=0)
@@ -85,13 +85,13 @@ def test_the_chunks_working_memory_counts_in_the_training_plan(monkeypatch):
 def test_a_torn_last_metrics_line_is_skipped_in_one_line(tmp_path):
     path = tmp_path / "metrics.jsonl"
     whole = [{"chunk": 1, "loss": 0.5}, {"chunk": 2, "loss": None}]
-    text = "".join(run_folder.dumps(r) + "\n" for r in whole)
-    path.write_text(text + run_folder.dumps({"chunk": 3, "loss": 0.25})[:9])  # a crash mid-write
+    text = "".join(files.dumps(r) + "\n" for r in whole)
+    path.write_text(text + files.dumps({"chunk": 3, "loss": 0.25})[:9])  # a crash mid-write
     said = []
     records = run_folder.read_metrics(path, log=said.append)
     assert [r["chunk"] for r in records] == [1, 2] and np.isnan(records[1]["loss"])
     assert len(said) == 1 and str(path) in said[0] and "\n" not in said[0]
-    path.write_text(text.replace('"loss": 0.5', '"loss": 0.5,,') + run_folder.dumps({"chunk": 3}) + "\n")
+    path.write_text(text.replace('"loss": 0.5', '"loss": 0.5,,') + files.dumps({"chunk": 3}) + "\n")
     with pytest.raises(run_folder.RunFolderError, match=r"metrics.jsonl line 1 is not a JSON record"):
         run_folder.read_metrics(path, log=said.append)  # damage before the last line is not a crash mid-write
 

@@ -23,7 +23,7 @@ from ramavt_jax.evaluation import final, rollouts
 from ramavt_jax.evaluation import tables as tables_lib
 from ramavt_jax.presets import PRESETS, preset
 from ramavt_jax.train import Trainer
-from ramavt_jax.training import driver, metrics, run_folder
+from ramavt_jax.training import driver, files, metrics, run_folder
 from ramavt_jax.training.checkpoint import CheckpointError, CheckpointStore, CheckpointWriteError
 
 TRAIN = ["train", "--preset", "smoke", "--no-progress"]
@@ -78,7 +78,7 @@ def test_a_full_disk_leaves_the_earlier_tables_whole_and_agreeing(tmp_path, caps
     tables_lib.write(result, out)
     before = {p.name: p.read_bytes() for p in out.iterdir()}
     _disk_full_for(monkeypatch, "results")
-    with pytest.raises(run_folder.WriteError, match=r"cannot write .*results.json: No space left on device"):
+    with pytest.raises(files.WriteError, match=r"cannot write .*results.json: No space left on device"):
         tables_lib.write({**result, "rows": [0]}, out)
     assert {p.name: p.read_bytes() for p in out.iterdir()} == before  # tables.md was not replaced alone either
     _no_temporary_files(out)
@@ -94,14 +94,14 @@ def test_a_full_disk_leaves_the_earlier_eval_json(tmp_path, monkeypatch):
     final.evaluate_run(EVERY_CHUNK, tmp_path, 0, None, log=lambda msg: None)
     before = (tmp_path / run_folder.EVAL_FILE).read_bytes()
     _disk_full_for(monkeypatch, "eval")
-    with pytest.raises(run_folder.WriteError, match="eval.json: No space left on device"):
+    with pytest.raises(files.WriteError, match="eval.json: No space left on device"):
         final.evaluate_run(EVERY_CHUNK, tmp_path, 0, None, log=lambda msg: None)
     assert (tmp_path / run_folder.EVAL_FILE).read_bytes() == before
     _no_temporary_files(tmp_path)
 
 
 def test_every_file_the_package_writes_goes_through_the_one_writer():
-    """A write call in the package names a temporary file of run_folder.replace_files (``tmp``), except the two
+    """A write call in the package names a temporary file of files.replace_files (``tmp``), except the two
     appends of run_folder itself (metrics rows, the lock file)."""
     import re
 
@@ -213,8 +213,8 @@ def test_a_row_that_cannot_be_rebuilt_is_refused_in_one_line(tmp_path):
 
 def test_rows_are_flushed_before_the_checkpoint_that_holds_them(tmp_path, monkeypatch, every_chunk_run):
     events = []
-    real_sync, real_save = run_folder.fsync_file, CheckpointStore.save
-    monkeypatch.setattr(run_folder, "fsync_file", lambda p: events.append(("sync", Path(p).name)) or real_sync(p))
+    real_sync, real_save = files.fsync_file, CheckpointStore.save
+    monkeypatch.setattr(files, "fsync_file", lambda p: events.append(("sync", Path(p).name)) or real_sync(p))
 
     def save(self, step, state, meta, force=True):
         events.append(("save", step, [r["chunk"] for r in meta["metrics"]]))

@@ -16,7 +16,7 @@ from ramavt_jax.cli.checks import UsageError, output_file, positive
 from ramavt_jax.evaluation import pretrained
 from ramavt_jax.evaluation.rollouts import resolve_targets
 from ramavt_jax.figures import episode
-from ramavt_jax.training import run_folder
+from ramavt_jax.training import files
 
 BENCHMARKS = ("env", "train", "gpu", "network", "render", "scaling", "mjx_ray")
 
@@ -86,7 +86,7 @@ def render_cmd(
     frames = episode.record_episode(tracking_env, pol, tracking_env.eval_params(), jax.random.key(seed), steps)
     length = int(frames.alive.sum())
     print(f"recorded in {time.time() - t:.0f} s; writing {out} ...", flush=True)
-    path = run_folder.replace_atomic(out, lambda tmp: episode.episode_video(frames, tmp, size=size, every=every))
+    path = files.replace_atomic(out, lambda tmp: episode.episode_video(frames, tmp, size=size, every=every))
     print(
         f"{pol.name} on {target}: {length} steps tracked, return {float(frames.reward[:length].sum()):.1f}; wrote {path}"
     )

@@ -11,7 +11,7 @@ from ramavt_jax.cli.checks import MAX_EPISODES, MAX_STEPS, UsageError, keeps_pol
 from ramavt_jax.evaluation import curve as curve_lib
 from ramavt_jax.evaluation import rollouts
 from ramavt_jax.figures import curve as curve_fig
-from ramavt_jax.training import run_folder
+from ramavt_jax.training import files, run_folder
 from ramavt_jax.training.checkpoint import has_checkpoint
 
 OTHER_WRITER = "wait for that command to finish, stop it, or write into another --out"
@@ -95,10 +95,8 @@ def curve_cmd(
             progress=progress,
             chunks=chunks,
         )
-        js = run_folder.replace_atomic(
-            Path(out) / JSON_FILE, lambda tmp: tmp.write_text(run_folder.dumps(result, indent=1))
-        )
-        png = run_folder.replace_atomic(Path(out) / PNG_FILE, lambda tmp: curve_fig.plot_curve(result, tmp))
+        js = files.replace_atomic(Path(out) / JSON_FILE, lambda tmp: tmp.write_text(files.dumps(result, indent=1)))
+        png = files.replace_atomic(Path(out) / PNG_FILE, lambda tmp: curve_fig.plot_curve(result, tmp))
     print(curve_table(result))
     print(f"wrote {js} and {png} ({result['wall_s']:.0f} s)")
     return result

@@ -265,7 +265,7 @@ def learning_curves(
     """The curve of every run in ``run_dirs`` (:func:`run_curve`) and of the ``baselines`` flown once
     (:func:`evaluate_baselines`, with the first run's dynamics): {'episodes', 'baselines', 'runs', 'wall_s'}.
     ``chunks``: only these checkpoints of each run (empty = all).
-    JSON-able (write it with run_folder.dumps)."""
+    JSON-able (write it with training.files.dumps)."""
     t0 = time.time()
     counts = [len(chosen_steps(run_dir, chunks)) for run_dir in run_dirs]  # all there before anything compiles
     dynamics = _saved_config(run_dirs[0])[1].env.dynamics if run_dirs else "cw"

@@ -22,6 +22,7 @@ from ramavt_jax import targets as targets_lib
 from ramavt_jax.evaluation import rollouts
 from ramavt_jax.greedy import greedy_policy
 from ramavt_jax.train_config import TrainConfig
+from ramavt_jax.training import files
 from ramavt_jax.training import run_folder as folders
 
 __all__ = ["split_envs", "split_key", "final_evaluation", "evaluate_run"]
@@ -93,5 +94,5 @@ def evaluate_run(
     results = final_evaluation(config, params, jax.random.PRNGKey(seed + 10_000), log)
     results["policy_params"] = config.run.policy_params
     results["eval_wall_s"] = time.time() - t
-    folders.write_atomic(Path(run_dir) / folders.EVAL_FILE, folders.dumps(results, indent=1))
+    files.write_atomic(Path(run_dir) / folders.EVAL_FILE, files.dumps(results, indent=1))
     return results

@@ -23,7 +23,7 @@ from ramavt_jax.evaluation.runs import load_policy
 from ramavt_jax.greedy import greedy_policy
 from ramavt_jax.network import init_params
 from ramavt_jax.train_config import TrainConfig
-from ramavt_jax.training import run_folder
+from ramavt_jax.training import files
 
 __all__ = [
     "AGENTS_DIR",
@@ -106,7 +106,7 @@ def export(
         "info": {"command": command, "run": str(run_dir), "seed": run.seed, "chunks": run.step, **(info or {})},
     }
     text = json.dumps(record, indent=1)
-    run_folder.replace_files(
+    files.replace_files(
         {
             folder / "params.npz": lambda tmp: np.savez_compressed(tmp, **flat),
             folder / "config.json": lambda tmp: tmp.write_text(text),

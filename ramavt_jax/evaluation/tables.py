@@ -29,7 +29,7 @@ import numpy as np
 from ramavt_jax import env as env_lib
 from ramavt_jax.baselines import Policy
 from ramavt_jax.evaluation import rollouts, seeds
-from ramavt_jax.training.run_folder import dumps, replace_files
+from ramavt_jax.training.files import dumps, replace_files
 
 # The paper's numbers (RAMAVT, IEEE TAES; 256x256 renders of the SNCOAT benchmark, 6 held-out targets).
 PAPER_TABLE1 = [  # name, input, AEL, min, max, AER, min, max, Hz
@@ -456,7 +456,7 @@ def to_markdown(result: dict, command: str = "") -> str:
 
 
 def write(result: dict, out: Path, command: str = "") -> tuple[Path, Path]:
-    """``out/tables.md`` and ``out/results.json``, replaced together (run_folder.replace_files): a full disk or a
+    """``out/tables.md`` and ``out/results.json``, replaced together (files.replace_files): a full disk or a
     crash leaves both earlier files, whole and agreeing."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)

@@ -20,9 +20,9 @@ def pyplot():
 
 
 def save_figure(fig, out, dpi: int = 110) -> Path:
-    """Write ``fig`` to ``out`` (its folder created; whole or not at all, run_folder.replace_atomic), close it, and
+    """Write ``fig`` to ``out`` (its folder created; whole or not at all, files.replace_atomic), close it, and
     return the path."""
-    from ramavt_jax.training.run_folder import replace_atomic
+    from ramavt_jax.training.files import replace_atomic
 
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)

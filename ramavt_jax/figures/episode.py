@@ -15,7 +15,7 @@ from ramavt_jax import network, render
 from ramavt_jax.baselines import Policy
 from ramavt_jax.figures import pyplot, save_figure
 from ramavt_jax.figures.training import plot_training_runs
-from ramavt_jax.training.run_folder import replace_atomic
+from ramavt_jax.training.files import replace_atomic
 
 
 @struct.dataclass

@@ -26,7 +26,7 @@ import numpy as np
 import orbax.checkpoint as ocp
 from etils import epath
 
-from ramavt_jax.training import run_folder
+from ramavt_jax.training import files, run_folder
 
 __all__ = ["CheckpointStore", "CheckpointNotFoundError", "CheckpointError", "CheckpointWriteError", "has_checkpoint"]
 
@@ -39,7 +39,7 @@ class CheckpointError(ValueError):
     """A checkpoint exists but cannot be used (no step loads, or it holds another state)."""
 
 
-class CheckpointWriteError(run_folder.WriteError):
+class CheckpointWriteError(files.WriteError):
     """A checkpoint could not be written (a full disk); the checkpoints before it are kept."""
 
 

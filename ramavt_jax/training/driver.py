@@ -21,6 +21,7 @@ import numpy as np
 from ramavt_jax import distributed
 from ramavt_jax.train_config import TrainConfig
 from ramavt_jax.train_state import TrainingDivergedError
+from ramavt_jax.training import files
 from ramavt_jax.training import run_folder as folders
 from ramavt_jax.training.checkpoint import CheckpointError, CheckpointNotFoundError, CheckpointStore, has_checkpoint
 from ramavt_jax.training.interrupts import StopSignals, TrainingInterrupted
@@ -433,7 +434,7 @@ def _run_locked(
     log = Log(config, f.dirs, start if f.resuming else None, primary, progress, rows)
     if primary:
         for s, d in zip(f.seeds, f.dirs):
-            folders.write_atomic(d / folders.CONFIG_FILE, json.dumps({"seed": s, "config": config_json}, indent=1))
+            files.write_atomic(d / folders.CONFIG_FILE, json.dumps({"seed": s, "config": config_json}, indent=1))
     stores = [CheckpointStore(d / folders.CHECKPOINTS, keep=config.run.keep_checkpoints) for d in f.dirs]
     loop = _Loop(config, prog, f, log, stores, config_json, start, start if f.resuming else None, clock_start)
     end = config.num_chunks if max_chunks is None else min(config.num_chunks, start + max_chunks)

@@ -13,6 +13,7 @@ import numpy as np
 
 from ramavt_jax.train_config import TrainConfig
 from ramavt_jax.train_state import ChunkMetrics
+from ramavt_jax.training import files
 from ramavt_jax.training import run_folder as folders
 
 __all__ = ["aggregate", "divergence", "process_start_time", "Log"]
@@ -145,7 +146,7 @@ class Log:
 
     def rows_since(self, k: int, chunk: int | None) -> list[dict]:
         """Folder ``k``'s rows of the chunks after ``chunk`` (None: all), as strict JSON (a checkpoint keeps them)."""
-        return [folders.to_strict_json(r) for r in self.records[k] if chunk is None or r["chunk"] > chunk]
+        return [files.to_strict_json(r) for r in self.records[k] if chunk is None or r["chunk"] > chunk]
 
     def sync(self) -> None:
         """Flush the rows appended so far to the disk: called before each checkpoint, so that no checkpoint exists

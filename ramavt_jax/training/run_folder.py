@@ -1,4 +1,5 @@
-"""The run folder written by ``ramavt train``: its layout, strict-JSON files, the lock and the config check.
+"""The run folder written by ``ramavt train``: its layout, its metrics.jsonl, the config check and the lock. Its files
+are written whole or not at all (:mod:`ramavt_jax.training.files`).
 
 Layout (one seed; ``--seeds N`` writes one such folder per seed, ``out/seed_<k>/``)::
 
@@ -14,17 +15,15 @@ Layout (one seed; ``--seeds N`` writes one such folder per seed, ``out/seed_<k>/
 from __future__ import annotations
 
 import json
-import math
 import os
 import re
 import socket
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from ramavt_jax.config_dicts import without_retired_fields
 from ramavt_jax.train_config import TrainConfig
+from ramavt_jax.training import files
 
 __all__ = [
     "CONFIG_FILE",
@@ -36,18 +35,11 @@ __all__ = [
     "seed_dir",
     "seed_folders",
     "is_seed_dir",
-    "to_strict_json",
-    "dumps",
     "read_metrics",
     "append_metrics",
     "resumed_rows",
     "sync_metrics",
     "write_metrics",
-    "write_atomic",
-    "replace_atomic",
-    "replace_files",
-    "fsync_file",
-    "WriteError",
     "config_differences",
     "default_json",
     "missing_fields",
@@ -108,23 +100,7 @@ def is_seed_dir(path: str | os.PathLike) -> bool:
     return bool(_SEED_DIR.fullmatch(Path(path).name))
 
 
-# ============================================================================================ strict JSON
-def to_strict_json(x: Any) -> Any:
-    """``x`` with every non-finite float replaced by None (JSON null), recursively."""
-    if isinstance(x, (float, np.floating)):
-        return float(x) if math.isfinite(x) else None
-    if isinstance(x, dict):
-        return {k: to_strict_json(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [to_strict_json(v) for v in x]
-    return x
-
-
-def dumps(x: Any, **kwargs) -> str:
-    """Strict JSON text (no NaN / Infinity tokens, which jq and browsers reject)."""
-    return json.dumps(to_strict_json(x), allow_nan=False, **kwargs)
-
-
+# ============================================================================================ metrics.jsonl
 def _decoded(raw: bytes) -> str:
     try:
         return raw.decode("utf-8")
@@ -155,97 +131,26 @@ def read_metrics(path: str | os.PathLike, log=print) -> list[dict]:
     return [{k: float("nan") if v is None else v for k, v in r.items()} for r in records]
 
 
-class WriteError(OSError):
-    """A file could not be written (a full disk, a missing permission); the message names it and says what was kept."""
-
-    def __str__(self) -> str:
-        return str(self.strerror)
-
-
-def _write_error(path: Path, e: OSError, kept: str) -> WriteError:
-    return WriteError(e.errno, f"cannot write {path}: {e.strerror or e}; {kept}")
-
-
-def fsync_file(path: str | os.PathLike) -> None:
-    """Flush the file ``path`` to the disk (its data, whoever wrote it)."""
-    fd = os.open(path, os.O_RDONLY)
-    try:
-        os.fsync(fd)
-    finally:
-        os.close(fd)
-
-
-def _fsync_folder(folder: Path) -> None:
-    """Flush a folder's entries (a rename into it) to the disk; a file system that cannot is left as it is."""
-    try:
-        fsync_file(folder)
-    except OSError:
-        pass
-
-
-def replace_files(writes: dict) -> list[Path]:
-    """Every file the project writes goes through here. ``{path: write}``: ``write(tmp)`` writes each file under a
-    name unique to this process beside its ``path`` (same suffix: the format), which is flushed to the disk; only
-    when every one is written whole are they renamed over their paths, and the folders flushed. A crash or a full
-    disk at any byte leaves the old files or the new ones (files written together, such as tables.md and
-    results.json, agree), and two processes writing one path each leave a whole file, never a mix. An OSError is a
-    WriteError naming the file, the earlier files left as they were."""
-    paths = [Path(p) for p in writes]
-    temps = [p.with_name(f".{p.stem}.{os.getpid()}.tmp{p.suffix}") for p in paths]
-    done = 0
-    try:
-        for path, tmp, write in zip(paths, temps, writes.values()):
-            try:
-                write(tmp)
-                fsync_file(tmp)
-            except OSError as e:
-                raise _write_error(path, e, "the files there were left as they were") from None
-        for path, tmp in zip(paths, temps):
-            try:
-                os.replace(tmp, path)
-            except OSError as e:
-                raise _write_error(
-                    path, e, f"{done} of the {len(paths)} file(s) written together were replaced"
-                ) from None
-            done += 1
-        for folder in dict.fromkeys(p.parent for p in paths):
-            _fsync_folder(folder)
-    finally:
-        for tmp in temps:
-            tmp.unlink(missing_ok=True)
-    return paths
-
-
-def replace_atomic(path: str | os.PathLike, write) -> Path:
-    """``write(tmp)`` one file and put it in place of ``path``, whole or not at all (:func:`replace_files`)."""
-    return replace_files({path: write})[0]
-
-
-def write_atomic(path: Path, text: str) -> None:
-    """Write the text file ``path`` whole or not at all (:func:`replace_files`)."""
-    replace_atomic(path, lambda tmp: tmp.write_text(text))
-
-
 def write_metrics(path: Path, records: list[dict]) -> None:
-    write_atomic(path, "".join(dumps(r) + "\n" for r in records))
+    files.write_atomic(path, "".join(files.dumps(r) + "\n" for r in records))
 
 
 def append_metrics(path: Path, record: dict) -> None:
-    """Append one record (a line) to a metrics.jsonl; :func:`fsync_file` flushes it with its chunk's checkpoint."""
+    """Append one record (a line) to a metrics.jsonl; :func:`sync_metrics` flushes it with its chunk's checkpoint."""
     try:
         with path.open("a") as f:
-            f.write(dumps(record) + "\n")
+            f.write(files.dumps(record) + "\n")
     except OSError as e:
-        raise _write_error(path, e, "a row cut short there is skipped on resume") from None
+        raise files.write_error(path, e, "a row cut short there is skipped on resume") from None
 
 
 def sync_metrics(path: Path) -> None:
     """Flush a metrics.jsonl's appended rows to the disk (before the checkpoint of their chunks is written)."""
     try:
         if path.exists():
-            fsync_file(path)
+            files.fsync_file(path)
     except OSError as e:
-        raise _write_error(
+        raise files.write_error(
             path, e, "its rows since the last checkpoint may be cut short; they are rebuilt on resume"
         ) from None
 
