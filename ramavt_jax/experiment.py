@@ -19,7 +19,7 @@ from ramavt_jax import distributed
 from ramavt_jax.evaluation.final import evaluate_run
 from ramavt_jax.figures.training import plot_run
 from ramavt_jax.train_config import TrainConfig
-from ramavt_jax.training import driver
+from ramavt_jax.training import driver, host_state, run_folder
 
 __all__ = ["train_and_evaluate"]
 
@@ -41,7 +41,7 @@ def train_and_evaluate(
     list holds one summary per seed folder ``out/seed_<k>``."""
     distributed.make_mesh(devices or None)  # a bad device count fails before the folder is created
     primary = distributed.is_primary()
-    with driver.lock_folder(out) if primary else contextlib.nullcontext() as lock:
+    with run_folder.lock_folder(out) if primary else contextlib.nullcontext() as lock:
         summary = driver.run(
             config,
             Path(out),
@@ -61,6 +61,6 @@ def train_and_evaluate(
             if one["last"] is not None:
                 plot_run(one["out_dir"], title=f"{config.network.variant} seed {one['seed']}")
             if summary["finished"] and config.run.eval_episodes > 0:
-                params = driver.seed_params(summary.state, k, len(per_seed), config.run.policy_params)
+                params = host_state.seed_params(summary.state, k, len(per_seed), config.run.policy_params)
                 one["eval"] = evaluate_run(config, one["out_dir"], one["seed"], params, quiet)
     return summary

@@ -507,13 +507,13 @@ def test_seed_params_picks_one_seed_of_the_named_set():
     from types import SimpleNamespace
 
     from ramavt_jax.train_state import LearnerState
-    from ramavt_jax.training import driver
+    from ramavt_jax.training import host_state
 
     w = np.arange(6.0).reshape(2, 3)  # [seeds, ...]
     learner = LearnerState(params={"w": w}, target_params={"w": -w}, opt_state=None, updates=0)
     state = SimpleNamespace(learner=learner)
-    np.testing.assert_array_equal(driver.seed_params(state, 1, 2, "target")["w"], -w[1])
-    np.testing.assert_array_equal(driver.seed_params(state, 1, 2)["w"], w[1])
+    np.testing.assert_array_equal(host_state.seed_params(state, 1, 2, "target")["w"], -w[1])
+    np.testing.assert_array_equal(host_state.seed_params(state, 1, 2)["w"], w[1])
     with pytest.raises(KeyError):
         learner.policy_params("ema")
 

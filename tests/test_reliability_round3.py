@@ -175,7 +175,7 @@ def test_the_run_folder_stays_locked_through_the_final_evaluation(tmp_path, caps
         refused.append(_one_line(TRAIN + ["--no-resume", "--learner.lr", "0.002", "--out", str(run_dir)], capsys))
 
     monkeypatch.setattr(experiment.driver, "run", fake_run)
-    monkeypatch.setattr(experiment.driver, "seed_params", lambda *args: None)
+    monkeypatch.setattr(experiment.host_state, "seed_params", lambda *args: None)
     monkeypatch.setattr(experiment, "evaluate_run", evaluate)
     experiment.train_and_evaluate(preset("smoke"), tmp_path / "run", progress=False)
     assert len(refused) == 1 and "in use by process" in refused[0]

@@ -48,6 +48,7 @@ __all__ = [
     "RunFolderError",
     "RunLock",
     "check_writable",
+    "lock_folder",
 ]
 
 CONFIG_FILE, METRICS_FILE, CHECKPOINTS, EVAL_FILE = "config.json", "metrics.jsonl", "checkpoints", "eval.json"
@@ -326,3 +327,11 @@ class RunLock:
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+
+def lock_folder(out) -> RunLock:
+    """The run folder ``out``, created if needed and checked writable, locked against a second command (one-line
+    RunFolderError otherwise). ``ramavt train`` holds it through the training, the final evaluation and the plots
+    (experiment.train_and_evaluate passes it to training.driver.run)."""
+    check_writable(out)
+    return RunLock(Path(out))
