@@ -13,7 +13,7 @@ import pytest
 from ramavt_jax import baselines, render
 from ramavt_jax import env as env_lib
 from ramavt_jax.cli import evaluate as cli_eval
-from ramavt_jax.evaluation import pretrained, rollouts, runs
+from ramavt_jax.evaluation import pretrained, report, rollouts, runs
 from ramavt_jax.evaluation import tables as tables_lib
 from ramavt_jax.greedy import BLIND_SEARCHES
 
@@ -390,7 +390,7 @@ def test_markdown_handles_skipped_tables():
         "rows": [],
         "wall_s": 1.0,
     }
-    md = tables_lib.to_markdown(result)
+    md = report.to_markdown(result)
     assert "Table I" in md and "959.1" in md  # the paper's numbers are always shown for comparison
 
 
@@ -421,7 +421,7 @@ def test_the_shipped_agents_row_names_how_it_was_trained():
         "rows": [row],
         "wall_s": 1.0,
     }
-    line = next(x for x in tables_lib.to_markdown(result).splitlines() if x.startswith(f"- {entry.name}"))
+    line = next(x for x in report.to_markdown(result).splitlines() if x.startswith(f"- {entry.name}"))
     agent = pretrained.load()
     assert "None" not in line and f"`{agent.info['command']}`" in line
     assert f"{agent.config.run.policy_params} params" in line

@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 
 from ramavt_jax import cli, env
-from ramavt_jax.evaluation import final, rollouts
+from ramavt_jax.evaluation import final, report, rollouts
 from ramavt_jax.evaluation import tables as tables_lib
 from ramavt_jax.presets import PRESETS, preset
 from ramavt_jax.train import Trainer
@@ -73,13 +73,13 @@ def _no_temporary_files(folder: Path) -> None:
 def test_a_full_disk_leaves_the_earlier_tables_whole_and_agreeing(tmp_path, capsys, monkeypatch):
     out = tmp_path / "eval"
     result = {"settings": {"perturbation_settings": ["none"]}, "rows": list(range(2000))}  # results.json > 4 kB
-    monkeypatch.setattr(tables_lib, "to_markdown", lambda result, command: f"# {len(result['rows'])} rows\n")
-    monkeypatch.setattr(tables_lib.seeds, "summarise_arms", lambda result, setting: {})
-    tables_lib.write(result, out)
+    monkeypatch.setattr(report, "to_markdown", lambda result, command: f"# {len(result['rows'])} rows\n")
+    monkeypatch.setattr(report.seeds, "summarise_arms", lambda result, setting: {})
+    report.write(result, out)
     before = {p.name: p.read_bytes() for p in out.iterdir()}
     _disk_full_for(monkeypatch, "results")
     with pytest.raises(files.WriteError, match=r"cannot write .*results.json: No space left on device"):
-        tables_lib.write({**result, "rows": [0]}, out)
+        report.write({**result, "rows": [0]}, out)
     assert {p.name: p.read_bytes() for p in out.iterdir()} == before  # tables.md was not replaced alone either
     _no_temporary_files(out)
     # the same through `ramavt eval --out EXISTING`: one line, the earlier files kept

@@ -24,7 +24,7 @@ from ramavt_jax.cli.checks import (
     positive,
 )
 from ramavt_jax.env_config import RANGES, check_settings
-from ramavt_jax.evaluation import pretrained, rollouts
+from ramavt_jax.evaluation import pretrained, report, rollouts
 from ramavt_jax.evaluation import tables as tables_lib
 from ramavt_jax.evaluation.runs import LoadedRun, load_policy, row_name
 from ramavt_jax.figures import episode, training
@@ -307,7 +307,7 @@ def eval_cmd(
             )
         result["wall_s"] = time.time() - t0
         command = "ramavt " + " ".join(shlex.quote(a) for a in sys.argv[1:]) if sys.argv[1:2] == ["eval"] else ""
-        md, js = tables_lib.write(result, out, command)
+        md, js = report.write(result, out, command)
     print(f"wrote {md} and {js} ({result['wall_s']:.0f} s)")
     return result
 
