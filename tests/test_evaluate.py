@@ -13,7 +13,7 @@ import pytest
 from ramavt_jax import baselines, render
 from ramavt_jax import env as env_lib
 from ramavt_jax.cli import evaluate as cli_eval
-from ramavt_jax.evaluation import pretrained, report, rollouts, runs
+from ramavt_jax.evaluation import episode_program, pretrained, report, rollouts, runs
 from ramavt_jax.evaluation import tables as tables_lib
 from ramavt_jax.greedy import BLIND_SEARCHES
 
@@ -29,7 +29,7 @@ PROBE_XML = """<mujoco model="probe"><worldbody>
 
 def _stats(length, ret, term, trunc=None, target=None):
     n = len(length)
-    return rollouts.EpisodeStats(
+    return episode_program.EpisodeStats(
         length=jnp.array(length, jnp.int32),
         episode_return=jnp.array(ret, jnp.float32),
         terminated=jnp.array(term, bool),

@@ -211,34 +211,34 @@ class _Compiled:
 
 
 def test_the_episodes_run_side_by_side_are_as_many_as_fit(monkeypatch):
-    from ramavt_jax.evaluation import rollouts
+    from ramavt_jax.evaluation import episode_program
 
     monkeypatch.setattr(memory, "available_bytes", lambda device=None: math.ceil(100 * 2**20 / memory.FRACTION))
-    assert rollouts.episodes_that_fit(_Compiled(99 * 2**20, 2**19, 2**19), 1000) == 1000
-    assert rollouts.episodes_that_fit(_Compiled(400 * 2**20), 1000) == 250  # 100 MiB at 0.4 MiB per episode
+    assert episode_program.episodes_that_fit(_Compiled(99 * 2**20, 2**19, 2**19), 1000) == 1000
+    assert episode_program.episodes_that_fit(_Compiled(400 * 2**20), 1000) == 250  # 100 MiB at 0.4 MiB per episode
     with pytest.raises(memory.MemoryPlanError, match=r"one evaluation episode needs 200.0 MiB.*resolution"):
-        rollouts.episodes_that_fit(_Compiled(2000 * 2**20), 10)
+        episode_program.episodes_that_fit(_Compiled(2000 * 2**20), 10)
     monkeypatch.setattr(memory, "available_bytes", lambda device=None: None)  # unknown: not planned
-    assert rollouts.episodes_that_fit(_Compiled(10 * 2**40), 1000) == 1000
+    assert episode_program.episodes_that_fit(_Compiled(10 * 2**40), 1000) == 1000
 
 
 @pytest.mark.slow  # two compiles of the episode runner (about 15 s on 2 busy cores)
 def test_episodes_that_do_not_fit_run_in_batches(monkeypatch):
     from ramavt_jax import baselines, render
     from ramavt_jax import env as env_lib
-    from ramavt_jax.evaluation import rollouts
+    from ramavt_jax.evaluation import episode_program, rollouts
 
     tracking_env = env_lib.TrackingEnv(
         env_lib.EnvConfig(camera=render.CameraConfig(resolution=8), targets=("Capsule-v0",))
     )
     params, key, n = tracking_env.eval_params(max_steps=4), jax.random.PRNGKey(1), 12
     policy = baselines.random_policy()
-    fn = rollouts._episode_runner(tracking_env, policy, 4, False)
+    fn = episode_program.episode_runner(tracking_env, policy, 4, False)
     whole, _ = rollouts.run_episodes(tracking_env, policy, params, key, n)
-    mem = rollouts._compiled_runner(fn, params, key, n).memory_analysis()
+    mem = episode_program.compiled_runner(fn, params, key, n).memory_analysis()
     need = mem.temp_size_in_bytes + mem.output_size_in_bytes + mem.argument_size_in_bytes
     monkeypatch.setattr(memory, "available_bytes", lambda device=None: int(need / 2.5 / memory.FRACTION))
-    batch = rollouts.episodes_that_fit(rollouts._compiled_runner(fn, params, key, n), n)
+    batch = episode_program.episodes_that_fit(episode_program.compiled_runner(fn, params, key, n), n)
     assert 1 <= batch < n
     batched, _ = rollouts.run_episodes(tracking_env, policy, params, key, n)
     assert batched.length.shape == (n,)

@@ -1,22 +1,21 @@
-"""Running policies for whole episodes and summarising them (episode length / reward tables), the perturbation
-settings of Table II and the target specs accepted by ``ramavt eval``."""
+"""Running policies for whole episodes and summarising them (episode length / reward tables), the EnvParams fields
+evaluation sets, the perturbation settings of Table II and the target specs accepted by ``ramavt eval``.
+
+The compiled program that flies the episodes, and the per-step and per-episode arrays it returns, are in
+:mod:`ramavt_jax.evaluation.episode_program`."""
 
 from __future__ import annotations
 
 import dataclasses
-import functools
 from collections.abc import Sequence
 
 import jax
-import jax.numpy as jnp
 import numpy as np
-from flax import struct
 
 from ramavt_jax import env as env_lib
 from ramavt_jax import targets as targets_lib
 from ramavt_jax.baselines import Policy
-from ramavt_jax.evaluation import statistics
-from ramavt_jax.training import memory as memplan
+from ramavt_jax.evaluation import episode_program, statistics
 
 # EnvParams fields whose evaluation values (env.eval_params) replace a run's training values: each target at its own
 # size and shape, one speed rule for every row of a table, Table II's perturbations as the flown setting says, and
@@ -49,56 +48,6 @@ def run_env_overrides(env_params) -> dict:
     return {k: v for k, v in dict(env_params).items() if k not in EVAL_FIELDS}
 
 
-@struct.dataclass
-class EpisodeRecord:
-    """Per-step arrays of one batch of episodes run side by side, [T, N] (or [T, N, 3])."""
-
-    reward: jax.Array
-    action: jax.Array
-    terminated: jax.Array
-    truncated: jax.Array
-    alive: jax.Array  # the step belongs to the episode (False after it ended)
-    rel_pos: jax.Array  # [T, N, 3] target centre in the camera frame after the step
-    chaser_pos: jax.Array  # [T, N, 3] Hill frame
-    target_pos: jax.Array  # [T, N, 3] Hill frame
-    in_view: jax.Array
-
-
-@struct.dataclass
-class EpisodeStats:
-    """One entry per episode, [N]."""
-
-    length: jax.Array
-    episode_return: jax.Array
-    terminated: jax.Array  # ended by losing the target
-    target_index: jax.Array
-    truncated: jax.Array | None = None  # ended by reaching max_steps (None: unknown, taken as ~terminated)
-    tracking: TrackingSums | None = None  # per-episode sums of the tracking error (None: not recorded)
-
-
-@struct.dataclass
-class TrackingSums:
-    """Per-episode sums over the episode's steps, [N]. Distances are in stand-off units: metres for every catalogue
-    target, metres / k for a target held at the scaled stand-off k (env.standoff_scale)."""
-
-    error: jax.Array  # sum of |target centre - desired point| / k
-    within_quarter: jax.Array  # steps with that distance <= 0.25
-    within_half: jax.Array  # steps with that distance <= 0.5
-
-    @staticmethod
-    def zeros(n: int) -> TrackingSums:
-        return TrackingSums(jnp.zeros(n), jnp.zeros(n, jnp.int32), jnp.zeros(n, jnp.int32))
-
-    def add(self, tracking_error: jax.Array, scale: jax.Array, alive: jax.Array) -> TrackingSums:
-        """Add one step: tracking_error [N, 3] (m, camera frame), scale [N], alive [N] bool (ended: nothing)."""
-        distance = jnp.linalg.norm(tracking_error, axis=-1) / scale
-        return TrackingSums(
-            error=self.error + jnp.where(alive, distance, 0.0),
-            within_quarter=self.within_quarter + (alive & (distance <= 0.25)),
-            within_half=self.within_half + (alive & (distance <= 0.5)),
-        )
-
-
 def run_episodes(
     tracking_env: env_lib.TrackingEnv,
     policy: Policy,
@@ -108,7 +57,7 @@ def run_episodes(
     num_steps: int | None = None,
     record: bool = False,
     policy_params=None,
-) -> tuple[EpisodeStats, EpisodeRecord | None]:
+) -> tuple[episode_program.EpisodeStats, episode_program.EpisodeRecord | None]:
     """Run `num_episodes` episodes in parallel (one per env, no auto-reset) for `num_steps` (default max_steps).
 
     Returns EpisodeStats [N] and, if `record`, the per-step EpisodeRecord [T, N]. Jit-compiled as one lax.scan.
@@ -120,16 +69,16 @@ def run_episodes(
     constants in it, so every parameter set of the same shapes (a run's checkpoints) reuses one compile.
     """
     steps = int(num_steps if num_steps is not None else np.asarray(params.max_steps))
-    fn = _episode_runner(tracking_env, policy, steps, record)
-    compiled = _compiled_runner(fn, params, key, num_episodes, num_episodes, policy_params)
-    batch = episodes_that_fit(compiled, num_episodes)
+    fn = episode_program.episode_runner(tracking_env, policy, steps, record)
+    compiled = episode_program.compiled_runner(fn, params, key, num_episodes, num_episodes, policy_params)
+    batch = episode_program.episodes_that_fit(compiled, num_episodes)
     if batch >= num_episodes:
         return compiled(params, key, policy_params, 0)
     # too many episodes side by side for the memory: batches of equal size (one compile), and the rest (a second)
     starts = range(0, num_episodes, batch)
     parts = [
         jax.device_get(
-            _compiled_runner(fn, params, key, min(batch, num_episodes - s), num_episodes, policy_params)(
+            episode_program.compiled_runner(fn, params, key, min(batch, num_episodes - s), num_episodes, policy_params)(
                 params, key, policy_params, s
             )
         )
@@ -140,135 +89,13 @@ def run_episodes(
     return stats, rec
 
 
-_COMPILED_RUNS: dict = {}  # (runner, episodes, total, argument types) -> the compiled runner
-
-
-def _compiled_runner(fn, params, key, num_episodes: int, total: int | None = None, policy_params=None):
-    """``fn`` (an :func:`_episode_runner`) compiled for ``num_episodes`` of ``total`` episodes (default: all) and the
-    types of ``params``, ``key`` and ``policy_params``; called as ``compiled(params, key, policy_params, offset)``
-    for the episodes from ``offset`` on. Compiled ahead of time so its memory is known before anything is allocated
-    (:func:`episodes_that_fit`); cached, so repeated calls (targets, settings, checkpoints) do not trace again."""
-    total = num_episodes if total is None else total
-    args = (params, key, policy_params)
-    types = (jax.tree.structure(args), tuple(jax.typeof(x) for x in jax.tree.leaves(args)))
-    cache_key = (fn, num_episodes, total, types)
-    if cache_key not in _COMPILED_RUNS:
-        if len(_COMPILED_RUNS) >= 64:
-            _COMPILED_RUNS.pop(next(iter(_COMPILED_RUNS)))
-        _COMPILED_RUNS[cache_key] = fn.lower(*args, num_episodes, total, 0).compile()
-    return _COMPILED_RUNS[cache_key]
-
-
-def episodes_that_fit(compiled, num_episodes: int) -> int:
-    """How many of ``num_episodes`` episodes can run side by side: all of them when ``compiled`` (their runner)
-    fits in the memory available (or either is unknown), else as many as fit at the same bytes per episode.
-    Raises MemoryPlanError when not even one fits."""
-    try:
-        stats = compiled.memory_analysis()
-        need = int(stats.temp_size_in_bytes + stats.output_size_in_bytes + stats.argument_size_in_bytes)
-    except Exception:  # noqa: BLE001 (not every backend reports it)
-        return num_episodes
-    avail = memplan.available_bytes()
-    if avail is None or need <= memplan.FRACTION * avail:
-        return num_episodes
-    batch = int(memplan.FRACTION * avail * num_episodes // need)
-    if batch < 1:
-        memplan.check_fits(need // num_episodes, "one evaluation episode", "lower the camera resolution")
-    return max(batch, 1)
-
-
-def _episode_keys(key: jax.Array) -> jax.Array:
-    """[3] keys of a set of episodes: resets, policy inits, steps (each split per episode)."""
-    return jax.random.split(key, 3)
-
-
 def episode_starts(
     tracking_env: env_lib.TrackingEnv, params: env_lib.EnvParams, key: jax.Array, num_episodes: int
 ) -> env_lib.EnvState:
     """The initial states [N] of the episodes :func:`run_episodes` flies for ``key``: no policy acts on them yet, so
     every policy's episodes start from these (for sorting episodes by how they start, say)."""
-    keys = jax.random.split(_episode_keys(key)[0], num_episodes)
+    keys = jax.random.split(episode_program.episode_keys(key)[0], num_episodes)
     return jax.vmap(tracking_env.reset, in_axes=(0, None))(keys, params)[1]
-
-
-@functools.lru_cache(maxsize=32)
-def _episode_runner(tracking_env, policy, steps, record):
-    """Jitted runner. With `record` the whole horizon is one lax.scan; without, a lax.while_loop that stops as soon
-    as every episode has ended (random agents lose the target within ~200 steps). Both draw the same per-step keys,
-    so the same key gives the same episodes either way. Without ``policy_params`` (None) ``policy`` is a Policy,
-    with them a function of them that returns one (run_episodes)."""
-
-    def run(params, key, policy_params, num_episodes, total, offset):
-        pol = policy if policy_params is None else policy(policy_params)
-
-        def split(k):  # episodes offset .. offset + num_episodes of the keys of all `total` episodes
-            return jax.lax.dynamic_slice_in_dim(jax.random.split(k, total), offset, num_episodes)
-
-        k_reset, k_policy, k_loop = _episode_keys(key)
-        obs, state = jax.vmap(tracking_env.reset, in_axes=(0, None))(split(k_reset), params)
-        pstate = jax.vmap(pol.init)(split(k_policy))
-        alive = jnp.ones(num_episodes, bool)
-        zeros = jnp.zeros(num_episodes)
-        step_keys = jax.random.split(k_loop, steps)
-
-        def body(carry, step_key):
-            obs, state, pstate, alive, length, ret, term, trunc, track = carry
-            k_act, k_env = jax.random.split(step_key)
-            act_keys = split(k_act)
-            action, pstate = jax.vmap(pol.act, in_axes=(0, 0, 0, 0, None))(act_keys, pstate, obs, state, params)
-            env_keys = split(k_env)
-            obs, state, reward, terminated, truncated, info = jax.vmap(tracking_env.step_env, in_axes=(0, 0, 0, None))(
-                env_keys, state, action, params
-            )
-            length = length + alive
-            ret = ret + jnp.where(alive, reward, 0.0)
-            term = term | (alive & terminated)
-            trunc = trunc | (alive & truncated)
-            track = track.add(info["tracking_error"], state.scale, alive)
-            out = None
-            if record:
-                out = EpisodeRecord(
-                    reward=reward,
-                    action=action,
-                    terminated=terminated,
-                    truncated=truncated,
-                    alive=alive,
-                    rel_pos=info["rel_pos"],
-                    chaser_pos=state.chaser_pos,
-                    target_pos=state.target_pos,
-                    in_view=info["in_view"],
-                )
-            alive = alive & ~(terminated | truncated)
-            return (obs, state, pstate, alive, length, ret, term, trunc, track), out
-
-        none = jnp.zeros(num_episodes, bool)
-        init = (obs, state, pstate, alive, zeros.astype(jnp.int32), zeros, none, none, TrackingSums.zeros(num_episodes))
-        if record:
-            carry, rec = jax.lax.scan(body, init, step_keys)
-        else:
-
-            def cond(c):
-                t, carry = c
-                return (t < steps) & carry[3].any()
-
-            def loop(c):
-                t, carry = c
-                return t + 1, body(carry, step_keys[t])[0]
-
-            _, carry = jax.lax.while_loop(cond, loop, (jnp.zeros((), jnp.int32), init))
-            rec = None
-        _, state, _, _, length, ret, term, trunc, track = carry
-        stats = EpisodeStats(
-            length=length,
-            episode_return=ret,
-            terminated=term,
-            target_index=state.target_index,
-            truncated=trunc,
-            tracking=track,
-        )
-        return stats, rec
-
-    return jax.jit(run, static_argnums=(3, 4))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -303,7 +130,7 @@ class Summary:
         return dataclasses.asdict(self)
 
 
-def summarise(stats: EpisodeStats) -> Summary:
+def summarise(stats: episode_program.EpisodeStats) -> Summary:
     """Table I columns (mean / min / max of episode length and return) plus how the episodes ended.
 
     An episode that was neither lost nor truncated (run for fewer steps than max_steps) counts in neither fraction.
@@ -339,7 +166,7 @@ def _intervals(name: str, values: np.ndarray, strata: np.ndarray) -> dict:
     return {f"{name}_ci_low": low, f"{name}_ci_high": high}
 
 
-def _tracking_columns(tracking: TrackingSums | None, length: np.ndarray, strata: np.ndarray) -> dict:
+def _tracking_columns(tracking: episode_program.TrackingSums | None, length: np.ndarray, strata: np.ndarray) -> dict:
     """Summary's tracking-error fields from the per-episode sums (empty without them: the fields stay NaN)."""
     if tracking is None:
         return {}
@@ -355,7 +182,7 @@ def _tracking_columns(tracking: TrackingSums | None, length: np.ndarray, strata:
     }
 
 
-def concat_stats(stats: Sequence[EpisodeStats]) -> EpisodeStats:
+def concat_stats(stats: Sequence[episode_program.EpisodeStats]) -> episode_program.EpisodeStats:
     """Join the episodes of several runs (e.g. one per target) into one EpisodeStats."""
     stats = list(stats)
     if any(s.truncated is None for s in stats):
