@@ -119,16 +119,27 @@ def test_a_settings_episodes_do_not_depend_on_the_other_settings_requested():
     changed with the request would show too. Both calls build equal envs, so the rollout compiles once."""
     camera = render.CameraConfig(resolution=8)
     entry = tables_lib.Entry("depth", "baseline", baselines.make_policy("depth", camera), env_lib.EnvConfig(camera))
-    run = lambda tables, targets: tables_lib.run_suite(
-        [entry], targets, 2, 15, seed=0, tables=tables, speed_steps=0, log=lambda _: None
+    run = lambda tables, targets, only=(): tables_lib.run_suite(
+        [entry], targets, 2, 15, seed=0, tables=tables, speed_steps=0, log=lambda _: None, only_settings=only
     )["rows"][0]["settings"]
     alone = run((1,), ("Satellite-v2", "Asteroid-v4"))
     together = run((1, 2), ("Satellite-v2", "Asteroid-v4"))
-    assert set(together) == set(rollouts.PERTURBATIONS)
-    assert alone["none"]["overall"] == together["none"]["overall"]
+    picked = run((1, 2), ("Satellite-v2", "Asteroid-v4"), only=("all",))  # `ramavt eval --tables 1 2 --settings all`
+    assert set(together) == set(rollouts.PERTURBATIONS) and set(picked) == {"none", "all"}
+    assert alone["none"]["overall"] == together["none"]["overall"] == picked["none"]["overall"]
     assert alone["none"]["per_target"] == together["none"]["per_target"]
+    assert picked["all"]["per_target"] == together["all"]["per_target"]
     # and the settings do differ from each other (the check above is not vacuous)
     assert together["all"]["overall"]["return_mean"] != together["none"]["overall"]["return_mean"]
+
+
+def test_settings_for_picks_table2_settings_and_keeps_the_clean_one():
+    assert tables_lib.settings_for((1,)) == ["none"]
+    assert tables_lib.settings_for((1, 2)) == list(rollouts.PERTURBATIONS)
+    assert set(tables_lib.settings_for((1, 2), ("all",))) == {"none", "all"}
+    for tables, only in (((1,), ("all",)), ((1, 2), ("blurr",))):
+        with pytest.raises(ValueError, match="with Table II"):
+            tables_lib.settings_for(tables, only)
 
 
 def test_perturbation_settings():

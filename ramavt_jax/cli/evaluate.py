@@ -200,6 +200,7 @@ def eval_cmd(
     episodes: int = 100,
     max_steps: int = 1000,
     tables: tuple[int, ...] = (1, 2, 3),
+    settings: tuple[Literal["actuator_noise", "time_delay", "blur", "all"], ...] = (),
     obs: tuple[Literal["depth", "rgbd", "color"], ...] = ("depth",),
     resolution: int = 64,
     dynamics: Literal["cw", "kinematic"] = "cw",
@@ -241,6 +242,8 @@ def eval_cmd(
         episodes: episodes per target (run side by side; the paper's protocol: 100).
         max_steps: episode length cap (the paper: 1000).
         tables: which tables to produce (2 runs the five perturbation settings, 5x the episodes).
+        settings: with Table II, fly only these perturbation settings besides 'none' (e.g. `--settings all`: clean
+            and all three perturbations, 2x the episodes); default: all of them.
         obs: input modes of the baselines (the depth tracker skips 'color'; the others run once).
         resolution: camera resolution of the baselines (trained runs use their own).
         dynamics: target motion model of the baselines (trained runs use their own).
@@ -277,6 +280,8 @@ def eval_cmd(
             raise UsageError(f"{flag}: {e}") from None
     positive("--speed-steps", speed_steps, minimum=0, maximum=MAX_EPISODES)
     names = _check_eval_args(policy, agent, run, targets, episodes, max_steps, tables, blur_frames, out, policy_params)
+    if settings and 2 not in tables:
+        raise UsageError(f"--settings {' '.join(settings)} picks Table II settings: add 2 to --tables")
     if ensemble and len(run) < 2:
         raise UsageError(f"--ensemble needs at least two --run folders, got {len(run)}")
     with run_folder.RunLock(Path(out), OTHER_WRITER):  # a second command writing into --out is refused
@@ -292,14 +297,16 @@ def eval_cmd(
         entries += _baseline_entries(wanted, obs, resolution, dynamics, names, horizon)
         if task:  # evaluation fields: the same task for every row
             entries = [dataclasses.replace(e, env_overrides={**e.env_overrides, **task}) for e in entries]
-        settings = tables_lib.settings_for(tuple(tables))
+        flown = tables_lib.settings_for(tuple(tables), tuple(settings))
         print(
-            f"evaluating {len(entries)} policies x {len(settings)} setting(s) x {len(names)} targets x {episodes} "
+            f"evaluating {len(entries)} policies x {len(flown)} setting(s) x {len(names)} targets x {episodes} "
             f"episodes (each policy compiles first) ...",
             flush=True,
         )
         values = {"actuator_noise": actuator_noise, "delay_max": delay_max, "blur_frames": blur_frames}
-        result = tables_lib.run_suite(entries, names, episodes, max_steps, seed, tuple(tables), values, speed_steps)
+        result = tables_lib.run_suite(
+            entries, names, episodes, max_steps, seed, tuple(tables), values, speed_steps, only_settings=tuple(settings)
+        )
         if figures:
             print("plotting one episode per policy ...", flush=True)
             result["figures"] = episode.eval_figures(

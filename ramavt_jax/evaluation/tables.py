@@ -54,8 +54,17 @@ def episode_key(root: jax.Array, setting: str, target: str) -> jax.Array:
     return jax.random.fold_in(jax.random.fold_in(root, stable_hash(setting)), stable_hash(target))
 
 
-def settings_for(tables: tuple[int, ...]) -> list[str]:
-    return list(rollouts.PERTURBATIONS) if 2 in tables else ["none"]
+def settings_for(tables: tuple[int, ...], only: tuple[str, ...] = ()) -> list[str]:
+    """The perturbation settings flown for ``tables``: all of rollouts.PERTURBATIONS with Table II, else 'none';
+    ``only`` (with Table II) keeps those of them, and 'none', which Tables I and III and every fraction need."""
+    if not only:
+        return list(rollouts.PERTURBATIONS) if 2 in tables else ["none"]
+    unknown = [s for s in only if s not in rollouts.PERTURBATIONS]
+    if unknown or 2 not in tables:
+        raise ValueError(
+            f"settings {' '.join(only)}: each must be one of {', '.join(rollouts.PERTURBATIONS)}, with Table II"
+        )
+    return [s for s in rollouts.PERTURBATIONS if s == "none" or s in only]
 
 
 def suite_env(env_config: env_lib.EnvConfig, targets: tuple[str, ...], values: dict) -> env_lib.TrackingEnv:
@@ -109,10 +118,12 @@ def run_suite(
     perturbation_values: dict | None = None,
     speed_steps: int = 200,
     log: Callable[[str], None] = print,
+    only_settings: tuple[str, ...] = (),
 ) -> dict:
-    """Evaluate every entry on every target (vmapped episodes) for each needed setting. Returns a JSON-able dict."""
+    """Evaluate every entry on every target (vmapped episodes) for each needed setting (`settings_for`). Returns a
+    JSON-able dict."""
     values = {**rollouts.PERTURBATION_VALUES, **(perturbation_values or {})}
-    settings = settings_for(tables)
+    settings = settings_for(tables, only_settings)
     root = jax.random.PRNGKey(seed)
     results, task = [], None
     for entry in entries:
