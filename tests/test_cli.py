@@ -427,3 +427,16 @@ def test_repeated_env_params_add_up_and_a_default_undoes_a_presets_pair(monkeypa
     cli.main(["train", "--preset", "sizes", "--env-params", "init_xy_std=1", "--out", "x"])
     assert seen["config"] == preset("sizes").override(env_params={"size_scale_min": 0.15, "size_scale_max": 1.0})
     assert cli_train.joined_env_params(["train", "--seeds", "2"]) == ["train", "--seeds", "2"]
+
+
+def test_train_without_a_preset_trains_the_general_preset_into_runs_general(monkeypatch):
+    from pathlib import Path
+
+    from ramavt_jax.cli import train as cli_train
+    from ramavt_jax.presets import preset
+
+    seen = {}
+    monkeypatch.setattr(cli_train, "train_and_evaluate", lambda config, out, **kw: seen.update(config=config, out=out))
+    monkeypatch.setattr(cli_train, "_print_summary", lambda *a: None)
+    cli.main(["train"])
+    assert seen["config"] == preset("general") and Path(seen["out"]) == Path("runs/general")

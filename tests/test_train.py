@@ -52,6 +52,11 @@ def test_presets():
     robust = presets.preset("robust")  # quick trained under Table II's perturbations, each in half the episodes
     assert robust.override(env=quick.env, env_params={}) == quick and robust.env.frame_history == 3
     assert dict(robust.env_params) == {"actuator_noise": 0.3, "delay_max": 0.5, "blur_frames": 3, "perturb_prob": 0.5}
+    general = presets.preset("general")  # robust, trained also on resized targets and wide starts, searching blind
+    draws = {"size_scale_min": 0.15, "size_scale_max": 1.0, "init_xy_std": 3.0}
+    assert dict(general.env_params) == {**dict(robust.env_params), **draws}
+    assert general.override(env_params=dict(robust.env_params), blind_label="teacher") == robust
+    assert general.learner.blind_label == "retreat" and general.env.camera.resolution == quick.env.camera.resolution
     with pytest.raises(ValueError, match="unknown preset"):
         presets.preset("huge")
 

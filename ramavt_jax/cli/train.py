@@ -24,7 +24,7 @@ from ramavt_jax.presets import PRESETS, preset
 from ramavt_jax.train_config import TrainConfig
 from ramavt_jax.training import driver
 
-DEFAULT_PRESET = "quick"
+DEFAULT_PRESET = "general"
 ENV_PARAMS_FLAG = "--env-params"
 # EnvParams' scalar defaults: a command-line pair at its default undoes a preset's pair of that name
 ENV_PARAMS_DEFAULTS = {f.name: f.default for f in dataclasses.fields(EnvParams) if f.default is not dataclasses.MISSING}
@@ -150,10 +150,11 @@ def make_train_cmd(preset_name: str, clock_start: float | None = None):
 
         Args:
             config: the training configuration (defaults: the preset's).
-            preset: the named defaults of presets.PRESETS, e.g. 'quick' (minutes on 2 CPU cores: 32x32 depth,
-                small RAMAVT), 'long' (quick trained twice as long), 'sizes' (quick at 64x64 with training targets
-                resized to [0.15, 1]x and wider starts: for other sizes), 'robust' (quick trained under Table II's
-                perturbations),
+            preset: the named defaults of presets.PRESETS: 'general' (the default: minutes on 2 CPU cores, 32x32
+                depth, small RAMAVT, trained on targets resized to [0.15, 1]x, wide starts and Table II's
+                perturbations: for any target), 'quick' (the same network on the catalogue's sizes without
+                perturbations), 'long' (quick trained 1.5x as long), 'sizes' (quick at 64x64 with resized targets
+                and wider starts), 'robust' (quick trained under Table II's perturbations),
                 'paper' (256x256, full RAMAVT, batch 64, lr 1e-4, gamma 0.99, 50,000-step replay),
                 'smoke' (plumbing checks).
             seeds: number of independent seeds, trained together as ONE jitted program (vmap over seeds, each with
