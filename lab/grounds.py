@@ -22,8 +22,8 @@ from typing import NamedTuple
 
 import numpy as np
 
-from lab import arm_table
-from ramavt_jax.evaluation import seeds
+from lab import arm_records, arm_table
+from ramavt_jax.evaluation import seeds, statistics
 
 EVALS = Path("runs/evals")
 USER_MODELS = "examples/targets/cubesat-0.3m.xml,examples/targets/cubesat-0.45m.xml,examples/targets/fragment-1.2m.xml,examples/targets/station-12m.xml,examples/targets/tug-4m.xml"  # noqa: E501
@@ -110,6 +110,33 @@ def _arm_key(ground: str, name: str) -> str:
     return seeds.arm_name(result["rows"][0]).removesuffix(" (seeds)")
 
 
+# The specialist presets' recorded evaluations on the same validation episodes (lab/results/arms.csv.gz: the
+# records' ceilings agree with this ground's to 0.1): ground -> setting -> (label, record, arm).
+RECORDED = {
+    "val": {
+        "none": [("quick", "val/arms/ten-seeds/margin_10", "margin_10")],
+        "all": [("quick", "val/table2/expert-margin", "expert_margin")],
+    },
+    "val-sizes": {"none": [("sizes", "val/sizes/ten-seeds/size_wider_retreat_10", "size_wider_retreat_10")]},
+}
+RECORDED["val"]["none"].append(("robust", "val/table2/ten-seeds/perturb_05_margin_10", "perturb_05_margin_10"))
+RECORDED["val"]["all"].append(("robust", "val/table2/ten-seeds/perturb_05_margin_10", "perturb_05_margin_10"))
+
+
+def recorded(record: str, arm: str, setting: str) -> tuple[float, float, float, int]:
+    """(mean AER, 95 % CI low, high, seeds) of a recorded arm: its seeds' per-target AER, resampled within targets."""
+    rows = [r for r in arm_records.select(arm_records.load(), record=record, arm=arm, setting=setting)]
+    rows = [r for r in rows if r["target"] != "all"]
+    targets = sorted({r["target"] for r in rows})
+    by_seed: dict[str, dict[str, float]] = {}
+    for r in rows:
+        by_seed.setdefault(r["seed"], {})[r["target"]] = float(r["aer"])
+    scores = np.array([[s[t] for t in targets] for s in by_seed.values()])  # [seeds, targets]
+    strata = np.broadcast_to(np.arange(scores.shape[1]), scores.shape)
+    low, high = statistics.bootstrap_ci(scores, strata)
+    return float(scores.mean()), low, high, scores.shape[0]
+
+
 def table(names: list[str], grounds: list[str]) -> str:
     """One Markdown row per arm, one column per ground and setting: AER [95 % CI] (of ceiling), ↓n below the depth
     tracker on n targets."""
@@ -128,6 +155,18 @@ def table(names: list[str], grounds: list[str]) -> str:
             below = f", below depth on {c['below_depth']}" if c["below_depth"] else ""
             cells.append(f"{c['aer']:+.1f}{ci} ({100 * c['of_ceiling']:.0f} %{below})")
         lines.append(f"| {name} | " + " | ".join(cells) + " |")
+    for label in ("quick", "robust", "sizes"):  # the specialists, where recorded
+        cells = []
+        for g, s in columns:
+            entry = next((e for e in RECORDED.get(g, {}).get(s, []) if e[0] == label), None)
+            if entry is None:
+                cells.append("-")
+                continue
+            mean, low, high, n = recorded(*entry[1:], s)
+            cells.append(
+                f"{mean:+.1f} [{low:.1f}, {high:.1f}] ({100 * mean / _baseline(g, 'mpc', s).mean():.0f} %, {n})"
+            )
+        lines.append(f"| `{label}` (recorded) | " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
 
