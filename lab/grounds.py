@@ -170,6 +170,23 @@ def table(names: list[str], grounds: list[str]) -> str:
     return "\n".join(lines)
 
 
+def seed_ranking(name: str, grounds: list[str]) -> list[tuple[int, float]]:
+    """[(seed index, score)] from worst to best, the score a seed's fraction of the ceiling averaged over every
+    ground and setting (each column counts once, whatever its number of targets)."""
+    columns = [(g, s) for g in grounds for s in _settings(g)]
+    fractions = np.array([np.array(cell(g, name, s)["seed_means"]) / _baseline(g, "mpc", s).mean() for g, s in columns])
+    score = fractions.mean(axis=0)
+    return sorted(enumerate(score.tolist()), key=lambda pair: pair[1])
+
+
+def median_seed(name: str, grounds: list[str]) -> int:
+    """The seed to ship: the median of `seed_ranking` (a rule that does not reward a lucky seed; an odd count)."""
+    ranking = seed_ranking(name, grounds)
+    if len(ranking) % 2 == 0:
+        raise ValueError(f"{name} has {len(ranking)} seeds; the median seed needs an odd count")
+    return ranking[len(ranking) // 2][0]
+
+
 def main(argv: list[str] | None = None) -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     sub = p.add_subparsers(dest="command", required=True)
@@ -179,7 +196,9 @@ def main(argv: list[str] | None = None) -> None:
     e.add_argument("runs", nargs="*")
     t = sub.add_parser("table", help="one table of arms over the grounds")
     t.add_argument("names", nargs="+")
-    for s in (b, e, t):
+    m = sub.add_parser("median", help="an arm's seeds ranked on the grounds, and the median seed (the one to ship)")
+    m.add_argument("name")
+    for s in (b, e, t, m):
         s.add_argument("--grounds", nargs="+", choices=sorted(GROUNDS), default=["val", "val-sizes", "val-shapes"])
     a = p.parse_args(argv)
     if a.command == "baselines":
@@ -188,6 +207,10 @@ def main(argv: list[str] | None = None) -> None:
         if not a.runs and a.name != "pretrained":
             sys.exit("give the arm's run folders, or the name 'pretrained' for the shipped agent")
         evaluate(a.name, a.runs, a.grounds, pretrained=not a.runs)
+    elif a.command == "median":
+        for seed, score in seed_ranking(a.name, a.grounds):
+            print(f"seed index {seed}: {100 * score:.1f} % of the ceiling, averaged over the grounds")
+        print(f"median: seed index {median_seed(a.name, a.grounds)}")
     else:
         print(table(a.names, a.grounds))
 
