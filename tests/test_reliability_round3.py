@@ -83,7 +83,7 @@ def test_a_full_disk_leaves_the_earlier_tables_whole_and_agreeing(tmp_path, caps
     assert {p.name: p.read_bytes() for p in out.iterdir()} == before  # tables.md was not replaced alone either
     _no_temporary_files(out)
     # the same through `ramavt eval --out EXISTING`: one line, the earlier files kept
-    monkeypatch.setattr(tables_lib, "run_suite", lambda *args: {**result, "rows": [1]})
+    monkeypatch.setattr(tables_lib, "run_suite", lambda *args, **kw: {**result, "rows": [1]})
     err = _one_line(["eval", "--policy", "random", "--episodes", "1", "--out", str(out)], capsys)
     assert "results.json: No space left on device" in err and "left as they were" in err
     assert {p.name: p.read_bytes() for p in out.iterdir() if p.name != ".lock"} == before
