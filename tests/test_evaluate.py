@@ -502,8 +502,8 @@ def test_config_json_round_trips_to_the_same_train_config(name):
 
 
 def test_the_shipped_config_jsons_load_as_the_presets_they_were_trained_with():
-    """The shipped agent's config.json reads back into the config it was trained with: the quick preset (without its
-    end-of-training evaluation)."""
+    """The shipped agent's config.json reads back into the config it was trained with: the general preset at 1.5x its
+    env steps, the policy averaged over the last 12 chunks (without its end-of-training evaluation)."""
     from ramavt_jax.presets import preset
     from ramavt_jax.train_config import TrainConfig
 
@@ -511,7 +511,8 @@ def test_the_shipped_config_jsons_load_as_the_presets_they_were_trained_with():
         record = json.loads((Path(pretrained.AGENTS_DIR) / name / "config.json").read_text())
         return TrainConfig.from_dict(record["config"])
 
-    assert shipped(pretrained.DEFAULT_AGENT) == preset("quick", eval_episodes=0)
+    trained_with = preset("general", total_env_steps=2_304_000, policy_average_from=60, eval_episodes=0)
+    assert shipped(pretrained.DEFAULT_AGENT) == trained_with
 
 
 def test_seed_params_picks_one_seed_of_the_named_set():
