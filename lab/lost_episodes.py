@@ -39,7 +39,7 @@ def load(spec: str, resolution: int, names: tuple[str, ...], search: str = "lear
 
 
 def describe(rec, stats, episode: int, dt: float, speed: float) -> str:
-    """One line on a lost episode of a record [T, N] (rollouts.EpisodeRecord; row t is after step t + 1): its
+    """One line on a lost episode of a record [T, N] (episode_program.EpisodeRecord; row t is after step t + 1): its
     length, start (after step 1), drift speed, closest approach, first step out of view and the step from which it
     stayed out (steps from 1)."""
     length = int(stats.length[episode])
