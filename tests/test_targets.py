@@ -12,7 +12,9 @@ import numpy as np
 import pytest
 
 from ramavt_jax import render, targets
+from ramavt_jax.cli.commands import catalogue_table
 from ramavt_jax.rotations import quat_to_mat, random_quaternion
+from ramavt_jax.targets import specs
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts"))  # the generator is a build-time script
 import catalogue_gen  # noqa: E402
@@ -135,7 +137,7 @@ def test_validation_models_follow_their_class_size_rule():
     """Each validation model is drawn at its class's factor and is not the largest of its class, so adding it left
     the training and test models' scale (and files) as they were."""
     models = {t.name: t for t in catalogue_gen.all_targets()}
-    radii = {r["name"]: r["bound_radius"] for r in targets.catalogue_table()}
+    radii = {r["name"]: r["bound_radius"] for r in catalogue_table()}
     for name in targets.VAL_TARGETS:
         cls = targets.CATALOGUE[name]
         originals = [n for n in targets.TRAIN_TARGETS + targets.TEST_TARGETS if targets.CATALOGUE[n] == cls]
@@ -220,7 +222,7 @@ def test_generator_reproduces_the_committed_files():
 
 
 def test_held_out_variants_are_similar_in_scale():
-    rows = {r["name"]: r for r in targets.catalogue_table()}
+    rows = {r["name"]: r for r in catalogue_table()}
     for cls in ("capsule", "rocket", "satellite", "station"):
         radii = [rows[f"{cls.capitalize()}-v{i}"]["bound_radius"] for i in range(3)]
         assert radii[2] <= 1.5 * max(radii[:2]) and radii[2] >= min(radii[:2]) / 1.5, (cls, radii)
@@ -303,7 +305,7 @@ def test_padding_and_select(catalogue):
 
 
 def test_catalogue_table():
-    rows = targets.catalogue_table()
+    rows = catalogue_table()
     assert [r["name"] for r in rows] == list(targets.ALL_TARGETS)
     for r in rows:
         assert set(r) == {"name", "class", "split", "num_geoms", "bound_radius", "mass"}
@@ -523,7 +525,7 @@ def test_catalogue_table_with_user_file(tmp_path):
         '<mujoco><worldbody><body><freejoint/><geom type="sphere" size="0.5"/></body></worldbody></mujoco>',
         "ball.xml",
     )
-    rows = targets.catalogue_table(["Rocket-v2", path])
+    rows = catalogue_table(["Rocket-v2", path])
     assert rows[0]["split"] == "test" and rows[0]["class"] == "rocket"
     assert rows[1]["name"] == "ball" and rows[1]["class"] == "custom" and rows[1]["split"] == "custom"
     assert rows[1]["mass"] == pytest.approx(1000 * 4 / 3 * np.pi * 0.125, rel=1e-5)
@@ -561,7 +563,7 @@ def test_sized_spec_works_on_files_and_in_target_lists(tmp_path):
     from ramavt_jax.evaluation import rollouts
 
     assert rollouts.resolve_targets(f"Capsule-v0@0.4m,{path}@3m") == ("Capsule-v0@0.4m", f"{path}@3m")
-    rows = targets.catalogue_table(["Capsule-v0@0.4m"])
+    rows = catalogue_table(["Capsule-v0@0.4m"])
     assert rows[0]["class"] == "capsule" and rows[0]["split"] == "custom" and rows[0]["name"] == "Capsule-v0@0.4m"
     # one size, one spelling (and so one set of episodes); a file whose own name looks like a suffix is a file
     assert rollouts.resolve_targets("Capsule-v0@.40m,Capsule-v0@0.4m") == ("Capsule-v0@0.4m",)
@@ -598,11 +600,11 @@ def test_bad_sized_specs_raise_one_line_target_errors(spec):
 
 
 def test_val_sizes_split_resizes_validation_shapes_outside_the_catalogue_sizes():
-    specs = targets.split("val-sizes")
-    assert specs == targets.VAL_SIZE_TARGETS and len(specs) == 6
-    bases = [targets.sized_spec(s)[0] for s in specs]
+    resized = targets.split("val-sizes")
+    assert resized == targets.VAL_SIZE_TARGETS and len(resized) == 6
+    bases = [specs.sized_spec(s)[0] for s in resized]
     assert set(bases) <= set(targets.VAL_TARGETS)  # shapes of the validation split only: never trained, never test
-    radii = [_reach(targets.load_numpy(s)[0]) for s in specs]
+    radii = [_reach(targets.load_numpy(s)[0]) for s in resized]
     catalogue = [targets.load_numpy(n)[1].bound_radius for n in targets.ALL_TARGETS]
     assert all(r < min(catalogue) or r > max(catalogue) for r in radii)
     assert sum(r < 0.5 for r in radii) == 3 and max(radii) == pytest.approx(12.0)

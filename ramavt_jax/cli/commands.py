@@ -6,6 +6,7 @@ import dataclasses
 import subprocess
 import sys
 import time
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Literal
 
@@ -16,16 +17,40 @@ from ramavt_jax.cli.checks import UsageError, output_file, positive
 from ramavt_jax.evaluation import pretrained
 from ramavt_jax.evaluation.rollouts import resolve_targets
 from ramavt_jax.figures import episode
+from ramavt_jax.targets import specs
 from ramavt_jax.training import files
 
 BENCHMARKS = ("env", "train", "gpu", "network", "render", "scaling", "mjx_ray")
+
+
+def catalogue_table(names: Sequence[str] | None = None) -> list[dict]:
+    """One row per target (default: the catalogue) for ``ramavt targets``: name, class, split, num_geoms,
+    bound_radius (m), mass (kg). A user's MJCF path gets class and split ``"custom"``."""
+    rows = []
+    for target in targets.ALL_TARGETS if names is None else names:
+        _, info = targets.load_numpy(target)
+        key = specs.sized_name(target)
+        split_name = next((n for n in targets.SPLITS if n != "all" and key in targets.split(n)), "custom")
+        rows.append(
+            {
+                "name": info.name,
+                "class": targets.CATALOGUE.get(
+                    specs.sized_spec(key)[0], "custom" if split_name == "custom" else "generated"
+                ),
+                "split": split_name,
+                "num_geoms": info.num_geoms,
+                "bound_radius": info.bound_radius,
+                "mass": info.mass,
+            }
+        )
+    return rows
 
 
 def targets_cmd(
     split: Literal["all", "train", "val", "test", "val-sizes", "val-shapes", "test-shapes"] = "all",
 ) -> None:
     """List the target catalogue: name, class, split, geoms, bounding radius and mass."""
-    rows = targets.catalogue_table(targets.split(split))
+    rows = catalogue_table(targets.split(split))
     print(f"{'name':<20} {'class':<10} {'split':<11} {'geoms':>5} {'radius_m':>9} {'mass_kg':>10}")
     for r in rows:
         print(

@@ -16,6 +16,7 @@ from ramavt_jax import env as env_lib
 from ramavt_jax import targets as targets_lib
 from ramavt_jax.baselines import Policy
 from ramavt_jax.evaluation import episode_program, statistics
+from ramavt_jax.targets import specs
 
 # EnvParams fields whose evaluation values (env.eval_params) replace a run's training values: each target at its own
 # size and shape, one speed rule for every row of a table, Table II's perturbations as the flown setting says, and
@@ -253,20 +254,20 @@ def resolve_targets(spec: str | Sequence[str]) -> tuple[str, ...]:
         if item in targets_lib.SPLITS:
             out.extend(targets_lib.split(item))
             continue
-        base, radius = targets_lib.sized_spec(item)  # a bad size: TargetError naming the range
+        base, radius = specs.sized_spec(item)  # a bad size: TargetError naming the range
         if radius is not None and base in targets_lib.SPLITS:
             members = targets_lib.split(base)
-            if any(targets_lib.sized_spec(m)[1] is not None for m in members):
+            if any(specs.sized_spec(m)[1] is not None for m in members):
                 raise targets_lib.TargetError(
                     f"target {item!r}: the split {base!r} holds resized models already; a size suffix goes on a "
                     f"split of models at their own sizes ({', '.join(s for s in targets_lib.SPLITS if s != base)})"
                 )
-            out.extend(targets_lib.sized_name(f"{m}@{radius:g}m") for m in members)
+            out.extend(specs.sized_name(f"{m}@{radius:g}m") for m in members)
             continue
         try:
             targets_lib.resolve(item)
         except (ValueError, OSError) as e:
             splits = ", ".join(targets_lib.SPLITS)
             raise targets_lib.TargetError(f"{e} (the splits {splits} are accepted too)") from None
-        out.append(targets_lib.sized_name(item))  # one spelling per size: one set of episodes
+        out.append(specs.sized_name(item))  # one spelling per size: one set of episodes
     return tuple(dict.fromkeys(out))  # keep order, drop repeats

@@ -14,7 +14,6 @@ from __future__ import annotations
 import dataclasses
 import difflib
 import os
-import re
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -22,6 +21,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 from flax import struct
+
+from ramavt_jax.targets.specs import TargetError, sized_spec
 
 # MuJoCo's own geom type codes (mujoco.mjtGeom); kept as plain ints so this module imports without mujoco.
 SPHERE, CAPSULE, ELLIPSOID, CYLINDER, BOX = 2, 3, 4, 5, 6
@@ -75,10 +76,6 @@ VAL_SHAPE_TARGETS: tuple[str, ...] = _generated("Gen1001")
 TEST_SHAPE_TARGETS: tuple[str, ...] = _generated("Gen2002")
 
 
-class TargetError(ValueError):
-    """A target name, file or model that cannot be used."""
-
-
 @struct.dataclass
 class TargetModel:
     """One target (or a batch, with leading axes) as padded primitive arrays, in its principal inertia frame.
@@ -125,39 +122,7 @@ class TargetInfo:
     geom_types: tuple[str, ...]
 
 
-_SIZED = re.compile(r"^(?P<base>.+)@(?P<radius>[^@/\\]*)m$")
-MIN_SIZED_RADIUS, MAX_SIZED_RADIUS = 0.01, 1000.0  # m: a bounding radius asked for with NAME@<radius>m
 _LENGTH_FIELDS = ("geom_size", "geom_pos", "geom_rbound", "bound_radius")  # what a uniform resize multiplies
-
-
-def sized_spec(name_or_path: str | os.PathLike) -> tuple[str, float | None]:
-    """``"Satellite-v2@0.3m"`` -> (``"Satellite-v2"``, 0.3): a catalogue name or MJCF path resized so that its
-    bounding radius is 0.3 m. Anything without an ``@<radius>m`` suffix, or an existing file, -> (itself, None).
-    Raises TargetError for a radius that is not a number in [MIN_SIZED_RADIUS, MAX_SIZED_RADIUS] or a second
-    suffix."""
-    text = str(name_or_path)
-    match = _SIZED.match(text)
-    if match is None or Path(text).expanduser().is_file():
-        return text, None
-    try:
-        radius = float(match["radius"])
-    except ValueError:
-        radius = float("nan")
-    if not MIN_SIZED_RADIUS <= radius <= MAX_SIZED_RADIUS:  # False for nan
-        raise TargetError(
-            f"target {text!r}: the size after '@' must be a bounding radius in metres from "
-            f"{MIN_SIZED_RADIUS:g} to {MAX_SIZED_RADIUS:g}, such as '{match['base']}@0.3m'"
-        )
-    if _SIZED.match(match["base"]) and not Path(match["base"]).expanduser().is_file():
-        raise TargetError(f"target {text!r}: one size suffix '@<radius>m' at most")
-    return match["base"], float(f"{radius:g}")  # 6 significant digits: what `sized_name` spells is what loads
-
-
-def sized_name(name_or_path: str | os.PathLike) -> str:
-    """The canonical spelling of a target spec: ``"Satellite-v2@.30m"`` -> ``"Satellite-v2@0.3m"``, so that one
-    size has one name, and so one set of episodes."""
-    base, radius = sized_spec(name_or_path)
-    return base if radius is None else f"{base}@{radius:g}m"
 
 
 def resolve(name_or_path: str | os.PathLike) -> Path:
@@ -423,24 +388,3 @@ def split(name: str) -> tuple[str, ...]:
     if name not in table:
         raise TargetError(f"unknown split {name!r}; choose one of {sorted(table)}")
     return table[name]
-
-
-def catalogue_table(names: Sequence[str | os.PathLike] | None = None) -> list[dict]:
-    """One row per target (default: the catalogue) for ``ramavt targets``: name, class, split, num_geoms,
-    bound_radius (m), mass (kg). A user's MJCF path gets class and split ``"custom"``."""
-    rows = []
-    for target in ALL_TARGETS if names is None else names:
-        _, info = load_numpy(target)
-        key = sized_name(target)
-        split_name = next((n for n in SPLITS if n != "all" and key in split(n)), "custom")
-        rows.append(
-            {
-                "name": info.name,
-                "class": CATALOGUE.get(sized_spec(key)[0], "custom" if split_name == "custom" else "generated"),
-                "split": split_name,
-                "num_geoms": info.num_geoms,
-                "bound_radius": info.bound_radius,
-                "mass": info.mass,
-            }
-        )
-    return rows
