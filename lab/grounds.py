@@ -125,12 +125,12 @@ RECORDED["val"]["all"].append(("robust", "val/table2/ten-seeds/perturb_05_margin
 
 def recorded(record: str, arm: str, setting: str) -> tuple[float, float, float, int]:
     """(mean AER, 95 % CI low, high, seeds) of a recorded arm: its seeds' per-target AER, resampled within targets."""
-    rows = [r for r in arm_records.select(arm_records.load(), record=record, arm=arm, setting=setting)]
-    rows = [r for r in rows if r["target"] != "all"]
-    targets = sorted({r["target"] for r in rows})
+    rows = arm_records.select(arm_records.load(), record=record, arm=arm, setting=setting)
     by_seed: dict[str, dict[str, float]] = {}
     for r in rows:
-        by_seed.setdefault(r["seed"], {})[r["target"]] = float(r["aer"])
+        if r["target"] != "all":
+            by_seed.setdefault(r["seed"], {})[r["target"]] = float(r["aer"])
+    targets = sorted(next(iter(by_seed.values())))
     scores = np.array([[s[t] for t in targets] for s in by_seed.values()])  # [seeds, targets]
     strata = np.broadcast_to(np.arange(scores.shape[1]), scores.shape)
     low, high = statistics.bootstrap_ci(scores, strata)
