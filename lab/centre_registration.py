@@ -66,6 +66,30 @@ def frame_points(depth: np.ndarray, rays: np.ndarray, jump: float) -> tuple[np.n
     return points, normal[hit], points.mean(0) if len(points) else np.full(3, np.nan)
 
 
+def surface_prior(points: np.ndarray, centroid: np.ndarray, settings: Settings) -> np.ndarray:
+    """[3] the prior of the centre from one frame's points [N, 3] and their centroid [3] (camera frame)."""
+    behind = settings.depth_offset + settings.depth_gain * (points[:, 2].max() - centroid[2])
+    return centroid + np.array([0.0, 0.0, behind])
+
+
+def fit_depth_prior(episodes, camera: env_lib.CameraConfig, skip: int = 100, every: int = 5) -> tuple[float, float]:
+    """(depth_offset, depth_gain) of Settings by least squares on recorded episodes' frames (every ``every``-th
+    live step after ``skip``, with at least 20 target pixels): the true centre's depth behind the visible centroid
+    against the visible surface's depth extent behind it."""
+    rays = np.asarray(camera_rays(camera), np.float64)
+    extent, behind = [], []
+    labels, alive = np.asarray(episodes.label), np.asarray(episodes.alive)
+    for e, t in zip(*np.nonzero(alive[:, skip::every])):
+        t = skip + every * t
+        points, _, centroid = frame_points(np.asarray(episodes.obs[e, t, ..., -1], np.float64) * camera.far, rays, 0.6)
+        if len(points) >= 20:
+            extent.append(points[:, 2].max() - centroid[2])
+            behind.append(labels[e, t, 2] * DESIRED[2] + DESIRED[2] - centroid[2])
+    design = np.stack([np.ones(len(extent)), extent], axis=1)
+    offset, gain = np.linalg.lstsq(design, np.asarray(behind), rcond=None)[0]
+    return float(offset), float(gain)
+
+
 def _rotvec(w: np.ndarray) -> np.ndarray:
     """The rotation matrix of rotation vector w [3] (Rodrigues)."""
     angle = np.linalg.norm(w)
@@ -116,6 +140,11 @@ class Settings:
     iters: int = 20  # ICP iterations
     min_points: int = 20  # matched points an ICP needs
     max_rms: float = 0.1  # m: pairs whose ICP residual is larger are dropped
+    # The prior behind the visible surface: the centroid moved along the boresight by depth_offset + depth_gain *
+    # (the deepest visible point's depth - the centroid's), fitted on training frames (fit_depth_prior); 0, 0: the
+    # centroid itself. The surface seen is always the near side, so the centre lies behind it.
+    depth_offset: float = 0.0
+    depth_gain: float = 0.0
 
     def __post_init__(self):
         if not self.baselines or min(self.baselines) < 1 or self.window < max(self.baselines):
@@ -173,7 +202,7 @@ class OnlineRegistration:
         if np.isnan(centroid[0]) or tree is None:
             self.centre = self.centre + self.velocity * DT
         else:
-            self.centre, self.velocity = self._solve(centroid + chaser)
+            self.centre, self.velocity = self._solve(surface_prior(points - chaser, centroid, s) + chaser)
         return self.centre, self.velocity
 
     def _solve(self, prior: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -211,6 +240,18 @@ def estimate(episodes, camera: env_lib.CameraConfig, settings: Settings = Settin
     return out
 
 
+def prior_alone(episodes, camera: env_lib.CameraConfig, settings: Settings) -> np.ndarray:
+    """[E, T, 3] the surface prior of each frame alone (no registration), in the label's units; NaN without target."""
+    rays = np.asarray(camera_rays(camera), np.float64)
+    depth = np.asarray(episodes.obs[..., -1], np.float64) * camera.far
+    out = np.full(np.asarray(episodes.label).shape, np.nan)
+    for e, t in np.ndindex(*depth.shape[:2]):
+        points, _, centroid = frame_points(depth[e, t], rays, settings.jump)
+        if len(points):
+            out[e, t] = (surface_prior(points, centroid, settings) - DESIRED) / DESIRED[2]
+    return out
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--resolution", type=int, nargs="+", default=[32])
@@ -227,31 +268,45 @@ def main() -> None:
     ap.add_argument("--steps", type=int, default=1000)
     ap.add_argument("--skip", type=int, default=100)
     ap.add_argument("--episodes", type=int, help="score only the first N episodes (a quick look)")
-    ap.add_argument("--eval-targets", default="val")
+    ap.add_argument("--eval-targets", default="val", help="a split or names, as `ramavt eval` takes")
+    ap.add_argument("--train-targets", default="train", help="the targets the depth prior is fitted on")
+    ap.add_argument(
+        "--prior-episodes", type=int, default=2, help="per training target, to fit the depth prior; 0: the centroid"
+    )
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", type=Path)
     args = ap.parse_args()
     names = rollouts.resolve_targets(args.eval_targets)
+    train_names = rollouts.resolve_targets(args.train_targets)
     fields = {f.name for f in dataclasses.fields(Settings)}
     try:
         settings = Settings(**{k: tuple(v) if k == "baselines" else v for k, v in vars(args).items() if k in fields})
     except ValueError as e:
         ap.error(str(e))
-    rows = {}
+    rows, priors = {}, {}
     for resolution in args.resolution:
-        camera = env_lib.CameraConfig(resolution=resolution)
-        eps = collect(
-            names, args.val_episodes, args.steps, jax.random.fold_in(jax.random.PRNGKey(args.seed), 1), camera
-        )
+        camera, res = env_lib.CameraConfig(resolution=resolution), f"{resolution}x{resolution}"
+        root = jax.random.PRNGKey(args.seed)
+        if args.prior_episodes:  # fitted on the training targets' episodes (fold 0), never on the scored ones
+            fit_eps = collect(train_names, args.prior_episodes, args.steps, jax.random.fold_in(root, 0), camera)
+            offset, gain = fit_depth_prior(fit_eps, camera, args.skip)
+            priors[res] = {"depth_offset": offset, "depth_gain": gain}
+            print(f"{res}: the centre lies {offset:.3f} m + {gain:.3f} x the visible depth extent behind the centroid")
+        eps = collect(names, args.val_episodes, args.steps, jax.random.fold_in(root, 1), camera)
         if args.episodes:
             eps = jax.tree.map(lambda x: x[: args.episodes], eps)
-        rows[f"visible centroid, {resolution}x{resolution}"] = errors_by_target(
-            visible_centroid(eps, camera), eps, names, args.skip
-        )
-        guess = estimate(eps, camera, settings)
-        rows[f"registration, {resolution}x{resolution}"] = errors_by_target(guess, eps, names, args.skip)
-        print_errors(rows, "3d", width=34)
-    write_results(args, errors=rows)
+        rows[f"visible centroid, {res}"] = errors_by_target(visible_centroid(eps, camera), eps, names, args.skip)
+        arms = {"registration": settings}
+        if res in priors:
+            fitted = dataclasses.replace(settings, **priors[res])
+            rows[f"visible centroid moved behind, {res}"] = errors_by_target(
+                prior_alone(eps, camera, fitted), eps, names, args.skip
+            )
+            arms = {"registration, centroid prior": settings, "registration": fitted}
+        for name, arm in arms.items():
+            rows[f"{name}, {res}"] = errors_by_target(estimate(eps, camera, arm), eps, names, args.skip)
+        print_errors(rows, "3d", width=40)
+    write_results(args, errors=rows, depth_priors=priors)
 
 
 if __name__ == "__main__":

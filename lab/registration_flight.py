@@ -20,6 +20,7 @@ tables.evaluate_setting's (the compiled flight) on the same episodes, so the loo
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 from pathlib import Path
 
@@ -43,15 +44,21 @@ def told(state: env_lib.EnvState, centre_cam: jax.Array, velocity_cam: jax.Array
     return state.replace(target_pos=state.chaser_pos + centre_cam @ hill.T, target_vel=velocity_cam @ hill.T)
 
 
+@functools.lru_cache(maxsize=4)
+def _programs(tracking_env: env_lib.TrackingEnv):
+    """(the planner, its act and the env's step, each jitted across episodes): one compile for every arm and target."""
+    planner = baselines.make_policy("mpc", tracking_env.config.camera)
+    act = jax.jit(jax.vmap(planner.act, in_axes=(0, 0, 0, 0, None)))
+    return planner, act, jax.jit(jax.vmap(tracking_env.step_env, in_axes=(0, 0, 0, None)))
+
+
 def fly(tracking_env, params, key, episodes: int, arm: str, settings: Settings, steps: int) -> np.ndarray:
     """Returns [N] of one arm on the ``episodes`` episodes of ``key`` (episode_program's draws)."""
     camera = tracking_env.config.camera
-    planner = baselines.make_policy("mpc", camera)
+    planner, act, step = _programs(tracking_env)
     k_reset, k_policy, k_loop = episode_program.episode_keys(key)
     obs, state = jax.vmap(tracking_env.reset, in_axes=(0, None))(jax.random.split(k_reset, episodes), params)
     pstate = jax.vmap(planner.init)(jax.random.split(k_policy, episodes))
-    act = jax.jit(jax.vmap(planner.act, in_axes=(0, 0, 0, 0, None)))
-    step = jax.jit(jax.vmap(tracking_env.step_env, in_axes=(0, 0, 0, None)))
     trackers = [OnlineRegistration(camera, settings) for _ in range(episodes)]
     start = np.asarray(state.chaser_pos, np.float64)
     alive, total = np.ones(episodes, bool), np.zeros(episodes)
