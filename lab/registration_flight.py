@@ -94,12 +94,22 @@ def main() -> None:
     ap.add_argument("--steps", type=int, default=1000)
     ap.add_argument("--resolution", type=int, default=64)
     ap.add_argument("--arms", nargs="+", default=["ceiling", "registration", "visible"])
+    ap.add_argument(
+        "--depth-prior",
+        type=float,
+        nargs=2,
+        default=(0.0, 0.0),
+        metavar=("OFFSET", "GAIN"),
+        help="Settings.depth_offset, depth_gain: the prior behind the visible surface (lab/centre_registration.py "
+        "fits them on training episodes); 0 0: the visible centroid",
+    )
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", type=Path)
     args = ap.parse_args()
     if set(args.arms) - {"ceiling", "registration", "visible"}:
         ap.error("--arms: ceiling, registration, visible")
     names = rollouts.resolve_targets(args.targets)
+    settings = Settings(depth_offset=args.depth_prior[0], depth_gain=args.depth_prior[1])
     camera = env_lib.CameraConfig(resolution=args.resolution)
     tracking_env = tables.suite_env(env_lib.EnvConfig(camera=camera), names, rollouts.PERTURBATION_VALUES)
     params = tracking_env.eval_params(max_steps=args.steps)
@@ -109,7 +119,7 @@ def main() -> None:
         key = tables.episode_key(root, "none", target)
         for arm in args.arms:
             returns[arm][target] = fly(
-                tracking_env, tracking_env.pinned(params, i), key, args.episodes, arm, Settings(), args.steps
+                tracking_env, tracking_env.pinned(params, i), key, args.episodes, arm, settings, args.steps
             ).tolist()
     compiled = tables.evaluate_setting(
         tracking_env,
