@@ -163,20 +163,24 @@ class OnlineRegistration:
         keep = max(settings.baselines) + 1
         self.frames: collections.deque = collections.deque(maxlen=keep)  # (points, normals, tree | None)
         self.poses: collections.deque = collections.deque(maxlen=keep)  # chained: step-0 world points to step t
-        self.pairs: collections.deque = collections.deque()  # (end step, baseline, rotation, translation)
+        self.times: collections.deque = collections.deque(maxlen=keep)  # s, each kept frame's time
+        self.pairs: collections.deque = collections.deque()  # (end step, start time, end time, rotation, translation)
         self.last = np.eye(4)  # the previous step's motion: the next one's start
-        self.step = -1
+        self.step, self.time = -1, 0.0
         self.centre, self.velocity = np.full(3, np.nan), np.zeros(3)
 
     def _icp(self, source, dest, start: np.ndarray):
         s = self.settings
         return icp(source[0], dest[0], dest[1], dest[2], start[:3, :3], start[:3, 3], s.trim, s.iters, s.min_points)
 
-    def update(self, depth: np.ndarray, chaser: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """depth [H, W] (m, 0 where nothing is hit), chaser [3] (m, camera axes, from the episode's start). Returns
+    def update(self, depth: np.ndarray, chaser: np.ndarray, time: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """depth [H, W] (m, 0 where nothing is hit), chaser [3] (m, camera axes, from the episode's start), time (s
+        since the start, the chaser's clock; None: DT per step, the env's step without a time delay). Returns
         (centre [3], velocity [3]) in the world frame (the first camera frame's origin and axes): the solve's, or,
         on a frame without enough target, the last one moved on at its velocity (NaN before any)."""
         s, self.step = self.settings, self.step + 1
+        elapsed = (self.step * DT if time is None else time) - self.time
+        self.time += elapsed
         points, normals, centroid = frame_points(depth, self.rays, s.jump)
         points = points + chaser
         tree = cKDTree(points) if len(points) >= s.min_points else None
@@ -191,16 +195,17 @@ class OnlineRegistration:
         pose = self.last @ self.poses[-1] if self.poses else np.eye(4)
         self.frames.append(frame)
         self.poses.append(pose)
+        self.times.append(self.time)
         for k in s.baselines:
             if tree is None or len(self.frames) <= k or self.frames[-1 - k][2] is None:
                 continue
             found = self._icp(self.frames[-1 - k], frame, pose @ np.linalg.inv(self.poses[-1 - k]))
             if found is not None and found[2] < s.max_rms:
-                self.pairs.append((self.step, k, found[0], found[1]))
+                self.pairs.append((self.step, self.times[-1 - k], self.time, found[0], found[1]))
         while self.pairs and self.pairs[0][0] <= self.step - s.window:
             self.pairs.popleft()
         if np.isnan(centroid[0]) or tree is None:
-            self.centre = self.centre + self.velocity * DT
+            self.centre = self.centre + self.velocity * elapsed
         else:
             self.centre, self.velocity = self._solve(surface_prior(points - chaser, centroid, s) + chaser)
         return self.centre, self.velocity
@@ -211,11 +216,10 @@ class OnlineRegistration:
         prior_rows = np.concatenate([s.pull * eye, np.zeros((3, 3))], axis=1)
         if not self.pairs:
             return prior, np.zeros(3)
-        end, baseline = (np.array([p[i] for p in self.pairs]) for i in (0, 1))
-        turn = eye - np.array([p[2] for p in self.pairs])  # [P, 3, 3]
-        target = np.array([p[3] for p in self.pairs])  # [P, 3]
-        start_age = (self.step - (end - baseline))[:, None, None] * DT
-        design = np.concatenate([turn, baseline[:, None, None] * DT * eye - start_age * turn], axis=2)  # [P, 3, 6]
+        start, end = (np.array([p[i] for p in self.pairs])[:, None, None] for i in (1, 2))  # s
+        turn = eye - np.array([p[3] for p in self.pairs])  # [P, 3, 3]
+        target = np.array([p[4] for p in self.pairs])  # [P, 3]
+        design = np.concatenate([turn, (end - start) * eye - (self.time - start) * turn], axis=2)  # [P, 3, 6]
         weight = np.ones(len(design))
         for _ in range(s.rounds):
             rows = np.concatenate([(design * weight[:, None, None]).reshape(-1, 6), prior_rows])

@@ -3,11 +3,14 @@ learning, to see what lab/centre_registration.py's estimate is worth in flight.
 
     python -m lab.registration_flight --targets val --episodes 5 --out lab/results/centre/flight.json
 
-Arms, on the same episodes (those `ramavt eval --targets T --episodes N --seed S` flies without perturbation):
+Arms, on the same episodes (those `ramavt eval --targets T --episodes N --seed S` flies in `--setting`, by default
+without perturbation):
 
 - `ceiling`: the true-state look-ahead (`mpc`), told the true state.
 - `registration`: the same planner told the centre and its velocity from OnlineRegistration, fed each episode's
-  newest depth frame and the chaser's own displacement since the start (its odometry; exact without actuator noise).
+  newest depth frame (under Table II's blur, the observation's mean of the last frames), the chaser's own
+  displacement since the start and its clock (the chaser's navigation: its true position, even under actuator
+  noise, which its commands alone would not give).
   Everything else the planner reads (the chaser's own state, the target's attitude, which no reward reads) is
   as the ceiling's. Before the first registered pair the centre is the visible centroid, at rest.
 - `visible`: the planner told the newest frame's visible centroid, at rest, for scale.
@@ -69,10 +72,11 @@ def fly(tracking_env, params, key, episodes: int, arm: str, settings: Settings, 
             depth = np.asarray(obs[..., -1], np.float64) * camera.far  # [N, H, W] m
             scale = np.asarray(state.scale, np.float64)[:, None]  # frames show a target at 1 / k: m / k throughout
             moved = (np.asarray(state.chaser_pos, np.float64) - start) @ CAM_FROM_HILL.T / scale  # [N, 3] camera axes
+            clock = np.asarray(state.sim_time, np.float64)  # the chaser's clock: steps last longer under a delay
             centre, velocity = np.zeros((episodes, 3)), np.zeros((episodes, 3))
             for e in np.nonzero(alive)[0]:
                 if arm == "registration":
-                    world, velocity[e] = trackers[e].update(depth[e], moved[e])
+                    world, velocity[e] = trackers[e].update(depth[e], moved[e], clock[e])
                     centre[e] = world - moved[e]
                 else:
                     centre[e] = frame_points(depth[e], trackers[e].rays, settings.jump)[2]
@@ -103,6 +107,7 @@ def main() -> None:
         help="Settings.depth_offset, depth_gain: the prior behind the visible surface (lab/centre_registration.py "
         "fits them on training episodes); 0 0: the visible centroid",
     )
+    ap.add_argument("--setting", default="none", help="a Table II setting: " + ", ".join(rollouts.PERTURBATIONS))
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", type=Path)
     args = ap.parse_args()
@@ -112,11 +117,12 @@ def main() -> None:
     settings = Settings(depth_offset=args.depth_prior[0], depth_gain=args.depth_prior[1])
     camera = env_lib.CameraConfig(resolution=args.resolution)
     tracking_env = tables.suite_env(env_lib.EnvConfig(camera=camera), names, rollouts.PERTURBATION_VALUES)
-    params = tracking_env.eval_params(max_steps=args.steps)
+    perturbed = rollouts.perturbation_overrides(args.setting, rollouts.PERTURBATION_VALUES)
+    params = tracking_env.eval_params(max_steps=args.steps, **perturbed)
     root = jax.random.PRNGKey(args.seed)
     returns = {arm: {} for arm in args.arms}
     for i, target in enumerate(tqdm(names, desc="targets", unit="target")):
-        key = tables.episode_key(root, "none", target)
+        key = tables.episode_key(root, args.setting, target)
         for arm in args.arms:
             returns[arm][target] = fly(
                 tracking_env, tracking_env.pinned(params, i), key, args.episodes, arm, settings, args.steps
@@ -128,7 +134,7 @@ def main() -> None:
         args.episodes,
         args.steps,
         root,
-        "none",
+        args.setting,
         rollouts.PERTURBATION_VALUES,
     )
     check = {t: s["return_mean"] for t, s in compiled["per_target"].items()}
