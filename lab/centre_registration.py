@@ -43,6 +43,9 @@ from ramavt_jax.evaluation import rollouts
 from ramavt_jax.render.camera import camera_rays
 
 DT = 0.1  # s per env step
+# Settings.depth_offset, depth_gain as fit_depth_prior found them on 2 episodes per training target at 64x64
+# (lab/results/centre/registration_val.json: depth_priors)
+FITTED_DEPTH_PRIOR = (0.242, 0.249)
 
 
 def frame_points(depth: np.ndarray, rays: np.ndarray, jump: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -259,15 +262,12 @@ def prior_alone(episodes, camera: env_lib.CameraConfig, settings: Settings) -> n
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--resolution", type=int, nargs="+", default=[32])
-    ap.add_argument("--baselines", type=int, nargs="+", default=[10, 30], help="steps between registered frames")
-    ap.add_argument("--window", type=int, default=200, help="steps of pairs in each centre solve")
-    ap.add_argument("--pull", type=float, default=0.1, help="weight of the visible centroid's prior")
-    ap.add_argument("--huber", type=float, default=0.02, help="m: pair residuals beyond it are down-weighted")
-    ap.add_argument("--trim", type=float, default=0.4, help="m: nearest neighbours further are not matched")
-    ap.add_argument("--jump", type=float, default=0.6, help="m: a depth step a normal is not taken over")
-    ap.add_argument("--iters", type=int, default=20)
-    ap.add_argument("--min-points", type=int, default=20)
-    ap.add_argument("--max-rms", type=float, default=0.1, help="m: pairs whose ICP residual is larger are dropped")
+    for field in dataclasses.fields(Settings):  # every setting, its default the dataclass's
+        many = isinstance(field.default, tuple)
+        kind = type(field.default[0] if many else field.default)
+        ap.add_argument(
+            f"--{field.name.replace('_', '-')}", type=kind, nargs="+" if many else None, default=field.default
+        )
     ap.add_argument(
         "--skip-centroid-prior", action="store_true", help="no row with the plain centroid as the prior (saves time)"
     )

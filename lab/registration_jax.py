@@ -33,7 +33,7 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
-from lab.centre_registration import DT, Settings
+from lab.centre_registration import DT, FITTED_DEPTH_PRIOR, Settings
 from ramavt_jax import baselines
 from ramavt_jax import env as env_lib
 from ramavt_jax.baselines import Policy
@@ -155,21 +155,18 @@ def solve_centre(state: RegState, prior: jax.Array, settings: Settings):
     design = jnp.concatenate([turn, baseline[:, None, None] * DT * eye - start_age * turn], axis=2)  # [P, 3, 6]
     prior_rows = jnp.concatenate([settings.pull * eye, jnp.zeros((3, 3))], axis=1)
 
-    def round_(_, solution):
-        residual = jnp.linalg.norm(jnp.einsum("pij,j->pi", design, solution) - trans, axis=1)
-        weight = jnp.where(ok, jnp.minimum(1.0, settings.huber / jnp.maximum(residual, 1e-9)), 0.0)
+    def weighted_solve(weight):  # [P] squared row weights -> [6] (centre, velocity)
         normal = jnp.einsum("p,pki,pkj->ij", weight, design, design) + prior_rows.T @ prior_rows
         right = jnp.einsum("p,pki,pk->i", weight, design, trans) + prior_rows.T @ (settings.pull * prior)
         return jnp.linalg.solve(normal, right)
 
-    first = jnp.concatenate([prior, jnp.zeros(3)])
+    def reweighted(_, solution):
+        residual = jnp.linalg.norm(jnp.einsum("pij,j->pi", design, solution) - trans, axis=1)
+        return weighted_solve(jnp.where(ok, jnp.minimum(1.0, settings.huber / jnp.maximum(residual, 1e-9)), 0.0))
+
     # the first round weighs every pair 1 (as the numpy solve's), then rounds reweight from the last solution
-    plain = jnp.where(ok, 1.0, 0.0)
-    normal = jnp.einsum("p,pki,pkj->ij", plain, design, design) + prior_rows.T @ prior_rows
-    right = jnp.einsum("p,pki,pk->i", plain, design, trans) + prior_rows.T @ (settings.pull * prior)
-    solution = jnp.linalg.solve(normal, right)
-    solution = jax.lax.fori_loop(0, settings.rounds - 1, round_, solution)
-    solution = jnp.where(ok.any(), solution, first)
+    solution = jax.lax.fori_loop(0, settings.rounds - 1, reweighted, weighted_solve(ok.astype(design.dtype)))
+    solution = jnp.where(ok.any(), solution, jnp.concatenate([prior, jnp.zeros(3)]))
     return solution[:3], solution[3:]
 
 
@@ -217,9 +214,10 @@ def update(state: RegState, depth: jax.Array, chaser: jax.Array, camera, setting
     deepest = jnp.max(jnp.where(hit, grid[..., 2], -jnp.inf))
     prior = centroid.at[2].add(settings.depth_offset + settings.depth_gain * (deepest - centroid[2])) + chaser
     centre, velocity = solve_centre(state, prior, settings)
-    seen = enough
-    moved_on = state.centre + state.velocity * DT
-    return state.replace(centre=jnp.where(seen, centre, moved_on), velocity=jnp.where(seen, velocity, state.velocity))
+    moved_on = state.centre + state.velocity * DT  # a frame without enough target: the last estimate, moved on
+    return state.replace(
+        centre=jnp.where(enough, centre, moved_on), velocity=jnp.where(enough, velocity, state.velocity)
+    )
 
 
 @struct.dataclass
@@ -258,7 +256,7 @@ def main() -> None:
     ap.add_argument("--steps", type=int, default=1000)
     ap.add_argument("--resolution", type=int, default=64)
     ap.add_argument("--setting", default="none", help="a Table II setting: " + ", ".join(rollouts.PERTURBATIONS))
-    ap.add_argument("--depth-prior", type=float, nargs=2, default=(0.242, 0.249), metavar=("OFFSET", "GAIN"))
+    ap.add_argument("--depth-prior", type=float, nargs=2, default=FITTED_DEPTH_PRIOR, metavar=("OFFSET", "GAIN"))
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", type=Path)
     args = ap.parse_args()
