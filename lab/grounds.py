@@ -5,6 +5,7 @@ choose; test grounds are flown once, at the end, for what is shipped.
 
     python -m lab.grounds baselines --grounds val val-sizes val-shapes          # mpc and the depth tracker, once
     python -m lab.grounds eval g32 runs/arms/g32/seed_{0..4} --grounds val val-sizes val-shapes
+    python -m lab.grounds eval g32-ens runs/arms/g32/seed_{0..4} --ensemble   # the seeds flying as one ensemble
     python -m lab.grounds table quick g32 g64 --grounds val val-sizes val-shapes
 
 Every policy of a ground flies the same episodes (evaluation seed 0): `ramavt eval` draws a setting's episodes from
@@ -59,9 +60,11 @@ def _eval(ground: str, name: str, policy_args: list[str]) -> Path:
     return out / "results.json"
 
 
-def evaluate(name: str, runs: list[str], grounds: list[str], pretrained: bool = False) -> None:
-    """The arm ``name`` (its seeds' run folders, or the shipped agent) on each ground, no baselines."""
+def evaluate(name: str, runs: list[str], grounds: list[str], pretrained: bool = False, ensemble: bool = False) -> None:
+    """The arm ``name`` (its seeds' run folders, or the shipped agent) on each ground, no baselines. ``ensemble``:
+    the runs also fly as one ensemble (`ramavt eval --ensemble`), and ``name`` is that ensemble in tables."""
     policy = ["--policy", "pretrained"] if pretrained else ["--policy", "checkpoint", "--run", *runs]
+    policy += ["--ensemble"] if ensemble else []
     for ground in grounds:
         _eval(ground, name, [*policy, "--no-baselines"])
 
@@ -92,9 +95,13 @@ def cell(ground: str, name: str, setting: str) -> dict:
     depth = _baseline(ground, "depth", setting)
     per_target = arm.scores.mean(axis=0)
     s = arm.summary
+    ci = (s["return_ci_low"], s["return_ci_high"])
+    if arm.scores.shape[0] == 1:  # one policy (the shipped agent, an ensemble): the interval over its episodes
+        overall = _row(ground, name)["settings"][setting]["overall"]
+        ci = (overall["return_ci_low"], overall["return_ci_high"])
     return {
         "aer": s["return_mean"],
-        "ci": (s["return_ci_low"], s["return_ci_high"]),
+        "ci": ci,
         "of_ceiling": s["return_mean"] / ceiling.mean(),
         "ael": s.get("length_mean_over_runs"),
         "lost": s["lost_fraction_over_runs"],
@@ -105,9 +112,15 @@ def cell(ground: str, name: str, setting: str) -> dict:
     }
 
 
+def _row(ground: str, name: str) -> dict:
+    """The row of the arm a folder holds: its ensemble's where it was evaluated with --ensemble, else its first."""
+    rows = json.loads((EVALS / ground / name / "results.json").read_text())["rows"]
+    ensembles = [r for r in rows if "ensemble_of" in r.get("info", {})]
+    return ensembles[-1] if ensembles else rows[0]
+
+
 def _arm_key(ground: str, name: str) -> str:
-    result = json.loads((EVALS / ground / name / "results.json").read_text())
-    return seeds.arm_name(result["rows"][0]).removesuffix(" (seeds)")
+    return seeds.arm_name(_row(ground, name)).removesuffix(" (seeds)")
 
 
 # The specialist presets' recorded evaluations on the same validation episodes (lab/results/arms.csv.gz: the
@@ -194,6 +207,7 @@ def main(argv: list[str] | None = None) -> None:
     e = sub.add_parser("eval", help="an arm's seeds (run folders) or the shipped agent ('pretrained') on each ground")
     e.add_argument("name")
     e.add_argument("runs", nargs="*")
+    e.add_argument("--ensemble", action="store_true", help="the runs also fly as one ensemble, the arm of this name")
     t = sub.add_parser("table", help="one table of arms over the grounds")
     t.add_argument("names", nargs="+")
     m = sub.add_parser("median", help="an arm's seeds ranked on the grounds, and the median seed (the one to ship)")
@@ -206,7 +220,7 @@ def main(argv: list[str] | None = None) -> None:
     elif a.command == "eval":
         if not a.runs and a.name != "pretrained":
             sys.exit("give the arm's run folders, or the name 'pretrained' for the shipped agent")
-        evaluate(a.name, a.runs, a.grounds, pretrained=not a.runs)
+        evaluate(a.name, a.runs, a.grounds, pretrained=not a.runs, ensemble=a.ensemble)
     elif a.command == "median":
         for seed, score in seed_ranking(a.name, a.grounds):
             print(f"seed index {seed}: {100 * score:.1f} % of the ceiling, averaged over the grounds")

@@ -26,7 +26,7 @@ from ramavt_jax.cli.checks import (
 from ramavt_jax.env_config import RANGES, check_settings
 from ramavt_jax.evaluation import pretrained, report, rollouts
 from ramavt_jax.evaluation import tables as tables_lib
-from ramavt_jax.evaluation.runs import LoadedRun, load_policy, row_name
+from ramavt_jax.evaluation.runs import LoadedRun, ensemble_params, load_policy, row_name
 from ramavt_jax.figures import episode, training
 from ramavt_jax.training import run_folder
 
@@ -75,19 +75,10 @@ def _ensemble_entry(loaded: list[LoadedRun], search: str) -> tables_lib.Entry:
     """One row for the runs ``loaded`` flying as an ensemble (greedy.greedy_policy(members=)); their network, env
     and env settings must agree (a one-line UsageError names the first run that differs)."""
     first = loaded[0].config
-    for lr in loaded[1:]:
-        c = lr.config
-        if (c.network, c.env, c.env_params, c.run.policy_params) != (
-            first.network,
-            first.env,
-            first.env_params,
-            first.run.policy_params,
-        ):
-            raise UsageError(
-                f"--ensemble: {lr.run_dir} has another network, env, env settings or parameter set "
-                f"than {loaded[0].run_dir}; an ensemble's runs share one config"
-            )
-    params = greedy.stack_params([lr.params for lr in loaded])
+    try:
+        params = ensemble_params(loaded)
+    except ValueError as e:
+        raise UsageError(f"--ensemble: {e}") from None
     policy = greedy.greedy_policy(
         first.network,
         params,

@@ -230,9 +230,14 @@ def to_markdown(result: dict, command: str = "") -> str:
     for r in rows:
         i = r["info"]
         if r["kind"] == "checkpoint" and i.get("pretrained"):  # a shipped agent: its own record of how it was made
+            seeds_of = (
+                f"an ensemble of training seeds {', '.join(map(str, i['seeds']))} greedy on their mean Q"
+                if i.get("members")
+                else f"training seed {i.get('seed')}"
+            )
             head.append(
                 f"- {r['name']}: the agent shipped with the package, variant {i.get('variant')}, trained by "
-                f"`{i.get('command')}` (training seed {i.get('seed')}, {i.get('chunks')} chunks), "
+                f"`{i.get('command')}` ({seeds_of}, {i.get('chunks')} chunks), "
                 f"{i.get('policy_params')} params, {r['resolution']}x{r['resolution']} {r['obs_mode']}"
             )
         elif r["kind"] == "checkpoint" and i.get("ensemble_of"):  # greedy on the mean Q of several runs

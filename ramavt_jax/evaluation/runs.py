@@ -4,19 +4,20 @@ greedy policy from the latest (or a given) checkpoint, reading only the online n
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Sequence
 from pathlib import Path
 
 import jax
 import jax.numpy as jnp
 
 from ramavt_jax.baselines import Policy
-from ramavt_jax.greedy import greedy_policy
+from ramavt_jax.greedy import greedy_policy, stack_params
 from ramavt_jax.train import Trainer
 from ramavt_jax.train_config import TrainConfig
 from ramavt_jax.training import run_folder as folders
 from ramavt_jax.training.checkpoint import CheckpointStore
 
-__all__ = ["LoadedRun", "load_policy", "row_name"]
+__all__ = ["LoadedRun", "ensemble_params", "load_policy", "row_name"]
 
 
 def row_name(run_dir: str | Path) -> str:
@@ -112,3 +113,23 @@ def load_policy(
         step=int(step),
         meta=meta,
     )
+
+
+def ensemble_params(loaded: Sequence[LoadedRun]) -> object:
+    """The parameter sets of runs flying as one ensemble (greedy.greedy_policy(members=len(loaded))), stacked on a
+    leading axis [members, ...]. Their network, env, env settings and parameter set must agree: ValueError (one
+    line) names the first run that differs."""
+    first = loaded[0].config
+    for lr in loaded[1:]:
+        c = lr.config
+        if (c.network, c.env, c.env_params, c.run.policy_params) != (
+            first.network,
+            first.env,
+            first.env_params,
+            first.run.policy_params,
+        ):
+            raise ValueError(
+                f"{lr.run_dir} has another network, env, env settings or parameter set than {loaded[0].run_dir}; "
+                f"an ensemble's runs share one config"
+            )
+    return stack_params([lr.params for lr in loaded])
