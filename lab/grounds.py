@@ -186,6 +186,8 @@ def table(names: list[str], grounds: list[str]) -> str:
 def seed_ranking(name: str, grounds: list[str]) -> list[tuple[int, float]]:
     """[(seed index, score)] from worst to best, the score a seed's fraction of the ceiling averaged over every
     ground and setting (each column counts once, whatever its number of targets)."""
+    if any("ensemble_of" in _row(g, name).get("info", {}) for g in grounds):
+        raise ValueError(f"{name} is one ensemble, not seeds to rank; rank the arm its runs came from")
     columns = [(g, s) for g in grounds for s in _settings(g)]
     fractions = np.array([np.array(cell(g, name, s)["seed_means"]) / _baseline(g, "mpc", s).mean() for g, s in columns])
     score = fractions.mean(axis=0)
@@ -220,6 +222,8 @@ def main(argv: list[str] | None = None) -> None:
     elif a.command == "eval":
         if not a.runs and a.name != "pretrained":
             sys.exit("give the arm's run folders, or the name 'pretrained' for the shipped agent")
+        if a.ensemble and len(a.runs) < 2:
+            sys.exit("--ensemble flies two or more run folders as one (the shipped agent may be one already)")
         evaluate(a.name, a.runs, a.grounds, pretrained=not a.runs, ensemble=a.ensemble)
     elif a.command == "median":
         for seed, score in seed_ranking(a.name, a.grounds):

@@ -13,26 +13,36 @@ from ramavt_jax.presets import preset
 from ramavt_jax.training.driver import run
 
 
-def test_export_then_load_gives_the_run_params(tmp_path):
-    run(preset("smoke", eval_episodes=0), tmp_path / "run", progress=False)
-    pretrained.export(tmp_path / "run", "tiny", command="ramavt train --preset smoke", out_dir=tmp_path / "agents")
+@pytest.fixture(scope="module")
+def smoke_run(tmp_path_factory):
+    """A `smoke` preset run folder; read, never written, by the tests of this module."""
+    folder = tmp_path_factory.mktemp("pretrained") / "run"
+    run(preset("smoke", eval_episodes=0), folder, progress=False)
+    return folder
+
+
+def test_export_then_load_gives_the_run_params(smoke_run, tmp_path):
+    pretrained.export(smoke_run, "tiny", command="ramavt train --preset smoke", out_dir=tmp_path / "agents")
     folder = tmp_path / "agents" / "tiny"
     assert {p.name for p in folder.iterdir()} >= {"params.npz", "config.json"}
-    original = pretrained.load_policy(tmp_path / "run")
+    original = pretrained.load_policy(smoke_run)
     agent = pretrained.load("tiny", agents_dir=tmp_path / "agents")
     for a, b in zip(jax.tree.leaves(original.params), jax.tree.leaves(agent.params)):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
     assert agent.info["command"] == "ramavt train --preset smoke" and agent.config == original.config
-    _an_ensemble_of_one_run_twice_acts_as_that_run(tmp_path / "run", tmp_path / "agents")
 
 
-def _an_ensemble_of_one_run_twice_acts_as_that_run(run_dir, agents_dir):
-    """Exported together, two run folders are one agent with their parameters stacked [2, ...] (here in float16);
-    two copies of one run act as that run (the mean of equal Q values); runs of other configs are refused."""
-    flags = dict(command="ramavt train --preset smoke", out_dir=agents_dir, precision="float16")
-    pretrained.export(run_dir, "one16", **flags)
-    pretrained.export([run_dir, run_dir], "two16", **flags)
-    one, two = pretrained.load("one16", agents_dir=agents_dir), pretrained.load("two16", agents_dir=agents_dir)
+def test_an_ensemble_of_one_run_twice_acts_as_that_run(smoke_run, tmp_path):
+    """Exported together, two run folders are one agent with their parameters stacked [2, ...] (here stored in
+    float16); two copies of one run act as that run (the mean of equal Q values); runs of other configs, or a
+    one-run ensemble, are refused."""
+    agents = tmp_path / "agents"
+    flags = dict(command="ramavt train --preset smoke", out_dir=agents, precision="float16")
+    pretrained.export(smoke_run, "one16", **flags)
+    pretrained.export([smoke_run, smoke_run], "two16", info={"members": 7}, **flags)  # notes cannot overwrite
+    with np.load(agents / "two16" / "params.npz") as stored:
+        assert {stored[k].dtype for k in stored.files} == {np.dtype(np.float16)}
+    one, two = pretrained.load("one16", agents_dir=agents), pretrained.load("two16", agents_dir=agents)
     assert (one.members, two.members, two.info["members"], two.info["precision"]) == (0, 2, 2, "float16")
     for a, b in zip(jax.tree.leaves(one.params), jax.tree.leaves(two.params)):
         assert b.shape == (2, *a.shape) and a.dtype == b.dtype == np.float32
@@ -43,14 +53,16 @@ def _an_ensemble_of_one_run_twice_acts_as_that_run(run_dir, agents_dir):
     stats_one, _ = rollouts.run_episodes(tracking_env, one.policy, params, key, 2, 20)
     stats_two, _ = rollouts.run_episodes(tracking_env, two.policy, params, key, 2, 20)
     np.testing.assert_array_equal(np.asarray(stats_one.episode_return), np.asarray(stats_two.episode_return))
-    other = run_dir.parent / "other"
-    shutil.copytree(run_dir, other)
+    other = tmp_path / "other"
+    shutil.copytree(smoke_run, other)
     saved = json.loads((other / "config.json").read_text())
     saved["config"]["env_params"] = [["init_xy_std", 2.0]]
     (other / "config.json").write_text(json.dumps(saved))
     with pytest.raises(ValueError, match=r"other has another network, env, env settings or parameter set than"):
-        pretrained.export([run_dir, other], "mixed", **flags)
-    assert not (agents_dir / "mixed").exists()
+        pretrained.export([smoke_run, other], "mixed", **flags)
+    with pytest.raises(ValueError, match=r"^an ensemble needs at least two run folders, got 1$"):
+        pretrained.export([smoke_run], "alone", **flags)
+    assert not (agents / "mixed").exists() and not (agents / "alone").exists()
 
 
 def test_unknown_agent_is_a_one_line_error(tmp_path):
