@@ -504,15 +504,14 @@ def test_config_json_round_trips_to_the_same_train_config(name):
 
 
 def test_the_shipped_config_jsons_load_as_the_presets_they_were_trained_with():
-    """The shipped agent's config.json reads back into the config it was trained with: the general preset with
-    training sizes up to 5x, at 1.5x its env steps, the policy averaged over the last 12 chunks (without its
-    end-of-training evaluation); it is an ensemble of that command's five seeds."""
+    """The shipped agent's config.json reads back into the config it was trained with: the general preset at 1.5x
+    its env steps, the policy averaged over the last 12 chunks (without its end-of-training evaluation); it is an
+    ensemble of that command's five seeds."""
     from ramavt_jax.presets import preset
     from ramavt_jax.train_config import TrainConfig
 
     record = json.loads((Path(pretrained.AGENTS_DIR) / pretrained.DEFAULT_AGENT / "config.json").read_text())
-    general = preset("general", total_env_steps=2_304_000, policy_average_from=60, eval_episodes=0)
-    trained_with = general.override(env_params={**dict(general.env_params), "size_scale_max": 5.0})
+    trained_with = preset("general", total_env_steps=2_304_000, policy_average_from=60, eval_episodes=0)
     assert TrainConfig.from_dict(record["config"]) == trained_with
     assert record["info"]["members"] == 5 and record["info"]["seeds"] == [0, 1, 2, 3, 4]
 

@@ -53,7 +53,7 @@ def test_presets():
     assert robust.override(env=quick.env, env_params={}) == quick and robust.env.frame_history == 3
     assert dict(robust.env_params) == {"actuator_noise": 0.3, "delay_max": 0.5, "blur_frames": 3, "perturb_prob": 0.5}
     general = presets.preset("general")  # robust, trained also on resized targets and wide starts, searching blind
-    draws = {"size_scale_min": 0.15, "size_scale_max": 1.0, "init_xy_std": 3.0}
+    draws = {"size_scale_min": 0.15, "size_scale_max": 5.0, "init_xy_std": 3.0}
     assert dict(general.env_params) == {**dict(robust.env_params), **draws}
     assert general.override(env_params=dict(robust.env_params), blind_label="teacher") == robust
     assert general.learner.blind_label == "retreat" and general.env.camera.resolution == quick.env.camera.resolution

@@ -151,7 +151,7 @@ def make_train_cmd(preset_name: str, clock_start: float | None = None):
         Args:
             config: the training configuration (defaults: the preset's).
             preset: the named defaults of presets.PRESETS: 'general' (the default: minutes on 2 CPU cores, 32x32
-                depth, small RAMAVT, trained on targets resized to [0.15, 1]x, wide starts and Table II's
+                depth, small RAMAVT, trained on targets resized to [0.15, 5]x, wide starts and Table II's
                 perturbations: for any target), 'quick' (the same network on the catalogue's sizes without
                 perturbations), 'long' (quick trained 1.5x as long), 'sizes' (quick at 64x64 with resized targets
                 and wider starts), 'robust' (quick trained under Table II's perturbations),
