@@ -119,15 +119,9 @@ def ensemble_params(loaded: Sequence[LoadedRun]) -> object:
     """The parameter sets of runs flying as one ensemble (greedy.greedy_policy(members=len(loaded))), stacked on a
     leading axis [members, ...]. Their network, env, env settings and parameter set must agree: ValueError (one
     line) names the first run that differs."""
-    first = loaded[0].config
+    shared = lambda c: (c.network, c.env, c.env_params, c.run.policy_params)  # noqa: E731
     for lr in loaded[1:]:
-        c = lr.config
-        if (c.network, c.env, c.env_params, c.run.policy_params) != (
-            first.network,
-            first.env,
-            first.env_params,
-            first.run.policy_params,
-        ):
+        if shared(lr.config) != shared(loaded[0].config):
             raise ValueError(
                 f"{lr.run_dir} has another network, env, env settings or parameter set than {loaded[0].run_dir}; "
                 f"an ensemble's runs share one config"
